@@ -1,0 +1,349 @@
+"""Parser for the course's scene text format into :mod:`converters.model`.
+
+The grammar (keywords are case-sensitive, ``#`` starts a comment, braces may
+touch their neighbours as in ``shininess 20}``)::
+
+    scene      := section*
+    section    := PerspectiveCamera { center V direction V up V angle F }
+                | Lights { numLights N light* }
+                | Background { [color V] [ambientLight V] [cubeMap PATH] }
+                | Materials { numMaterials N material* }
+                | Group
+    light      := DirectionalLight { direction V color V }
+                | PointLight { position V color V [falloff F] }
+    material   := (Material | PhongMaterial) { [diffuseColor V] [specularColor V] [shininess F] }
+    Group      := Group { numObjects N (MaterialIndex N | object)* }
+    object     := Group | Sphere { center V radius F } | Plane { normal V offset F }
+                | Triangle { vertex0 V vertex1 V vertex2 V } | TriangleMesh { obj_file PATH }
+                | Transform { transform* object }
+    transform  := Scale V | UniformScale F | Translate V | XRotate F | YRotate F | ZRotate F
+                | Rotate { V F } | Matrix4f { F*16 }
+
+Semantics follow the course's reference solution: inside a ``Transform`` each
+listed transform multiplies the running matrix on the right (the first listed
+is applied last to the object), except ``Matrix4f``, whose 16 numbers are read
+column by column and multiply on the left. ``MaterialIndex`` is a global state
+that ignores the group hierarchy. Paths are relative to the scene file.
+Every problem is a :class:`SceneError` at ``file:line:col``.
+"""
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from . import transforms
+from .errors import SceneError, describe
+from .model import (Background, Camera, DirectionalLight, Material, Plane, PointLight, Scene,
+                    Sphere, Triangle, TriangleMesh)
+from .obj import read_obj
+
+_TOKEN = re.compile(r"[{}]|[^\s{}]+")
+
+
+@dataclass(frozen=True)
+class _Token:
+    text: str
+    line: int
+    col: int
+
+
+def _tokenize(text: str) -> list[_Token]:
+    tokens = []
+    for line_no, line in enumerate(text.splitlines(), start=1):
+        code = line.split("#", 1)[0]
+        tokens.extend(_Token(m.group(), line_no, m.start() + 1) for m in _TOKEN.finditer(code))
+    return tokens
+
+
+class _Parser:
+    def __init__(self, path: Path, text: str):
+        self.path = path
+        self.tokens = _tokenize(text)
+        self.pos = 0
+        self.end = _Token(None, text.count("\n") + 1, 1)  # type: ignore[arg-type]
+        self.materials: list[Material] = []
+        self.material_index: int | None = None
+        self.objects = []
+        self.mesh_cache: dict[Path, tuple[np.ndarray, np.ndarray]] = {}
+
+    # -- tokens -------------------------------------------------------------
+    def peek(self) -> _Token:
+        return self.tokens[self.pos] if self.pos < len(self.tokens) else self.end
+
+    def next(self) -> _Token:
+        token = self.peek()
+        self.pos += 1
+        return token
+
+    def error(self, token: _Token, expected: str) -> SceneError:
+        return SceneError(self.path, token.line, token.col, f"expected {expected}, found {describe(token.text)}")
+
+    def expect(self, text: str) -> _Token:
+        token = self.next()
+        if token.text != text:
+            raise self.error(token, repr(text))
+        return token
+
+    def number(self) -> float:
+        token = self.next()
+        try:
+            value = float(token.text)
+        except (TypeError, ValueError):
+            raise self.error(token, "a number") from None
+        if not math.isfinite(value):
+            raise self.error(token, "a finite number")
+        return value
+
+    def integer(self, minimum: int = 0) -> int:
+        token = self.next()
+        try:
+            value = int(token.text)
+        except (TypeError, ValueError):
+            raise self.error(token, "an integer") from None
+        if value < minimum:
+            raise self.error(token, f"an integer >= {minimum}")
+        return value
+
+    def vector(self) -> tuple[float, float, float]:
+        return (self.number(), self.number(), self.number())
+
+    def path_value(self) -> Path:
+        token = self.next()
+        if token.text is None or token.text in "{}":
+            raise self.error(token, "a file path")
+        return self.path.parent / token.text
+
+    def fields(self, spec: dict[str, callable], required: set[str]) -> tuple[dict, _Token]:
+        """Reads ``{ key value ... }`` with keys in any order, each at most once."""
+        self.expect("{")
+        values: dict = {}
+        while True:
+            token = self.next()
+            if token.text == "}":
+                break
+            if token.text not in spec:
+                keys = ", ".join(sorted(spec))
+                raise self.error(token, f"one of {keys} or '}}'")
+            if token.text in values:
+                raise self.error(token, f"each key once, but {token.text} is repeated")
+            values[token.text] = spec[token.text]()
+        missing = sorted(required - values.keys())
+        if missing:
+            raise self.error(token, f"{', '.join(missing)} before '}}'")
+        return values, token
+
+    # -- sections -----------------------------------------------------------
+    def scene(self) -> Scene:
+        camera = lights = background = None
+        seen: set[str] = set()
+        while self.peek().text is not None:
+            token = self.next()
+            if token.text in seen and token.text != "Group":
+                raise self.error(token, f"one {token.text} section, but it is repeated")
+            seen.add(token.text)
+            if token.text == "PerspectiveCamera":
+                camera = self.camera()
+            elif token.text == "Lights":
+                lights = self.lights()
+            elif token.text == "Background":
+                background = self.background()
+            elif token.text == "Materials":
+                self.materials = self.material_list()
+            elif token.text == "Group":
+                self.group(np.eye(4))
+            else:
+                raise self.error(token, "a section (PerspectiveCamera, Lights, Background, Materials, Group)")
+        if camera is None:
+            raise self.error(self.end, "a PerspectiveCamera section")
+        return Scene(path=self.path, camera=camera, lights=lights or [],
+                     background=background or Background(), materials=self.materials,
+                     objects=self.objects)
+
+    def camera(self) -> Camera:
+        start = self.peek()
+        values, _ = self.fields({"center": self.vector, "direction": self.vector, "up": self.vector,
+                                 "angle": self.number}, {"center", "direction", "up", "angle"})
+        direction, up, angle = np.array(values["direction"]), np.array(values["up"]), values["angle"]
+        if not 0.0 < angle < 180.0:
+            raise SceneError(self.path, start.line, start.col, f"expected an angle in (0, 180) degrees, found {angle:g}")
+        if np.linalg.norm(direction) == 0.0:
+            raise SceneError(self.path, start.line, start.col, "expected a non-zero camera direction, found 0 0 0")
+        if np.linalg.norm(np.cross(direction, up)) <= 1e-12 * np.linalg.norm(direction) * np.linalg.norm(up):
+            raise SceneError(self.path, start.line, start.col,
+                             "expected a camera up vector not parallel to its direction, found a parallel one")
+        return Camera(values["center"], values["direction"], values["up"], angle)
+
+    def counted(self, count_key: str, item) -> list:
+        """``{ countKey N item*N }``: exactly N items."""
+        self.expect("{")
+        token = self.next()
+        if token.text != count_key:
+            raise self.error(token, repr(count_key))
+        count = self.integer()
+        items = []
+        while self.peek().text != "}":
+            if len(items) == count:
+                raise self.error(self.peek(), f"'}}' after {count} items ({count_key} {count})")
+            items.append(item())
+        if len(items) != count:
+            raise self.error(self.peek(), f"{count} items ({count_key} {count}) but found {len(items)}, then")
+        self.next()
+        return items
+
+    def lights(self):
+        def light():
+            token = self.next()
+            if token.text == "DirectionalLight":
+                values, end = self.fields({"direction": self.vector, "color": self.vector}, {"direction", "color"})
+                if not any(values["direction"]):
+                    raise SceneError(self.path, token.line, token.col,
+                                     "expected a non-zero light direction, found 0 0 0")
+                return DirectionalLight(values["direction"], values["color"])
+            if token.text == "PointLight":
+                values, end = self.fields({"position": self.vector, "color": self.vector, "falloff": self.number},
+                                          {"position", "color"})
+                falloff = values.get("falloff", 1.0)
+                if falloff < 0.0:
+                    raise SceneError(self.path, token.line, token.col,
+                                     f"expected a falloff >= 0, found {falloff:g}")
+                return PointLight(values["position"], values["color"], falloff)
+            raise self.error(token, "DirectionalLight or PointLight")
+        return self.counted("numLights", light)
+
+    def background(self) -> Background:
+        values, _ = self.fields({"color": self.vector, "ambientLight": self.vector, "cubeMap": self.path_value},
+                                set())
+        return Background(values.get("color", (0.0, 0.0, 0.0)), values.get("ambientLight", (0.0, 0.0, 0.0)),
+                          values.get("cubeMap"))
+
+    def material_list(self) -> list[Material]:
+        def material():
+            token = self.next()
+            if token.text not in ("Material", "PhongMaterial"):
+                raise self.error(token, "Material or PhongMaterial")
+            values, _ = self.fields({"diffuseColor": self.vector, "specularColor": self.vector,
+                                     "shininess": self.number}, set())
+            return Material(values.get("diffuseColor", (1.0, 1.0, 1.0)),
+                            values.get("specularColor", (0.0, 0.0, 0.0)), values.get("shininess", 0.0))
+        return self.counted("numMaterials", material)
+
+    # -- objects ------------------------------------------------------------
+    def group(self, to_world: np.ndarray) -> None:
+        self.expect("{")
+        token = self.next()
+        if token.text != "numObjects":
+            raise self.error(token, "'numObjects'")
+        count, found = self.integer(), 0
+        while self.peek().text != "}":
+            token = self.peek()
+            if token.text == "MaterialIndex":
+                self.next()
+                index_token = self.peek()
+                index = self.integer()
+                if index >= len(self.materials):
+                    raise self.error(index_token, f"a material index in 0..{len(self.materials) - 1}")
+                self.material_index = index
+                continue
+            if found == count:
+                raise self.error(token, f"'}}' after {count} objects (numObjects {count})")
+            self.object(to_world)
+            found += 1
+        if found != count:
+            raise self.error(self.peek(), f"{count} objects (numObjects {count}) but found {found}, then")
+        self.next()
+
+    def object(self, to_world: np.ndarray) -> None:
+        token = self.next()
+        kind = token.text
+        if kind == "Group":
+            return self.group(to_world)
+        if kind == "Transform":
+            return self.transform(to_world)
+        if kind not in ("Sphere", "Plane", "Triangle", "TriangleMesh"):
+            raise self.error(token, "an object (Group, Transform, Sphere, Plane, Triangle, TriangleMesh)")
+        if self.material_index is None:
+            raise SceneError(self.path, token.line, token.col,
+                             f"expected a MaterialIndex before the first object, found {kind}")
+        common = dict(material=self.material_index, to_world=to_world)
+        if kind == "Sphere":
+            values, _ = self.fields({"center": self.vector, "radius": self.number}, {"center", "radius"})
+            if values["radius"] <= 0.0:
+                raise SceneError(self.path, token.line, token.col,
+                                 f"expected a sphere radius > 0, found {values['radius']:g}")
+            self.objects.append(Sphere(**common, center=values["center"], radius=values["radius"]))
+        elif kind == "Plane":
+            values, _ = self.fields({"normal": self.vector, "offset": self.number}, {"normal", "offset"})
+            if not any(values["normal"]):
+                raise SceneError(self.path, token.line, token.col, "expected a non-zero plane normal, found 0 0 0")
+            self.objects.append(Plane(**common, normal=values["normal"], offset=values["offset"]))
+        elif kind == "Triangle":
+            values, _ = self.fields({"vertex0": self.vector, "vertex1": self.vector, "vertex2": self.vector},
+                                    {"vertex0", "vertex1", "vertex2"})
+            self.objects.append(Triangle(**common, vertices=(values["vertex0"], values["vertex1"], values["vertex2"])))
+        else:
+            values, _ = self.fields({"obj_file": self.path_value}, {"obj_file"})
+            path = values["obj_file"]
+            if path not in self.mesh_cache:
+                self.mesh_cache[path] = read_obj(path)
+            positions, faces = self.mesh_cache[path]
+            self.objects.append(TriangleMesh(**common, path=path, positions=positions, faces=faces))
+
+    def transform(self, to_world: np.ndarray) -> None:
+        self.expect("{")
+        matrix = np.eye(4)
+        unary = {"XRotate": transforms.rotate_x, "YRotate": transforms.rotate_y, "ZRotate": transforms.rotate_z,
+                 "UniformScale": transforms.uniform_scale}
+        vector = {"Scale": transforms.scale, "Translate": transforms.translate}
+        while True:
+            token = self.peek()
+            if token.text in unary:
+                self.next()
+                matrix = matrix @ unary[token.text](self.number())
+            elif token.text in vector:
+                self.next()
+                matrix = matrix @ vector[token.text](self.vector())
+            elif token.text == "Rotate":
+                self.next()
+                self.expect("{")
+                axis, degrees = self.vector(), self.number()
+                if not any(axis):
+                    raise SceneError(self.path, token.line, token.col, "expected a non-zero rotation axis, found 0 0 0")
+                self.expect("}")
+                matrix = matrix @ transforms.rotate(axis, degrees)
+            elif token.text == "Matrix4f":
+                self.next()
+                self.expect("{")
+                columns = [self.number() for _ in range(16)]
+                self.expect("}")
+                matrix = np.array(columns, np.float64).reshape(4, 4).T @ matrix
+            else:
+                break
+        self.object(to_world @ matrix)
+        self.expect("}")
+
+
+def parse_scene(text: str, path: str | Path = "<string>") -> Scene:
+    """Parses scene text; relative paths inside it resolve against ``path``'s folder."""
+    return _Parser(Path(path), text).scene()
+
+
+def load_scene(path: str | Path) -> Scene:
+    """Reads and parses a scene file."""
+    path = Path(path)
+    try:
+        data = path.read_bytes()
+    except OSError as error:
+        raise SceneError(path, 1, 1, f"cannot read scene: {error.strerror or error}") from None
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as error:
+        line = data[: error.start].count(b"\n") + 1
+        raise SceneError(path, line, 1, "expected scene text, found binary data") from None
+    if "\0" in text:
+        line = text[: text.index("\0")].count("\n") + 1
+        raise SceneError(path, line, 1, "expected scene text, found binary data")
+    return parse_scene(text, path)

@@ -1,0 +1,295 @@
+"""From the scene model to a Mitsuba scene description (a ``mi.load_dict`` dict).
+
+Only what the scene uses is written: materials that some object uses, a
+``constant`` emitter only for a non-black background colour, the cube map only
+when there is one, and the integrator's AOVs only when asked for.
+
+Lights carry a factor pi because the ``phong`` BSDF is normalised like a
+physical BSDF (its diffuse lobe is k_d / pi); the product then equals the
+course's shading formula.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import mitsuba as mi
+import numpy as np
+
+from .model import DirectionalLight, Plane, PointLight, Scene, Sphere, Triangle, TriangleMesh
+
+#: Half-size of an infinite plane, in multiples of the scene's size
+PLANE_EXTENT = 1e5
+
+#: Secondary rays skip hits closer than this fraction of the scene's radius;
+#: matched to the course's solution on its mirror scenes (it uses a fixed
+#: distance), and scale-invariant here
+RAY_EPSILON_FRACTION = 1.5e-3
+
+
+@dataclass(frozen=True)
+class RenderOptions:
+    """The course binary's rendering flags, plus the AOVs to export."""
+    width: int = 800
+    height: int = 800
+    bounces: int = 0
+    shadows: bool = False
+    spp: int = 1
+    jitter: bool = False  # sub-pixel sample positions instead of pixel centres
+    aovs: tuple[str, ...] = ()
+    seed: int = 0
+
+
+def _rgb(value) -> dict:
+    return {"type": "rgb", "value": [float(v) for v in value]}
+
+
+def _matrix(m: np.ndarray) -> mi.ScalarTransform4f:
+    return mi.ScalarTransform4f(np.asarray(m, np.float64).tolist())
+
+
+def _frame_to_world(normal: np.ndarray) -> np.ndarray:
+    """A rotation taking +z to ``normal`` (unit)."""
+    n = normal / np.linalg.norm(normal)
+    helper = np.array([1.0, 0.0, 0.0]) if abs(n[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    s = np.cross(helper, n)
+    s /= np.linalg.norm(s)
+    t = np.cross(n, s)
+    return np.column_stack([s, t, n])
+
+
+def scene_extent(scene: Scene) -> tuple[np.ndarray, float]:
+    """Centre and radius of the camera and all bounded objects (planes excluded)."""
+    points = [np.asarray(scene.camera.center, np.float64)]
+    for obj in scene.objects:
+        m = obj.to_world
+        if isinstance(obj, Sphere):
+            corners = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)])
+            local = np.asarray(obj.center) + obj.radius * corners
+        elif isinstance(obj, Triangle):
+            local = np.asarray(obj.vertices, np.float64)
+        elif isinstance(obj, TriangleMesh):
+            local = obj.positions
+        else:
+            continue
+        points.append(local @ m[:3, :3].T + m[:3, 3])
+    for light in scene.lights:
+        if isinstance(light, PointLight):
+            points.append(np.asarray(light.position, np.float64))
+    allpoints = np.vstack([np.atleast_2d(p) for p in points])
+    lo, hi = allpoints.min(axis=0), allpoints.max(axis=0)
+    return (lo + hi) / 2, max(float(np.linalg.norm(hi - lo)) / 2, 1e-30)
+
+
+def plane_tiles(frame: np.ndarray, foot: np.ndarray, inner: float, outer: float) -> list[np.ndarray]:
+    """Rectangles (to-world matrices) tiling a square of half-size ``outer``.
+
+    A single huge rectangle loses the hit point's position in its plane
+    (Mitsuba rebuilds it from local coordinates: error ~1e-7 of the size), so
+    the plane is a centre tile of half-size ``inner`` and rings of 4 tiles
+    growing 8x each: every tile is at most ~8x larger than its distance to
+    the centre. Neighbours overlap a little so that no ray slips between them.
+    """
+    def tile(x0, x1, y0, y1):
+        grow = 1e-4 * max(x1 - x0, y1 - y0)
+        m = np.eye(4)
+        m[:3, :3] = frame @ np.diag([(x1 - x0) / 2 + grow, (y1 - y0) / 2 + grow, 1.0])
+        m[:3, 3] = foot + frame @ np.array([(x0 + x1) / 2, (y0 + y1) / 2, 0.0])
+        return m
+
+    tiles = [tile(-inner, inner, -inner, inner)]
+    a = inner
+    while a < outer:
+        b = 8.0 * a
+        tiles += [tile(-b, b, a, b), tile(-b, b, -b, -a), tile(-b, -a, -a, a), tile(a, b, -a, a)]
+        a = b
+    return tiles
+
+
+def smooth_normals(positions: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Per-vertex normals as the course computes them: the normalised sum of
+    the unit normals of the faces around each vertex (degenerate faces add
+    nothing; a vertex with none keeps a zero normal)."""
+    p0, p1, p2 = (positions[faces[:, k]] for k in range(3))
+    face_normals = np.cross(p1 - p0, p2 - p0)
+    length = np.linalg.norm(face_normals, axis=1, keepdims=True)
+    face_normals = np.divide(face_normals, length, out=np.zeros_like(face_normals), where=length > 0)
+    normals = np.zeros_like(positions)
+    for k in range(3):
+        np.add.at(normals, faces[:, k], face_normals)
+    length = np.linalg.norm(normals, axis=1, keepdims=True)
+    return np.divide(normals, length, out=np.zeros_like(normals), where=length > 0)
+
+
+def _mesh(positions: np.ndarray, faces: np.ndarray) -> dict:
+    # "mesh_data" is not a Mitsuba plugin: load_scene_dict() turns it into an
+    # mi.Mesh and the XML writer into a PLY file (flat shading: no normals).
+    return {"type": "mesh_data", "positions": np.asarray(positions, np.float64),
+            "faces": np.asarray(faces, np.uint32)}
+
+
+def _smooth_mesh(positions: np.ndarray, faces: np.ndarray) -> dict:
+    return dict(_mesh(positions, faces), normals=smooth_normals(positions, faces))
+
+
+def _transform_points(m: np.ndarray, points: np.ndarray) -> np.ndarray:
+    return points @ m[:3, :3].T + m[:3, 3]
+
+
+def object_dict(scene: Scene, index: int, extent: tuple[np.ndarray, float]) -> dict:
+    """The shape of object ``index``, world transform applied."""
+    obj = scene.objects[index]
+    m = obj.to_world
+    if isinstance(obj, Sphere):
+        linear = m[:3, :3] * obj.radius
+        center = _transform_points(m, np.asarray([obj.center], np.float64))[0]
+        u, sigma, vt = np.linalg.svd(linear)
+        if sigma[0] - sigma[2] <= 1e-9 * sigma[0]:
+            return {"type": "sphere", "center": center.tolist(), "radius": float(sigma[0])}
+        if np.linalg.det(u) < 0:
+            u[:, 2] = -u[:, 2]
+        # The image of the unit sphere under U diag(sigma) V^T is U diag(sigma) (sphere)
+        quat = _quaternion_xyzw(u)
+        return {"type": "ellipsoids", "extent": 1.0,
+                "centers": np.asarray([center], np.float32),
+                "scales": np.asarray([sigma], np.float32),
+                "quaternions": np.asarray([quat], np.float32)}
+    if isinstance(obj, Plane):
+        normal = np.asarray(obj.normal, np.float64)
+        unit = normal / np.linalg.norm(normal)
+        point = _transform_points(m, np.asarray([unit * obj.offset]))[0]
+        world_normal = np.linalg.inv(m[:3, :3]).T @ unit
+        world_normal /= np.linalg.norm(world_normal)
+        centre, radius = extent
+        height = abs(float(np.dot(centre - point, world_normal)))
+        foot = centre - np.dot(centre - point, world_normal) * world_normal
+        return {"type": "plane_tiles",
+                "to_world": [_matrix(m) for m in plane_tiles(_frame_to_world(world_normal), foot,
+                                                             2.0 * radius + height, PLANE_EXTENT * max(radius, height))]}
+    if isinstance(obj, Triangle):
+        positions = _transform_points(m, np.asarray(obj.vertices, np.float64))
+        return _mesh(positions, np.array([[0, 1, 2]], np.uint32))
+    if isinstance(obj, TriangleMesh):
+        return _smooth_mesh(_transform_points(m, obj.positions), obj.faces)
+    raise TypeError(f"unknown object type {type(obj).__name__}")
+
+
+def _quaternion_xyzw(r: np.ndarray) -> list[float]:
+    """Unit quaternion (x, y, z, w) of a rotation matrix."""
+    trace = np.trace(r)
+    if trace > 0:
+        s = 2.0 * math.sqrt(trace + 1.0)
+        w, x, y, z = 0.25 * s, (r[2, 1] - r[1, 2]) / s, (r[0, 2] - r[2, 0]) / s, (r[1, 0] - r[0, 1]) / s
+    elif r[0, 0] > r[1, 1] and r[0, 0] > r[2, 2]:
+        s = 2.0 * math.sqrt(1.0 + r[0, 0] - r[1, 1] - r[2, 2])
+        w, x, y, z = (r[2, 1] - r[1, 2]) / s, 0.25 * s, (r[0, 1] + r[1, 0]) / s, (r[0, 2] + r[2, 0]) / s
+    elif r[1, 1] > r[2, 2]:
+        s = 2.0 * math.sqrt(1.0 + r[1, 1] - r[0, 0] - r[2, 2])
+        w, x, y, z = (r[0, 2] - r[2, 0]) / s, (r[0, 1] + r[1, 0]) / s, 0.25 * s, (r[1, 2] + r[2, 1]) / s
+    else:
+        s = 2.0 * math.sqrt(1.0 + r[2, 2] - r[0, 0] - r[1, 1])
+        w, x, y, z = (r[1, 0] - r[0, 1]) / s, (r[0, 2] + r[2, 0]) / s, (r[1, 2] + r[2, 1]) / s, 0.25 * s
+    return [x, y, z, w]
+
+
+def scene_dict(scene: Scene, options: RenderOptions = RenderOptions()) -> dict:
+    """The Mitsuba scene for ``scene`` rendered with ``options``."""
+    camera = scene.camera
+    extent = scene_extent(scene)
+    result: dict = {
+        "type": "scene",
+        "integrator": {
+            "type": "whitted",
+            "max_depth": int(options.bounces),
+            "shadows": bool(options.shadows),
+            "ambient": _rgb(scene.background.ambient),
+            "ray_epsilon": RAY_EPSILON_FRACTION * extent[1],
+            "aovs": ",".join(options.aovs),
+        },
+        "sensor": {
+            "type": "course_camera",
+            "origin": list(map(float, camera.center)),
+            "direction": list(map(float, camera.direction)),
+            "up": list(map(float, camera.up)),
+            "fov": float(camera.angle),
+            "pixel_centers": not options.jitter,
+            "film": {"type": "hdrfilm", "width": int(options.width), "height": int(options.height),
+                     "pixel_format": "rgb", "component_format": "float32", "rfilter": {"type": "box"}},
+            "sampler": {"type": "independent", "sample_count": int(options.spp), "seed": int(options.seed)},
+        },
+    }
+    if all(v == 0.0 for v in scene.background.ambient):
+        del result["integrator"]["ambient"]
+    if not options.aovs:
+        del result["integrator"]["aovs"]
+
+    used = sorted({obj.material for obj in scene.objects})
+    for index in used:
+        material = scene.materials[index]
+        bsdf = {"type": "phong", "id": f"material_{index}", "diffuse_reflectance": _rgb(material.diffuse)}
+        if material.reflective:
+            bsdf["specular_reflectance"] = _rgb(material.specular)
+            bsdf["exponent"] = float(material.shininess)
+        result[f"material_{index}"] = bsdf
+
+    for k, light in enumerate(scene.lights):
+        if isinstance(light, PointLight):
+            result[f"light_{k}"] = {"type": "point", "position": list(map(float, light.position)),
+                                    "intensity": _rgb(np.asarray(light.color) * (math.pi / light.falloff))}
+        elif isinstance(light, DirectionalLight):
+            result[f"light_{k}"] = {"type": "directional", "direction": list(map(float, light.direction)),
+                                    "irradiance": _rgb(np.asarray(light.color) * math.pi)}
+
+    background = scene.background
+    if background.cube_map is not None:
+        result["background"] = {"type": "course_cubemap", "filename": str(background.cube_map)}
+    elif any(v != 0.0 for v in background.color):
+        result["background"] = {"type": "constant", "radiance": _rgb(background.color)}
+
+    for index, obj in enumerate(scene.objects):
+        shape = object_dict(scene, index, extent)
+        shape["bsdf"] = {"type": "ref", "id": f"material_{obj.material}"}
+        result[f"object_{index}"] = shape
+    return result
+
+
+def load_scene_dict(description: dict) -> mi.Scene:
+    """``mi.load_dict`` for a :func:`scene_dict` result (turns "mesh_data" into meshes)."""
+    materials = {key: mi.load_dict(value) for key, value in description.items()
+                 if isinstance(value, dict) and value.get("type") == "phong"}
+    final = {}
+    for key, value in description.items():
+        if isinstance(value, dict) and value.get("type") == "phong":
+            final[key] = materials[key]
+            continue
+        if isinstance(value, dict) and "bsdf" in value and value["bsdf"].get("type") == "ref":
+            bsdf = materials[value["bsdf"]["id"]]
+            if value["type"] == "mesh_data":
+                value = _to_mesh(key, value["positions"], value["faces"], value.get("normals"), bsdf)
+            elif value["type"] == "plane_tiles":
+                for part, to_world in enumerate(value["to_world"]):
+                    final[key if part == 0 else f"{key}_part{part}"] = {"type": "rectangle", "to_world": to_world,
+                                                                        "bsdf": bsdf}
+                continue
+            else:
+                value = dict(value, bsdf=bsdf)
+                for name in ("centers", "scales", "quaternions"):
+                    if name in value:
+                        value[name] = mi.TensorXf(value[name])
+        final[key] = value
+    # optimize=False: merging would turn the plane tiles back into one imprecise mesh
+    return mi.load_dict(final, optimize=False)
+
+
+def _to_mesh(name: str, positions: np.ndarray, faces: np.ndarray, normals: np.ndarray | None,
+             bsdf: mi.BSDF) -> mi.Mesh:
+    mesh = mi.Mesh(name, vertex_count=len(positions), face_count=len(faces),
+                   has_vertex_normals=normals is not None, has_vertex_texcoords=False)
+    params = mi.traverse(mesh)
+    params["vertex_positions"] = np.ascontiguousarray(positions, np.float32).ravel()
+    if normals is not None:
+        params["vertex_normals"] = np.ascontiguousarray(normals, np.float32).ravel()
+    params["faces"] = np.ascontiguousarray(faces, np.uint32).ravel()
+    params.update()
+    mesh.set_bsdf(bsdf)
+    return mesh

@@ -1,0 +1,36 @@
+"""Colour encoding: the one place where float images become display values."""
+from __future__ import annotations
+
+import colour
+import numpy as np
+
+
+def to_course_8bit(image: np.ndarray) -> np.ndarray:
+    """The course's PNG encoding: linear values clamped to [0, 1], times 255,
+    truncated (so 0.5 becomes 127), no gamma. NaN becomes 0."""
+    values = np.nan_to_num(np.asarray(image, np.float64), nan=0.0, posinf=1.0, neginf=0.0)
+    return np.floor(np.clip(values, 0.0, 1.0) * 255.0).astype(np.uint8)
+
+
+def to_srgb_8bit(image: np.ndarray) -> np.ndarray:
+    """Linear Rec.709 radiance to 8-bit sRGB (IEC 61966-2-1 transfer function)."""
+    values = np.nan_to_num(np.asarray(image, np.float64), nan=0.0, posinf=1.0, neginf=0.0)
+    encoded = colour.cctf_encoding(np.clip(values, 0.0, 1.0), function="sRGB")
+    return np.round(encoded * 255.0).astype(np.uint8)
+
+
+def normals_to_rgb(normals: np.ndarray) -> np.ndarray:
+    """The course's normal image: (N + 1) / 2; pixels without a hit have N = 0."""
+    return (np.asarray(normals) + 1.0) * 0.5
+
+
+def depth_to_grey(depth: np.ndarray, near: float, far: float) -> np.ndarray:
+    """The course's depth image: (t - near) / (far - near), clamped later by the
+    encoding. Pixels without a hit have t = 0. ``near == far`` gives a step."""
+    depth = np.asarray(depth, np.float64)
+    span = far - near
+    if span == 0.0:
+        grey = np.where(depth > near, 1.0, 0.0)
+    else:
+        grey = (depth - near) / span
+    return np.repeat(grey[..., None], 3, axis=-1) if grey.ndim == 2 else grey

@@ -1,0 +1,97 @@
+"""Image files: the one place that reads and writes PNG and EXR.
+
+Every writer writes to a temporary name in the destination folder and renames
+it into place when complete, so an interrupted run never leaves a truncated
+image and never replaces a good earlier one with a broken file.
+"""
+from __future__ import annotations
+
+import os
+import tempfile
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Iterator, Mapping
+
+import numpy as np
+import OpenEXR
+from PIL import Image
+
+from converters.errors import SceneError
+
+
+@contextmanager
+def atomic_path(path: str | Path, suffix: str) -> Iterator[Path]:
+    """Yields a temporary path beside ``path``; renames it to ``path`` on success."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=suffix, dir=path.parent)
+    os.close(fd)
+    try:
+        yield Path(tmp)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def write_png(path: str | Path, pixels: np.ndarray) -> None:
+    """Writes an 8-bit RGB (H, W, 3) or grey (H, W) array."""
+    pixels = np.asarray(pixels)
+    if pixels.dtype != np.uint8:
+        raise TypeError(f"write_png wants uint8 pixels, got {pixels.dtype}")
+    with atomic_path(path, ".png") as tmp:
+        Image.fromarray(pixels).save(tmp, format="PNG")
+
+
+def read_png(path: str | Path) -> np.ndarray:
+    """Reads a PNG as uint8 RGB (H, W, 3)."""
+    with Image.open(path) as image:
+        return np.asarray(image.convert("RGB"))
+
+
+def read_cube_map(folder: Path, faces: tuple[str, ...]) -> np.ndarray:
+    """Reads the six faces ``folder/<face>.png`` as float32 (6, N, N, 3) in [0, 1]."""
+    images = []
+    for face in faces:
+        path = folder / f"{face}.png"
+        try:
+            image = read_png(path)
+        except FileNotFoundError:
+            raise SceneError(path, 1, 1, "expected a cube-map face image, found no file") from None
+        except OSError as error:
+            raise SceneError(path, 1, 1, f"expected a PNG image, found unreadable data ({error})") from None
+        if image.shape[0] != image.shape[1] or (images and image.shape != images[0].shape):
+            raise SceneError(path, 1, 1, f"expected a square face of the same size as {faces[0]}.png, "
+                                         f"found {image.shape[1]}x{image.shape[0]}")
+        images.append(image)
+    return np.stack(images).astype(np.float32) / np.float32(255.0)
+
+
+def write_exr(path: str | Path, layers: Mapping[str, np.ndarray]) -> None:
+    """Writes one multilayer float32 EXR.
+
+    ``layers`` maps a layer name to an (H, W, C) or (H, W) array. The layer
+    ``""`` holds the beauty as plain ``R, G, B``; others become ``name.R`` ...
+    (3 channels), ``name.X/Y/Z`` for vectors named normal/position, or
+    ``name.Y`` (1 channel), which tev, Blender and Nuke list as layers.
+    """
+    channels = {}
+    for name, data in layers.items():
+        data = np.asarray(data, np.float32)
+        if data.ndim == 2:
+            data = data[..., None]
+        suffixes = {1: ("Y",), 3: ("X", "Y", "Z") if name in ("normal", "position") else ("R", "G", "B"),
+                    4: ("R", "G", "B", "A")}[data.shape[-1]]
+        for k, suffix in enumerate(suffixes):
+            key = f"{name}.{suffix}" if name else suffix
+            channels[key] = np.ascontiguousarray(data[..., k])
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    with atomic_path(path, ".exr") as tmp:
+        with OpenEXR.File(header, channels) as exr:
+            exr.write(str(tmp))
+
+
+def read_exr(path: str | Path) -> dict[str, np.ndarray]:
+    """Reads every channel of an EXR as float32 (H, W) arrays, keyed by channel name."""
+    with OpenEXR.File(str(path), separate_channels=True) as exr:
+        return {name: np.asarray(channel.pixels, np.float32) for name, channel in exr.channels().items()}

@@ -1,0 +1,116 @@
+from __future__ import annotations
+
+import drjit as dr
+import mitsuba as mi
+
+
+class CourseCamera(mi.Sensor):
+    r"""
+    .. _sensor-course_camera:
+
+    Course perspective camera (:monosp:`course_camera`)
+    ----------------------------------------------------
+
+    .. pluginparameters::
+
+     * - origin
+       - |point|
+       - Centre of projection (Default: 0, 0, 0)
+
+     * - direction
+       - |vector|
+       - Viewing direction; normalised (Default: 0, 0, -1)
+
+     * - up
+       - |vector|
+       - Up vector, used exactly as given: it is neither normalised nor made
+         orthogonal to ``direction``, as in the course's solution (Default: 0, 1, 0)
+
+     * - fov
+       - |float|
+       - Full field of view in degrees, applied to *both* image axes, so a
+         non-square image is stretched, as in the course (Default: 30)
+
+     * - pixel_centers
+       - |bool|
+       - Shoot every sample through the pixel's centre, ignoring the
+         sampler's sub-pixel offset (the course's plain ray casting). Set it
+         to false for jittered supersampling (Default: true)
+
+    The course's ray generation. Pixel :math:`(i, j)` of a :math:`W \times H`
+    image (row 0 at the top) has normalised coordinates
+    :math:`x = 2i/(W-1) - 1` and :math:`y = 1 - 2j/(H-1)`, so the outermost
+    pixel centres lie exactly on :math:`\pm 1`. The ray through
+    :math:`(x, y)` has direction
+    :math:`\mathrm{normalize}(D / \tan(\mathrm{fov}/2) + x\,H + y\,U)` with
+    :math:`D` the unit direction, :math:`H = \mathrm{normalize}(D \times U)`
+    and :math:`U` the up vector as given. Sub-pixel positions (when
+    ``pixel_centers`` is false) extend the same affine map continuously.
+
+    .. tabs::
+
+        .. code-tab:: python
+
+            'type': 'course_camera',
+            'origin': [0, 0, 10], 'direction': [0, 0, -1], 'up': [0, 1, 0],
+            'fov': 30,
+            'film': {'type': 'hdrfilm', 'width': 800, 'height': 800}
+    """
+
+    def __init__(self, props: mi.Properties):
+        super().__init__(props)
+        origin = props.get("origin", mi.ScalarPoint3f(0, 0, 0))
+        direction = mi.ScalarVector3f(props.get("direction", mi.ScalarVector3f(0, 0, -1)))
+        up = mi.ScalarVector3f(props.get("up", mi.ScalarVector3f(0, 1, 0)))
+        fov = float(props.get("fov", 30.0))
+        if not 0.0 < fov < 180.0:
+            raise ValueError(f"course_camera: fov must be in (0, 180) degrees, got {fov}")
+        if dr.norm(direction) == 0.0:
+            raise ValueError("course_camera: direction must not be zero")
+        horizontal = dr.cross(direction, up)
+        if dr.norm(horizontal) <= 1e-12 * dr.norm(direction) * dr.norm(up):
+            raise ValueError("course_camera: up must not be parallel to direction")
+        self.pixel_centers = bool(props.get("pixel_centers", True))
+        self.origin = mi.ScalarPoint3f(origin)
+        self.forward = dr.normalize(direction) / dr.tan(dr.deg2rad(fov) * 0.5)
+        self.horizontal = dr.normalize(dr.cross(dr.normalize(direction), up))
+        self.up = mi.ScalarVector3f(up)
+        size = self.film().crop_size()
+        self.resolution = mi.ScalarVector2f(size)
+        # NDC per pixel; a 1-pixel axis maps to its single centre at 0
+        self.ndc_scale = mi.ScalarVector2f([2.0 / (s - 1) if s > 1 else 0.0 for s in size])
+
+    def _direction(self, position_sample: mi.Point2f) -> mi.Vector3f:
+        pixel = position_sample * self.resolution  # continuous, origin at the top-left corner
+        if self.pixel_centers:
+            pixel = dr.floor(pixel) + 0.5
+        ndc_x = (pixel.x - 0.5) * self.ndc_scale.x - 1.0
+        ndc_y = 1.0 - (pixel.y - 0.5) * self.ndc_scale.y
+        if self.resolution.x == 1:
+            ndc_x = dr.zeros(mi.Float, dr.width(pixel.x))
+        if self.resolution.y == 1:
+            ndc_y = dr.zeros(mi.Float, dr.width(pixel.y))
+        return dr.normalize(self.forward + ndc_x * self.horizontal + ndc_y * self.up)
+
+    def sample_ray(self, time: mi.Float, sample1: mi.Float, sample2: mi.Point2f, sample3: mi.Point2f,
+                   active: bool = True) -> tuple[mi.Ray3f, mi.Color3f]:
+        wavelengths, weight = self.sample_wavelengths(dr.zeros(mi.SurfaceInteraction3f), sample1, active)
+        ray = mi.Ray3f(mi.Point3f(self.origin), self._direction(sample2), time, wavelengths)
+        return ray, weight
+
+    def sample_ray_differential(self, time: mi.Float, sample1: mi.Float, sample2: mi.Point2f,
+                                sample3: mi.Point2f, active: bool = True):
+        ray, weight = self.sample_ray(time, sample1, sample2, sample3, active)
+        ray = mi.RayDifferential3f(ray)
+        ray.has_differentials = False
+        return ray, weight
+
+    def bbox(self) -> mi.ScalarBoundingBox3f:
+        return mi.ScalarBoundingBox3f(self.origin)
+
+    def traverse(self, callback):
+        pass
+
+    def to_string(self):
+        return (f"CourseCamera[\n  origin = {self.origin},\n  forward = {self.forward},\n"
+                f"  up = {self.up},\n  pixel_centers = {self.pixel_centers}\n]")
