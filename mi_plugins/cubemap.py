@@ -22,8 +22,8 @@ class CubeMapEmitter(mi.Emitter):
      * - filename
        - |string|
        - Folder holding ``left.png right.png up.png down.png front.png
-         back.png``, six square faces of equal size (8-bit RGB, no gamma
-         decoding)
+         back.png``, six square faces of equal size (8-bit RGB, values / 255,
+         no gamma decoding)
 
      * - scale
        - |float|
@@ -44,12 +44,14 @@ class CubeMapEmitter(mi.Emitter):
         super().__init__(props)
         from imaging.image_io import read_cube_map
         self.folder = Path(props.get("filename"))
-        faces = read_cube_map(self.folder, FACES)  # (6, N, N, 3) float32 in [0, 1]
+        faces = read_cube_map(self.folder, FACES)  # (6, N, N, 3) uint8
         self.size = faces.shape[1]
         self.scale = float(props.get("scale", 1.0))
-        texels = np.ascontiguousarray(faces, np.float32).ravel() * np.float32(self.scale)
+        # One 32-bit word per texel (R | G << 8 | B << 16): one gather per tap
+        rgb = faces.reshape(-1, 3).astype(np.uint32)
+        self.packed = rgb[:, 0] | (rgb[:, 1] << 8) | (rgb[:, 2] << 16)
         # JIT variants gather from a device array; scalar ones index the NumPy array
-        self.texels = mi.Float(texels) if dr.is_jit_v(mi.Float) else texels
+        self.texels = mi.UInt32(self.packed) if dr.is_jit_v(mi.Float) else self.packed
         self.m_flags = mi.EmitterFlags.Infinite | mi.EmitterFlags.SpatiallyVarying
         # scalar variants name the scalar type without the "Scalar" prefix
         sphere = getattr(mi, "ScalarBoundingSphere3f", None) or mi.BoundingSphere3f
@@ -89,13 +91,17 @@ class CubeMapEmitter(mi.Emitter):
         alpha, beta = x - mi.Float(ix), y - mi.Float(iy)
         base = face * (n * n)
 
+        unit = self.scale / 255.0
+
         def texel(i, j):
             i = mi.UInt32(dr.clip(i, 0, n - 1))
             j = mi.UInt32(dr.clip(j, 0, n - 1))
-            if not dr.is_jit_v(mi.Float):
-                k = 3 * (base + j * n + i)
-                return mi.Color3f(*map(float, self.texels[k:k + 3]))
-            return dr.gather(mi.Color3f, self.texels, base + j * n + i, active)
+            if dr.is_jit_v(mi.Float):
+                word = dr.gather(mi.UInt32, self.texels, base + j * n + i, active)
+            else:
+                word = int(self.texels[base + j * n + i])
+            return mi.Color3f(mi.Float(word & 0xFF), mi.Float((word >> 8) & 0xFF),
+                              mi.Float((word >> 16) & 0xFF)) * unit
 
         return ((1.0 - alpha) * (1.0 - beta) * texel(ix, iy) + alpha * (1.0 - beta) * texel(ix + 1, iy)
                 + (1.0 - alpha) * beta * texel(ix, iy + 1) + alpha * beta * texel(ix + 1, iy + 1))

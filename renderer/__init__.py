@@ -1,0 +1,1 @@
+"""The render pipeline behind ``render.py``: variant choice, jobs, outputs."""

@@ -1,0 +1,135 @@
+"""One render: a course scene, the course's flags, and the files to write."""
+from __future__ import annotations
+
+import time
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+
+from converters.course_scene import load_scene
+from converters.to_mitsuba import RenderOptions, load_scene_dict, scene_dict
+from imaging import colour as encoding
+from imaging import image_io
+from imaging.filters import centre_sample_3x, downsample_3x
+from mi_plugins.aovs import AOV_CHANNELS
+
+#: Every AOV, in the order the EXR stores them
+ALL_AOVS = tuple(AOV_CHANNELS)
+JITTER_SPP = 16
+FILTER_SCALE = 3
+
+
+@dataclass(frozen=True)
+class DepthOutput:
+    near: float
+    far: float
+    path: Path
+
+
+@dataclass(frozen=True)
+class RenderJob:
+    """The course binary's command line, as data."""
+    scene: Path
+    width: int = 800
+    height: int = 800
+    output: Path | None = None  # beauty image (8-bit, course encoding; .exr writes float)
+    normals: Path | None = None
+    depth: DepthOutput | None = None
+    exr: Path | None = None  # multilayer EXR: beauty and every AOV
+    bounces: int = 0
+    shadows: bool = False
+    jitter: bool = False  # 16 jittered samples per pixel
+    filter: bool = False  # render 3x larger, then the course's 3x3 Gaussian
+    spp: int | None = None  # overrides the sample count (default 1, or 16 with jitter)
+
+    @property
+    def aovs(self) -> tuple[str, ...]:
+        """Only the AOVs some output needs."""
+        if self.exr is not None:
+            return ALL_AOVS
+        return tuple(name for name, wanted in (("depth", self.depth is not None),
+                                               ("normal", self.normals is not None)) if wanted)
+
+    def options(self) -> RenderOptions:
+        scale = FILTER_SCALE if self.filter else 1
+        spp = self.spp if self.spp is not None else (JITTER_SPP if self.jitter else 1)
+        return RenderOptions(width=self.width * scale, height=self.height * scale, bounces=self.bounces,
+                             shadows=self.shadows, spp=spp, jitter=self.jitter, aovs=self.aovs)
+
+
+@dataclass
+class RenderResult:
+    job: RenderJob
+    layers: dict[str, np.ndarray]  # "" (beauty) and AOV name -> (H, W[, C]) float32
+    seconds: dict[str, float] = field(default_factory=dict)  # load, render, write
+
+
+def split_layers(image: np.ndarray, aovs: tuple[str, ...]) -> dict[str, np.ndarray]:
+    """Splits the film's channels (RGB, then AOVs) into named layers."""
+    layers = {"": image[..., :3]}
+    channel = 3
+    for name in aovs:
+        count = len(AOV_CHANNELS[name])
+        data = image[..., channel:channel + count]
+        layers[name] = data[..., 0] if count == 1 else data
+        channel += count
+    return layers
+
+
+def render(job: RenderJob, progress=None) -> RenderResult:
+    """Renders ``job`` with the active variant (see :mod:`renderer.variants`)."""
+    import mitsuba as mi
+
+    seconds = {}
+    start = time.perf_counter()
+    scene = load_scene_dict(scene_dict(load_scene(job.scene), job.options()))
+    seconds["load"] = time.perf_counter() - start
+
+    start = time.perf_counter()
+    image = np.array(mi.render(scene), np.float32)
+    seconds["render"] = time.perf_counter() - start
+
+    layers = split_layers(image, job.aovs)
+    if job.filter:
+        layers = {name: centre_sample_3x(data) if name == "id" else downsample_3x(data)
+                  for name, data in layers.items()}
+    return RenderResult(job, layers, seconds)
+
+
+def write_outputs(result: RenderResult) -> list[Path]:
+    """Writes every file the job asks for, in parallel (the encoders release the
+    GIL); each file appears complete or not at all."""
+    start = time.perf_counter()
+    job, layers = result.job, result.layers
+    tasks = []
+    if job.output is not None:
+        tasks.append((job.output, lambda: layers[""]))
+    if job.normals is not None:
+        tasks.append((job.normals, lambda: encoding.normals_to_rgb(layers["normal"])))
+    if job.depth is not None:
+        depth = job.depth
+        tasks.append((depth.path, lambda: encoding.depth_to_grey(layers["depth"], depth.near, depth.far)))
+    with ThreadPoolExecutor(max_workers=max(1, len(tasks) + (job.exr is not None))) as pool:
+        futures = [pool.submit(_write_image, path, make) for path, make in tasks]
+        if job.exr is not None:
+            futures.append(pool.submit(image_io.write_exr, job.exr, layers))
+        for future in futures:
+            future.result()
+    result.seconds["write"] = time.perf_counter() - start
+    return [path for path, _ in tasks] + ([job.exr] if job.exr is not None else [])
+
+
+def _write_image(path: Path, make_linear) -> Path:
+    linear = make_linear()
+    if path.suffix.lower() == ".exr":
+        image_io.write_exr(path, {"": linear})
+    else:
+        image_io.write_image(path, encoding.to_course_8bit(linear))
+    return path
+
+
+def with_outputs_in(job: RenderJob, folder: Path, stem: str, exr: bool) -> RenderJob:
+    """``job`` writing ``<stem>.png`` (and ``<stem>.exr``) into ``folder``."""
+    return replace(job, output=folder / f"{stem}.png", exr=folder / f"{stem}.exr" if exr else None)

@@ -1,0 +1,72 @@
+"""Progress display: a bar over the jobs and a bar inside long renders.
+
+Bars appear only for work that takes more than a second (tqdm's ``delay``).
+The in-render bar is fed by Mitsuba's own progress reports (scalar variants
+report as blocks finish; a JIT render is one kernel and reports at its end).
+"""
+from __future__ import annotations
+
+import sys
+
+import mitsuba as mi
+from tqdm import tqdm
+
+#: Mitsuba messages not worth repeating to users of render.py
+_QUIET = ("SamplingIntegrator Python implementations will have terrible performance",)
+
+
+class _TqdmAppender(mi.Appender):
+    def __init__(self):
+        super().__init__()
+        self.bar: tqdm | None = None
+
+    def append(self, level, text):
+        if level >= mi.LogLevel.Warn and not any(q in text for q in _QUIET):
+            tqdm.write(text, file=sys.stderr)
+
+    def log_progress(self, progress, name, formatted, eta, ptr=None):
+        if self.bar is None:
+            self.bar = tqdm(total=100, desc=name, unit="%", delay=1.0, leave=False,
+                            bar_format="{desc}: {percentage:3.0f}%|{bar}| {elapsed}<{remaining}")
+        self.bar.update(round(100 * progress) - self.bar.n)
+        if progress >= 1.0:
+            self.bar.close()
+            self.bar = None
+
+
+class RenderProgress:
+    """Context manager around a batch of renders; ``done`` prints one line a job."""
+
+    def __init__(self, total: int, enabled: bool = True):
+        self.total, self.enabled = total, enabled
+        self.jobs: tqdm | None = None
+
+    def __enter__(self) -> RenderProgress:
+        if self.enabled:
+            self.logger = mi.logger()
+            self.level = self.logger.log_level()
+            self.appenders = [self.logger.appender(i) for i in range(self.logger.appender_count())]
+            self.logger.clear_appenders()
+            self.logger.add_appender(_TqdmAppender())
+            self.logger.set_log_level(mi.LogLevel.Info)  # progress reports need Info
+            if self.total > 1:
+                self.jobs = tqdm(total=self.total, desc="scenes", unit="scene", delay=1.0, leave=False)
+        return self
+
+    def done(self, job, variant: str, seconds: dict[str, float], written) -> None:
+        if not self.enabled:
+            return
+        files = " ".join(str(p) for p in written)
+        tqdm.write(f"{job.scene.name}: {job.width}x{job.height} {variant}, render {seconds['render']:.3f} s "
+                   f"(load {seconds['load']:.3f} s, write {seconds.get('write', 0.0):.3f} s) -> {files}")
+        if self.jobs is not None:
+            self.jobs.update(1)
+
+    def __exit__(self, *exc) -> None:
+        if self.enabled:
+            if self.jobs is not None:
+                self.jobs.close()
+            self.logger.clear_appenders()
+            for appender in self.appenders:
+                self.logger.add_appender(appender)
+            self.logger.set_log_level(self.level)
