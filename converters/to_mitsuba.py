@@ -128,8 +128,12 @@ def _mesh(positions: np.ndarray, faces: np.ndarray) -> dict:
             "faces": np.asarray(faces, np.uint32)}
 
 
-def _smooth_mesh(positions: np.ndarray, faces: np.ndarray) -> dict:
-    return dict(_mesh(positions, faces), normals=smooth_normals(positions, faces))
+def _smooth_mesh(m: np.ndarray, positions: np.ndarray, faces: np.ndarray) -> dict:
+    """A mesh with the course's normals: averaged in object space, carried to
+    world space by the inverse transpose and left unnormalised, so that their
+    interpolation (normalised per hit) is the course's exactly."""
+    normals = smooth_normals(positions, faces) @ np.linalg.inv(m[:3, :3])
+    return dict(_mesh(_transform_points(m, positions), faces), normals=normals)
 
 
 def _transform_points(m: np.ndarray, points: np.ndarray) -> np.ndarray:
@@ -170,7 +174,7 @@ def object_dict(scene: Scene, index: int, extent: tuple[np.ndarray, float]) -> d
         positions = _transform_points(m, np.asarray(obj.vertices, np.float64))
         return _mesh(positions, np.array([[0, 1, 2]], np.uint32))
     if isinstance(obj, TriangleMesh):
-        return _smooth_mesh(_transform_points(m, obj.positions), obj.faces)
+        return _smooth_mesh(m, obj.positions, obj.faces)
     raise TypeError(f"unknown object type {type(obj).__name__}")
 
 

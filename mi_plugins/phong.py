@@ -59,9 +59,11 @@ class PhongBSDF(mi.BSDF):
     for ``DeltaReflection`` alone (as the ``whitted`` integrator does), so a
     path tracer never double-counts it.
 
-    As in the course, only the light's side of the surface is checked: a
-    point whose (interpolated) normal faces slightly away from the viewer is
-    still lit. Sampling (for path tracers) starts from the front side only.
+    As in the course, the diffuse term is clamped by :math:`\cos\theta_o`
+    and the highlight by :math:`R\cdot\omega_o`, and nothing else is checked
+    (a point whose interpolated normal faces slightly away from the viewer is
+    still lit). Sampling, for path tracers, draws directions above the
+    surface from points seen from the front.
 
     .. tabs::
 
@@ -129,13 +131,13 @@ class PhongBSDF(mi.BSDF):
     def eval(self, ctx: mi.BSDFContext, si: mi.SurfaceInteraction3f, wo: mi.Vector3f,
              active: bool = True) -> mi.Color3f:
         diffuse, glossy = self._lobes(ctx)
-        # Only the light's side is checked, as in the course: with interpolated
-        # normals a visible point may face slightly away from the viewer.
-        cos_o = mi.Frame3f.cos_theta(wo)
-        active = active & (cos_o > 0.0)
+        # The course's clamps and nothing more: the diffuse term needs the
+        # light above the surface, the highlight only needs L.R > 0; neither
+        # looks at the viewer's side (with interpolated normals a visible
+        # point may face slightly away from the viewer).
         value = mi.Color3f(0.0)
         if diffuse:
-            value += self.kd * (dr.inv_pi * cos_o)
+            value += self.kd * (dr.inv_pi * dr.maximum(mi.Frame3f.cos_theta(wo), 0.0))
         if glossy:
             value += self.ks * (dr.inv_pi * clamped_power(dr.dot(mi.reflect(si.wi), wo), self.exponent))
         return dr.select(active, value, 0.0)
