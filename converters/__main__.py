@@ -18,8 +18,8 @@ def convert(source: Path, target: Path, root: Path | None = None) -> list[Path]:
     from .to_mitsuba import RenderOptions, scene_dict
     from .xml_writer import write_xml
 
-    scene = load_scene(source)
-    shown = source.relative_to(root) if root and source.is_relative_to(root) else source.name
+    scene = load_scene(source.resolve())  # absolute paths, written relative to the XML
+    shown = source.resolve().relative_to(root) if root and source.resolve().is_relative_to(root) else source.name
     return write_xml(scene_dict(scene, RenderOptions()), target, source=str(shown))
 
 

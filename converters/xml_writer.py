@@ -10,7 +10,7 @@ fuse the plane's tiles into one imprecise mesh)::
 """
 from __future__ import annotations
 
-import math
+import os
 from pathlib import Path
 from xml.sax.saxutils import quoteattr
 
@@ -55,6 +55,8 @@ class _Writer:
         elif isinstance(value, float):
             self.emit(depth, f'<float {attr} value="{_number(value)}"/>')
         elif isinstance(value, str):
+            if name == "filename" and Path(value).is_absolute():
+                value = os.path.relpath(value, self.path.parent)  # portable: relative to the XML
             self.emit(depth, f"<string {attr} value={quoteattr(value)}/>")
         elif isinstance(value, (list, tuple)) and len(value) == 3:
             tag = "point" if name in ("origin", "center", "position") else "vector"

@@ -43,7 +43,8 @@ class CubeMapEmitter(mi.Emitter):
     def __init__(self, props: mi.Properties):
         super().__init__(props)
         from imaging.image_io import read_cube_map
-        self.folder = Path(props.get("filename"))
+        # relative to the XML file's folder when loaded from XML
+        self.folder = Path(str(mi.file_resolver().resolve(props.get("filename"))))
         faces = read_cube_map(self.folder, FACES)  # (6, N, N, 3) uint8
         self.size = faces.shape[1]
         self.scale = float(props.get("scale", 1.0))

@@ -1,0 +1,90 @@
+"""render.py as users run it: course flags, named scenes, errors, the LLVM fallback."""
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from imaging.image_io import read_exr, read_png
+from renderer.cli import build_parser, jobs_from_args, main, resolve_scene
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def run(*args: str, env: dict | None = None, cwd: Path = ROOT) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, str(ROOT / "render.py"), *args], cwd=cwd, capture_output=True,
+                          text=True, env={**os.environ, **(env or {})}, timeout=300)
+
+
+def test_course_flags_parse_verbatim(tmp_path):
+    args = build_parser().parse_args(["-size", "320", "180", "-input", "x.txt", "-output", "a.png", "-normals",
+                                      "n.png", "-depth", "8", "18", "d.png", "-bounces", "4", "-shadows",
+                                      "-jitter", "-filter"])
+    (job,) = jobs_from_args(args)
+    assert (job.width, job.height, job.bounces, job.shadows, job.jitter, job.filter) == (320, 180, 4, True, True, True)
+    assert job.depth.near == 8 and job.depth.far == 18 and str(job.depth.path) == "d.png"
+    assert job.aovs == ("depth", "normal")
+    options = job.options()
+    assert (options.width, options.height, options.spp) == (960, 540, 16)
+
+
+def test_scene_names(course):
+    assert resolve_scene("scene06", course / "data").name == "scene06_bunny_1k.txt"
+    assert resolve_scene("showcase", course / "data") == ROOT / "scenes" / "showcase.txt"
+
+
+def test_named_scene_with_exr(variant_llvm_ad_rgb, tmp_path):
+    assert main(["showcase", "-size", "64", "48", "--exr", "--out", str(tmp_path), "--quiet"]) == 0
+    assert read_png(tmp_path / "showcase.png").shape == (48, 64, 3)
+    channels = read_exr(tmp_path / "showcase.exr")
+    assert {"R", "G", "B", "depth.Y", "normal.X", "position.Z", "albedo.R", "id.Y"} <= set(channels)
+    ids = channels["id.Y"]
+    assert set(np.unique(ids)) == {-1, 0, 1, 2, 3, 4}  # sky and the five objects
+    assert np.all(np.isfinite(np.stack(list(channels.values()))))
+
+
+def test_jitter_and_filter_antialias(variant_llvm_ad_rgb, tmp_path):
+    images = {}
+    for flags in ([], ["-jitter"], ["-filter"]):
+        out = tmp_path / f"{len(images)}.png"
+        assert main(["-input", str(ROOT / "scenes" / "transforms.txt"), "-size", "60", "40",
+                     "-output", str(out), "--quiet", *flags]) == 0
+        images[" ".join(flags)] = read_png(out).astype(int)
+    plain = images[""]
+    for name in ("-jitter", "-filter"):
+        assert images[name].shape == plain.shape
+        # smoother: the mean gradient is lower, but the image is the same scene
+        assert np.abs(np.diff(images[name], axis=1)).mean() < np.abs(np.diff(plain, axis=1)).mean()
+        assert np.abs(images[name] - plain).mean() < 12
+
+
+def test_bad_scene_is_one_line_and_exit_2(tmp_path):
+    bad = tmp_path / "bad.txt"
+    bad.write_text("PerspectiveCamera {\n  center 0 0 1\n  direction 0 0 -1 up 0 1 0 angle thirty }\n")
+    result = run("-input", str(bad), "-size", "8", "8", "-output", str(tmp_path / "x.png"))
+    assert result.returncode == 2
+    assert result.stderr.strip().count("\n") == 0
+    assert f"{bad}:3:35: expected a number, found 'thirty'" in result.stderr
+    assert not (tmp_path / "x.png").exists()
+
+
+def test_usage_errors(tmp_path):
+    result = run("-input", "x.txt")
+    assert result.returncode == 2 and "needs at least one of -output" in result.stderr
+    result = run("no_such_scene", "--data", str(tmp_path))
+    assert result.returncode == 2 and "no scene 'no_such_scene'" in result.stderr
+
+
+def test_falls_back_to_scalar_without_a_usable_llvm(tmp_path):
+    old_llvm = "/usr/lib/x86_64-linux-gnu/libLLVM-15.so"
+    result = run("-input", str(ROOT / "scenes" / "mirrors.txt"), "-size", "12", "8", "-output",
+                 str(tmp_path / "m.png"), env={"DRJIT_LIBLLVM_PATH": old_llvm})
+    assert result.returncode == 0, result.stderr
+    notes = [line for line in result.stderr.splitlines() if "scalar_rgb" in line]
+    assert len(notes) == 1 and "is not LLVM >= 17" in notes[0]
+    assert "scalar_rgb" in result.stdout
+    assert read_png(tmp_path / "m.png").shape == (8, 12, 3)
