@@ -6,6 +6,7 @@ image and never replaces a good earlier one with a broken file.
 """
 from __future__ import annotations
 
+import functools
 import os
 import tempfile
 from concurrent.futures import ThreadPoolExecutor
@@ -62,12 +63,27 @@ def read_png(path: str | Path) -> np.ndarray:
 
 
 def read_cube_map(folder: Path, faces: tuple[str, ...]) -> np.ndarray:
-    """Reads the six faces ``folder/<face>.png`` as uint8 (6, N, N, 3), decoding
-    them in parallel (the PNG decoder releases the GIL)."""
+    """Reads the six faces ``folder/<face>.png`` as uint8 RGBX (6, N, N, 4), X
+    being padding so that a texel is one aligned 32-bit word, decoding
+    them in parallel (the PNG decoder releases the GIL). Scenes that share a
+    cube map in one process decode it once (until a face file changes)."""
+    stamps = []
+    for face in faces:
+        try:
+            stat = (folder / f"{face}.png").stat()
+            stamps.append((stat.st_mtime_ns, stat.st_size))
+        except OSError:
+            stamps.append(None)
+    return _read_cube_map(folder.resolve(), faces, tuple(stamps))
+
+
+@functools.lru_cache(maxsize=4)
+def _read_cube_map(folder: Path, faces: tuple[str, ...], stamps: tuple) -> np.ndarray:
     def read_face(face: str) -> np.ndarray:
         path = folder / f"{face}.png"
         try:
-            return read_png(path)
+            with Image.open(path) as image:
+                return np.asarray(image.convert("RGBX"))
         except FileNotFoundError:
             raise SceneError(path, 1, 1, "expected a cube-map face image, found no file") from None
         except OSError as error:
@@ -82,7 +98,9 @@ def read_cube_map(folder: Path, faces: tuple[str, ...]) -> np.ndarray:
             raise SceneError(folder / f"{face}.png", 1, 1,
                              f"expected a square face of the same size as {faces[0]}.png, "
                              f"found {image.shape[1]}x{image.shape[0]}")
-    return np.stack(images)
+    cube = np.stack(images)
+    cube.flags.writeable = False  # shared between scenes
+    return cube
 
 
 def write_exr(path: str | Path, layers: Mapping[str, np.ndarray]) -> None:

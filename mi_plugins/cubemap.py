@@ -45,12 +45,12 @@ class CubeMapEmitter(mi.Emitter):
         from imaging.image_io import read_cube_map
         # relative to the XML file's folder when loaded from XML
         self.folder = Path(str(mi.file_resolver().resolve(props.get("filename"))))
-        faces = read_cube_map(self.folder, FACES)  # (6, N, N, 3) uint8
+        faces = read_cube_map(self.folder, FACES)  # (6, N, N, 4) uint8 RGBX
         self.size = faces.shape[1]
         self.scale = float(props.get("scale", 1.0))
-        # One 32-bit word per texel (R | G << 8 | B << 16): one gather per tap
-        rgb = faces.reshape(-1, 3).astype(np.uint32)
-        self.packed = rgb[:, 0] | (rgb[:, 1] << 8) | (rgb[:, 2] << 16)
+        # One little-endian 32-bit word per texel (R | G << 8 | B << 16 | X << 24):
+        # one gather per bilinear tap, no copy
+        self.packed = faces.reshape(-1).view("<u4")
         # JIT variants gather from a device array; scalar ones index the NumPy array
         self.texels = mi.UInt32(self.packed) if dr.is_jit_v(mi.Float) else self.packed
         self.m_flags = mi.EmitterFlags.Infinite | mi.EmitterFlags.SpatiallyVarying

@@ -12,8 +12,7 @@ import argparse
 import os
 import shlex
 import sys
-import time
-from dataclasses import replace
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 from converters.errors import SceneError
@@ -163,6 +162,11 @@ def jobs_from_batch(parser: argparse.ArgumentParser, path: Path) -> list[RenderJ
     return jobs
 
 
+def _write_and_report(result, progress, variant: str) -> None:
+    written = write_outputs(result)
+    progress.done(result.job, variant, result.seconds, written)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -171,11 +175,15 @@ def main(argv: list[str] | None = None) -> int:
         from .variants import set_variant
         variant = set_variant(args.variant, quiet=args.quiet)
         from .progress import RenderProgress
-        with RenderProgress(total=len(jobs), enabled=not args.quiet) as progress:
+        # Files are written in the background while the next scene renders
+        with RenderProgress(total=len(jobs), enabled=not args.quiet) as progress, \
+                ThreadPoolExecutor(max_workers=1) as writer:
+            pending = []
             for job in jobs:
                 result = render(job)
-                written = write_outputs(result)
-                progress.done(job, variant, result.seconds, written)
+                pending.append(writer.submit(_write_and_report, result, progress, variant))
+            for future in pending:
+                future.result()
     except (SceneError, UsageError, ValueError, OSError) as error:
         print(f"render.py: error: {error}", file=sys.stderr)
         return 2
