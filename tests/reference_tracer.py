@@ -20,6 +20,7 @@ FACES = ("left", "right", "up", "down", "front", "back")
 
 
 def normalize(v: np.ndarray) -> np.ndarray:
+    v = np.nan_to_num(np.asarray(v, np.float64))  # misses carry NaN/inf; they become 0
     n = np.linalg.norm(v, axis=-1, keepdims=True)
     return np.divide(v, n, out=np.zeros_like(v), where=n > 0)
 
@@ -79,7 +80,8 @@ class ReferenceTracer:
             t0, t1 = (-b - root) / (2 * a), (-b + root) / (2 * a)
             t = np.where(t0 > tmin, t0, np.where(t1 > tmin, t1, np.inf))
             t = np.where(disc >= 0, t, np.inf)
-            local = oo + t[:, None] * dd
+            with np.errstate(invalid="ignore"):
+                local = oo + t[:, None] * dd
             normal = normalize(np.nan_to_num(local / obj.radius) @ inv[:3, :3])
             return t, normal
         if isinstance(obj, Plane):
@@ -235,8 +237,9 @@ class ReferenceTracer:
     def render(self, width: int, height: int, bounces: int = 0, shadows: bool = False):
         """(beauty, depth, normal) images, (H, W, 3), (H, W), (H, W, 3)."""
         o, d = self.camera_rays(width, height)
-        beauty = self.trace(o, d, bounces, shadows)
-        first = self.intersect(o, d, 0.0)
+        with np.errstate(all="ignore"):  # misses compute with t = inf and are masked out
+            beauty = self.trace(o, d, bounces, shadows)
+            first = self.intersect(o, d, 0.0)
         depth = np.where(np.isfinite(first.t), first.t, 0.0)
         return (beauty.reshape(height, width, 3), depth.reshape(height, width),
                 first.normal.reshape(height, width, 3))
