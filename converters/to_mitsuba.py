@@ -38,6 +38,7 @@ class RenderOptions:
     jitter: bool = False  # sub-pixel sample positions instead of pixel centres
     aovs: tuple[str, ...] = ()
     seed: int = 0
+    stats: bool = False  # count the traced rays (whitted's "stats")
 
 
 def _rgb(value) -> dict:
@@ -209,6 +210,7 @@ def scene_dict(scene: Scene, options: RenderOptions = RenderOptions()) -> dict:
             "ambient": _rgb(scene.background.ambient),
             "ray_epsilon": RAY_EPSILON_FRACTION * extent[1],
             "aovs": ",".join(options.aovs),
+            "stats": bool(options.stats),
         },
         "sensor": {
             "type": "course_camera",
@@ -226,6 +228,8 @@ def scene_dict(scene: Scene, options: RenderOptions = RenderOptions()) -> dict:
         del result["integrator"]["ambient"]
     if not options.aovs:
         del result["integrator"]["aovs"]
+    if not options.stats:
+        del result["integrator"]["stats"]
 
     used = sorted({obj.material for obj in scene.objects})
     for index in used:

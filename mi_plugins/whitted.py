@@ -50,6 +50,12 @@ class WhittedIntegrator(mi.SamplingIntegrator):
          fixed fraction of the scene's size, so the image does not change
          when the whole scene is scaled (Default: 0)
 
+     * - stats
+       - |bool|
+       - Count the rays this integrator traces (camera, shadow, mirror rays
+         per depth, environment lookups) into :attr:`counters`; the counting
+         adds atomics to the kernel, so it is off by default (Default: |false|)
+
      * - aovs
        - |string|
        - Comma-separated AOVs of the first hit: ``depth`` (ray distance, 0
@@ -87,6 +93,8 @@ class WhittedIntegrator(mi.SamplingIntegrator):
         self.ambient = mi.ScalarColor3f(ambient)
         self.aovs = parse_aovs(props.get("aovs", ""))
         self.ray_epsilon = float(props.get("ray_epsilon", 0.0))
+        self.stats = bool(props.get("stats", False))
+        self.counters = None
         if not self.ray_epsilon >= 0.0:
             raise ValueError(f"whitted: ray_epsilon must be >= 0, got {self.ray_epsilon}")
 
@@ -105,6 +113,31 @@ class WhittedIntegrator(mi.SamplingIntegrator):
 
     def recursion_enabled(self, scene: mi.Scene) -> bool:
         return self.max_depth > 0 and self.has_mirrors(scene)
+
+    # -- ray statistics ------------------------------------------------------
+    #: counter slots: camera, shadow, environment, then mirror rays of depth 1..max_depth
+    CAMERA, SHADOW, ENVIRONMENT, MIRROR = 0, 1, 2, 3
+
+    def count(self, slot, mask) -> None:
+        """Adds the number of active lanes of ``mask`` to counter ``slot`` (if ``stats``)."""
+        if not self.stats:
+            return
+        if dr.is_jit_v(mi.Float):
+            dr.scatter_reduce(dr.ReduceOp.Add, self.counters, mi.UInt32(1), mi.UInt32(slot), mask)
+        elif mask:
+            self.counters[int(slot)] += 1
+
+    def ray_counts(self) -> dict[str, int | list[int]]:
+        """Counts of the last render(s) since :meth:`reset_counts` (``stats`` on)."""
+        values = [int(v) for v in (np.array(self.counters) if self.counters is not None else [])]
+        if not values:
+            return {}
+        return {"camera": values[self.CAMERA], "shadow": values[self.SHADOW],
+                "environment": values[self.ENVIRONMENT], "mirror_by_depth": values[self.MIRROR:]}
+
+    def reset_counts(self) -> None:
+        size = self.MIRROR + self.max_depth
+        self.counters = dr.zeros(mi.UInt32, size) if dr.is_jit_v(mi.Float) else [0] * size
 
     # -- kernels ------------------------------------------------------------
     def spawn(self, si: mi.SurfaceInteraction3f, ray: mi.Ray3f) -> mi.Ray3f:
@@ -130,6 +163,7 @@ class WhittedIntegrator(mi.SamplingIntegrator):
         environment = scene.environment()
         if environment is not None:
             miss = active & (si.t == dr.inf)  # (not "~hit": scalar variants use Python bools)
+            self.count(self.ENVIRONMENT, miss)
             result = dr.select(miss, environment.eval(si, miss), 0.0)
 
         if not dr.is_jit_v(mi.Float) and not hit:
@@ -142,6 +176,7 @@ class WhittedIntegrator(mi.SamplingIntegrator):
             ds, radiance = light.sample_direction(si, mi.Point2f(0.5), hit)
             lit = hit & (ds.pdf > 0.0)
             if self.shadows:
+                self.count(self.SHADOW, lit)
                 lit &= dr.select(scene.ray_test(self.spawn(si, si.spawn_ray_to(ds.p)), lit), False, True)
             response = bsdf.eval(ctx, si, si.to_local(ds.d), lit)
             result += dr.select(lit, response * radiance, 0.0)
@@ -151,6 +186,11 @@ class WhittedIntegrator(mi.SamplingIntegrator):
                medium: mi.Medium = None, active: mi.Bool = True) -> tuple[mi.Color3f, mi.Bool, list[mi.Float]]:
         ray = mi.Ray3f(ray)
         active = mi.Bool(active)
+        if dr.is_jit_v(mi.Float):  # one mask lane per ray (the caller may pass a scalar True)
+            active &= dr.full(mi.Bool, True, dr.width(ray.d.x))
+        if self.stats and self.counters is None:
+            self.reset_counts()
+        self.count(self.CAMERA, active)
         si = scene.ray_intersect(ray, active)
         aovs = self.first_hit_aovs(scene, si, active)
         if self.recursion_enabled(scene):
@@ -172,6 +212,7 @@ class WhittedIntegrator(mi.SamplingIntegrator):
             weight, ray = self.mirror(mirror, si, active)
             throughput *= weight
             active &= dr.max(throughput) > 0.0
+            self.count(self.MIRROR + depth, active)
             si = scene.ray_intersect(ray, active)
             depth += 1
         return result

@@ -94,6 +94,9 @@ def build_parser() -> argparse.ArgumentParser:
     ours.add_argument("--spp", type=int, metavar="N", help="samples per pixel (default 1, 16 with -jitter)")
     ours.add_argument("--batch", metavar="FILE",
                       help="run course command lines from FILE, one per line, in this one process")
+    ours.add_argument("--stats", action="store_true",
+                      help="print what each render traced: camera, shadow and mirror rays, environment "
+                           "lookups, AOVs and kernels launched (adds counting to the kernel)")
     ours.add_argument("--quiet", action="store_true", help="print nothing but errors")
     return parser
 
@@ -122,7 +125,7 @@ def jobs_from_args(args: argparse.Namespace) -> list[RenderJob]:
     """The render jobs one command line asks for."""
     _checked(args)
     base = dict(width=args.size[0], height=args.size[1], bounces=args.bounces, shadows=args.shadows,
-                jitter=args.jitter, filter=args.filter, spp=args.spp)
+                jitter=args.jitter, filter=args.filter, spp=args.spp, stats=args.stats)
     single_outputs = dict(output=Path(args.output) if args.output else None,
                           normals=Path(args.normals) if args.normals else None, depth=_depth(args.depth),
                           exr=Path(args.exr) if isinstance(args.exr, str) else None)
@@ -164,7 +167,7 @@ def jobs_from_batch(parser: argparse.ArgumentParser, path: Path) -> list[RenderJ
 
 def _write_and_report(result, progress, variant: str) -> None:
     written = write_outputs(result)
-    progress.done(result.job, variant, result.seconds, written)
+    progress.done(result.job, variant, result.seconds, written, result.stats)
 
 
 def main(argv: list[str] | None = None) -> int:

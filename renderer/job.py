@@ -43,6 +43,7 @@ class RenderJob:
     jitter: bool = False  # 16 jittered samples per pixel
     filter: bool = False  # render 3x larger, then the course's 3x3 Gaussian
     spp: int | None = None  # overrides the sample count (default 1, or 16 with jitter)
+    stats: bool = False  # count what the render traces (see RenderResult.stats)
 
     @property
     def aovs(self) -> tuple[str, ...]:
@@ -56,7 +57,7 @@ class RenderJob:
         scale = FILTER_SCALE if self.filter else 1
         spp = self.spp if self.spp is not None else (JITTER_SPP if self.jitter else 1)
         return RenderOptions(width=self.width * scale, height=self.height * scale, bounces=self.bounces,
-                             shadows=self.shadows, spp=spp, jitter=self.jitter, aovs=self.aovs)
+                             shadows=self.shadows, spp=spp, jitter=self.jitter, aovs=self.aovs, stats=self.stats)
 
 
 @dataclass
@@ -64,6 +65,7 @@ class RenderResult:
     job: RenderJob
     layers: dict[str, np.ndarray]  # "" (beauty) and AOV name -> (H, W[, C]) float32
     seconds: dict[str, float] = field(default_factory=dict)  # load, render, write
+    stats: dict = field(default_factory=dict)  # with job.stats: rays, AOVs, kernels
 
 
 def split_layers(image: np.ndarray, aovs: tuple[str, ...]) -> dict[str, np.ndarray]:
@@ -87,15 +89,29 @@ def render(job: RenderJob, progress=None) -> RenderResult:
     scene = load_scene_dict(scene_dict(load_scene(job.scene), job.options()))
     seconds["load"] = time.perf_counter() - start
 
+    import drjit as dr
+
+    jit = dr.is_jit_v(mi.Float)
+    if job.stats and jit:
+        dr.kernel_history()  # clears it
+        dr.set_flag(dr.JitFlag.KernelHistory, True)
     start = time.perf_counter()
     image = np.array(mi.render(scene), np.float32)
     seconds["render"] = time.perf_counter() - start
+    stats = {}
+    if job.stats:
+        integrator = scene.integrator()
+        stats = dict(integrator.ray_counts(), aovs=list(job.aovs),
+                     environment_kind=type(scene.environment()).__name__ if scene.environment() else None)
+        if jit:
+            dr.set_flag(dr.JitFlag.KernelHistory, False)
+            stats["kernels"] = sum(1 for k in dr.kernel_history() if k["type"] == dr.KernelType.JIT)
 
     layers = split_layers(image, job.aovs)
     if job.filter:
         layers = {name: centre_sample_3x(data) if name == "id" else downsample_3x(data)
                   for name, data in layers.items()}
-    return RenderResult(job, layers, seconds)
+    return RenderResult(job, layers, seconds, stats)
 
 
 def write_outputs(result: RenderResult) -> list[Path]:

@@ -16,8 +16,9 @@ _QUIET = ("SamplingIntegrator Python implementations will have terrible performa
 
 
 class _TqdmAppender(mi.Appender):
-    def __init__(self):
+    def __init__(self, bars: bool):
         super().__init__()
+        self.bars = bars
         self.bar: tqdm | None = None
 
     def append(self, level, text):
@@ -25,6 +26,8 @@ class _TqdmAppender(mi.Appender):
             tqdm.write(text, file=sys.stderr)
 
     def log_progress(self, progress, name, formatted, eta, ptr=None):
+        if not self.bars:
+            return
         if self.bar is None:
             self.bar = tqdm(total=100, desc=name, unit="%", delay=1.0, leave=False,
                             bar_format="{desc}: {percentage:3.0f}%|{bar}| {elapsed}<{remaining}")
@@ -32,6 +35,21 @@ class _TqdmAppender(mi.Appender):
         if progress >= 1.0:
             self.bar.close()
             self.bar = None
+
+
+def format_stats(name: str, stats: dict) -> str:
+    mirror = stats.get("mirror_by_depth", [])
+    per_depth = " + ".join(str(n) for n in mirror) if mirror else "0"
+    kind = {"CubeMapEmitter": "cube map", None: "none"}.get(stats.get("environment_kind"), "colour")
+    lines = [f"{name}: traced",
+             f"  camera rays        {stats.get('camera', 0)}",
+             f"  shadow rays        {stats.get('shadow', 0)}",
+             f"  mirror rays        {sum(mirror)} (by depth: {per_depth})",
+             f"  environment ({kind}) lookups {stats.get('environment', 0)}",
+             f"  AOVs               {', '.join(stats.get('aovs', [])) or 'none'}"]
+    if "kernels" in stats:
+        lines.append(f"  kernels launched   {stats['kernels']}")
+    return "\n".join(lines)
 
 
 class RenderProgress:
@@ -42,18 +60,21 @@ class RenderProgress:
         self.jobs: tqdm | None = None
 
     def __enter__(self) -> RenderProgress:
+        # Mitsuba's messages go through tqdm (and the known-noisy ones nowhere)
+        self.logger = mi.logger()
+        self.level = self.logger.log_level()
+        self.appenders = [self.logger.appender(i) for i in range(self.logger.appender_count())]
+        self.logger.clear_appenders()
+        self.logger.add_appender(_TqdmAppender(bars=self.enabled))
         if self.enabled:
-            self.logger = mi.logger()
-            self.level = self.logger.log_level()
-            self.appenders = [self.logger.appender(i) for i in range(self.logger.appender_count())]
-            self.logger.clear_appenders()
-            self.logger.add_appender(_TqdmAppender())
             self.logger.set_log_level(mi.LogLevel.Info)  # progress reports need Info
             if self.total > 1:
                 self.jobs = tqdm(total=self.total, desc="scenes", unit="scene", delay=1.0, leave=False)
         return self
 
-    def done(self, job, variant: str, seconds: dict[str, float], written) -> None:
+    def done(self, job, variant: str, seconds: dict[str, float], written, stats: dict | None = None) -> None:
+        if stats:  # asked for explicitly: shown even with --quiet
+            tqdm.write(format_stats(job.scene.name, stats))
         if not self.enabled:
             return
         files = " ".join(str(p) for p in written)
@@ -63,10 +84,9 @@ class RenderProgress:
             self.jobs.update(1)
 
     def __exit__(self, *exc) -> None:
-        if self.enabled:
-            if self.jobs is not None:
-                self.jobs.close()
-            self.logger.clear_appenders()
-            for appender in self.appenders:
-                self.logger.add_appender(appender)
-            self.logger.set_log_level(self.level)
+        if self.jobs is not None:
+            self.jobs.close()
+        self.logger.clear_appenders()
+        for appender in self.appenders:
+            self.logger.add_appender(appender)
+        self.logger.set_log_level(self.level)
