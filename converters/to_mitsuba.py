@@ -1,5 +1,9 @@
 """From the scene model to a Mitsuba scene description (a ``mi.load_dict`` dict).
 
+The description is plain data (numbers, lists, NumPy arrays), so it pickles
+and needs no variant; :func:`load_scene_dict` turns it into a Mitsuba scene
+and :mod:`converters.xml_writer` into XML.
+
 Only what the scene uses is written: materials that some object uses, a
 ``constant`` emitter only for a non-black background colour, the cube map only
 when there is one, and the integrator's AOVs only when asked for.
@@ -43,10 +47,6 @@ class RenderOptions:
 
 def _rgb(value) -> dict:
     return {"type": "rgb", "value": [float(v) for v in value]}
-
-
-def _matrix(m: np.ndarray) -> mi.ScalarTransform4f:
-    return mi.ScalarTransform4f(np.asarray(m, np.float64).tolist())
 
 
 def _frame_to_world(normal: np.ndarray) -> np.ndarray:
@@ -169,7 +169,7 @@ def object_dict(scene: Scene, index: int, extent: tuple[np.ndarray, float]) -> d
         height = abs(float(np.dot(centre - point, world_normal)))
         foot = centre - np.dot(centre - point, world_normal) * world_normal
         return {"type": "plane_tiles",
-                "to_world": [_matrix(m) for m in plane_tiles(_frame_to_world(world_normal), foot,
+                "to_world": [m for m in plane_tiles(_frame_to_world(world_normal), foot,
                                                              2.0 * radius + height, PLANE_EXTENT * max(radius, height))]}
     if isinstance(obj, Triangle):
         positions = _transform_points(m, np.asarray(obj.vertices, np.float64))
@@ -276,8 +276,9 @@ def load_scene_dict(description: dict) -> mi.Scene:
                 value = _to_mesh(key, value["positions"], value["faces"], value.get("normals"), bsdf)
             elif value["type"] == "plane_tiles":
                 for part, to_world in enumerate(value["to_world"]):
-                    final[key if part == 0 else f"{key}_part{part}"] = {"type": "rectangle", "to_world": to_world,
-                                                                        "bsdf": bsdf}
+                    final[key if part == 0 else f"{key}_part{part}"] = {
+                        "type": "rectangle", "to_world": mi.ScalarTransform4f(np.asarray(to_world).tolist()),
+                        "bsdf": bsdf}
                 continue
             else:
                 value = dict(value, bsdf=bsdf)

@@ -61,8 +61,8 @@ class _Writer:
         elif isinstance(value, (list, tuple)) and len(value) == 3:
             tag = "point" if name in ("origin", "center", "position") else "vector"
             self.emit(depth, f'<{tag} {attr} value="{_numbers(value)}"/>')
-        elif hasattr(value, "matrix"):  # mi.ScalarTransform4f
-            matrix = np.array(value.matrix, np.float64).ravel()
+        elif isinstance(value, np.ndarray) and value.shape == (4, 4):  # a to_world matrix
+            matrix = value.ravel()
             self.emit(depth, f"<transform {attr}>")
             self.emit(depth + 1, f'<matrix value="{" ".join(_number(v) for v in matrix)}"/>')
             self.emit(depth, "</transform>")

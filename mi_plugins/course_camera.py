@@ -75,21 +75,23 @@ class CourseCamera(mi.Sensor):
         self.forward = dr.normalize(direction) / dr.tan(dr.deg2rad(fov) * 0.5)
         self.horizontal = dr.normalize(dr.cross(dr.normalize(direction), up))
         self.up = mi.ScalarVector3f(up)
-        size = self.film().crop_size()
-        self.resolution = mi.ScalarVector2f(size)
-        # NDC per pixel; a 1-pixel axis maps to its single centre at 0
+        film = self.film()
+        size = film.size()
+        # position samples span the film's crop window (a band of the image
+        # when it is rendered in parts); NDC always refer to the whole image
+        self.crop_offset = mi.ScalarVector2f(film.crop_offset())
+        self.crop_size = mi.ScalarVector2f(film.crop_size())
+        # NDC = (pixel centre - 0.5) * scale + bias; a 1-pixel axis maps to 0
         self.ndc_scale = mi.ScalarVector2f([2.0 / (s - 1) if s > 1 else 0.0 for s in size])
+        self.ndc_bias = mi.ScalarVector2f([-1.0 if s > 1 else 0.0 for s in size])
 
     def _direction(self, position_sample: mi.Point2f) -> mi.Vector3f:
-        pixel = position_sample * self.resolution  # continuous, origin at the top-left corner
+        # continuous pixel coordinates, origin at the image's top-left corner
+        pixel = self.crop_offset + position_sample * self.crop_size
         if self.pixel_centers:
             pixel = dr.floor(pixel) + 0.5
-        ndc_x = (pixel.x - 0.5) * self.ndc_scale.x - 1.0
-        ndc_y = 1.0 - (pixel.y - 0.5) * self.ndc_scale.y
-        if self.resolution.x == 1:
-            ndc_x = dr.zeros(mi.Float, dr.width(pixel.x))
-        if self.resolution.y == 1:
-            ndc_y = dr.zeros(mi.Float, dr.width(pixel.y))
+        ndc_x = (pixel.x - 0.5) * self.ndc_scale.x + self.ndc_bias.x
+        ndc_y = -((pixel.y - 0.5) * self.ndc_scale.y + self.ndc_bias.y)
         return dr.normalize(self.forward + ndc_x * self.horizontal + ndc_y * self.up)
 
     def sample_ray(self, time: mi.Float, sample1: mi.Float, sample2: mi.Point2f, sample3: mi.Point2f,

@@ -1,5 +1,6 @@
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import drjit as dr
@@ -51,8 +52,10 @@ class CubeMapEmitter(mi.Emitter):
         # One little-endian 32-bit word per texel (R | G << 8 | B << 16 | X << 24):
         # one gather per bilinear tap, no copy
         self.packed = faces.reshape(-1).view("<u4")
-        # JIT variants gather from a device array; scalar ones index the NumPy array
-        self.texels = mi.UInt32(self.packed) if dr.is_jit_v(mi.Float) else self.packed
+        if dr.is_jit_v(mi.Float):
+            self.texels = mi.UInt32(self.packed)
+        else:  # scalar variants: one Python call per ray; a memoryview indexes fastest
+            self.texels = memoryview(self.packed)
         self.m_flags = mi.EmitterFlags.Infinite | mi.EmitterFlags.SpatiallyVarying
         # scalar variants name the scalar type without the "Scalar" prefix
         sphere = getattr(mi, "ScalarBoundingSphere3f", None) or mi.BoundingSphere3f
@@ -66,6 +69,8 @@ class CubeMapEmitter(mi.Emitter):
 
     def lookup(self, d: mi.Vector3f, active: bool = True) -> mi.Color3f:
         """The course's ``CubeMap::getTexel`` for world direction ``d``."""
+        if not dr.is_jit_v(mi.Float):
+            return self._lookup_scalar(float(d.x), float(d.y), float(d.z))
         d = dr.normalize(d)
         ax, ay, az = dr.abs(d.x), dr.abs(d.y), dr.abs(d.z)
         x_major = (ax >= ay) & (ax >= az)
@@ -76,8 +81,6 @@ class CubeMapEmitter(mi.Emitter):
         major = dr.select(x_major, d.x, dr.select(y_major, d.y, d.z))
         a = dr.select(x_major, d.z, d.x)
         b = dr.select(x_major, d.y, dr.select(y_major, d.z, d.y))
-        if not dr.is_jit_v(mi.Float) and major == 0.0:
-            return mi.Color3f(0.0)  # scalar variants: d = 0 has no face
         u = 0.5 * (a / major + 1.0)
         v = 0.5 * (b / major + 1.0)
         u = dr.select((y_major & (d.y < 0.0)) | (z_major & (d.z > 0.0)), 1.0 - u, u)
@@ -95,17 +98,43 @@ class CubeMapEmitter(mi.Emitter):
         unit = self.scale / 255.0
 
         def texel(i, j):
-            i = mi.UInt32(dr.clip(i, 0, n - 1))
-            j = mi.UInt32(dr.clip(j, 0, n - 1))
-            if dr.is_jit_v(mi.Float):
-                word = dr.gather(mi.UInt32, self.texels, base + j * n + i, active)
-            else:
-                word = int(self.texels[base + j * n + i])
+            index = base + mi.UInt32(dr.clip(j, 0, n - 1)) * n + mi.UInt32(dr.clip(i, 0, n - 1))
+            word = dr.gather(mi.UInt32, self.texels, index, active)
             return mi.Color3f(mi.Float(word & 0xFF), mi.Float((word >> 8) & 0xFF),
                               mi.Float((word >> 16) & 0xFF)) * unit
 
         return ((1.0 - alpha) * (1.0 - beta) * texel(ix, iy) + alpha * (1.0 - beta) * texel(ix + 1, iy)
                 + (1.0 - alpha) * beta * texel(ix, iy + 1) + alpha * beta * texel(ix + 1, iy + 1))
+
+    def _lookup_scalar(self, x: float, y: float, z: float) -> mi.Color3f:
+        """:meth:`lookup` in plain Python (the same face rules), for scalar variants."""
+        ax, ay, az = abs(x), abs(y), abs(z)
+        if ax >= ay and ax >= az:
+            major, a, b, face, flip_u = x, z, y, (1 if x > 0 else 0), False
+        elif ay >= az:
+            major, a, b, face, flip_u = y, x, z, (2 if y > 0 else 3), y < 0
+        else:
+            major, a, b, face, flip_u = z, x, y, (4 if z > 0 else 5), z > 0
+        if major == 0.0:
+            return mi.Color3f(0.0)
+        u, v = 0.5 * (a / major + 1.0), 0.5 * (b / major + 1.0)
+        u = 1.0 - u if flip_u else u
+        v = 1.0 - v if major < 0 else v
+        n = self.size
+        fx, fy = u * n, (1.0 - v) * n
+        ix, iy = math.floor(fx), math.floor(fy)
+        alpha, beta = fx - ix, fy - iy
+        i0, i1 = min(max(ix, 0), n - 1), min(max(ix + 1, 0), n - 1)
+        j0, j1 = face * n * n + min(max(iy, 0), n - 1) * n, face * n * n + min(max(iy + 1, 0), n - 1) * n
+        r = g = b = 0.0
+        for weight, index in (((1 - alpha) * (1 - beta), j0 + i0), (alpha * (1 - beta), j0 + i1),
+                              ((1 - alpha) * beta, j1 + i0), (alpha * beta, j1 + i1)):
+            word = self.texels[index]
+            r += weight * (word & 0xFF)
+            g += weight * ((word >> 8) & 0xFF)
+            b += weight * ((word >> 16) & 0xFF)
+        unit = self.scale / 255.0
+        return mi.Color3f(r * unit, g * unit, b * unit)
 
     def eval(self, si: mi.SurfaceInteraction3f, active: bool = True) -> mi.Color3f:
         return dr.select(active, self.lookup(-si.wi, active), 0.0)

@@ -102,17 +102,22 @@ class WhittedIntegrator(mi.SamplingIntegrator):
         return [channel for name in self.aovs for channel in AOV_CHANNELS[name]]
 
     # -- scene analysis (trace time) ----------------------------------------
-    @staticmethod
-    def delta_lights(scene: mi.Scene) -> list[mi.Emitter]:
-        return [e for e in scene.emitters() if mi.has_flag(e.flags(), mi.EmitterFlags.Delta)]
+    def analyse(self, scene: mi.Scene) -> tuple[list[mi.Emitter], bool]:
+        """(delta lights, any mirror lobe) of ``scene``; computed once per scene
+        (scalar variants call the integrator once per ray)."""
+        key = id(scene)
+        if getattr(self, "_analysed", (None,))[0] != key:
+            lights = [e for e in scene.emitters() if mi.has_flag(e.flags(), mi.EmitterFlags.Delta)]
+            mirrors = any(s.bsdf() is not None and mi.has_flag(s.bsdf().flags(), mi.BSDFFlags.DeltaReflection)
+                          for s in scene.shapes())
+            self._analysed = (key, lights, mirrors)
+        return self._analysed[1], self._analysed[2]
 
-    @staticmethod
-    def has_mirrors(scene: mi.Scene) -> bool:
-        return any(s.bsdf() is not None and mi.has_flag(s.bsdf().flags(), mi.BSDFFlags.DeltaReflection)
-                   for s in scene.shapes())
+    def delta_lights(self, scene: mi.Scene) -> list[mi.Emitter]:
+        return self.analyse(scene)[0]
 
     def recursion_enabled(self, scene: mi.Scene) -> bool:
-        return self.max_depth > 0 and self.has_mirrors(scene)
+        return self.max_depth > 0 and self.analyse(scene)[1]
 
     # -- ray statistics ------------------------------------------------------
     #: counter slots: camera, shadow, environment, then mirror rays of depth 1..max_depth

@@ -84,28 +84,40 @@ def render(job: RenderJob, progress=None) -> RenderResult:
     """Renders ``job`` with the active variant (see :mod:`renderer.variants`)."""
     import mitsuba as mi
 
-    seconds = {}
-    start = time.perf_counter()
-    scene = load_scene_dict(scene_dict(load_scene(job.scene), job.options()))
-    seconds["load"] = time.perf_counter() - start
-
     import drjit as dr
 
-    jit = dr.is_jit_v(mi.Float)
-    if job.stats and jit:
-        dr.kernel_history()  # clears it
-        dr.set_flag(dr.JitFlag.KernelHistory, True)
+    from . import bands
+
+    seconds = {}
     start = time.perf_counter()
-    image = np.array(mi.render(scene), np.float32)
-    seconds["render"] = time.perf_counter() - start
-    stats = {}
+    options = job.options()
+    description = scene_dict(load_scene(job.scene), options)
+    jit = dr.is_jit_v(mi.Float)
+    stats: dict = {}
+    if not jit and bands.worth_it(options.width, options.height, options.spp):
+        # scalar variants: one process per core, each rendering bands of rows
+        seconds["load"] = time.perf_counter() - start
+        start = time.perf_counter()
+        image, stats = bands.render_in_bands(description, mi.variant())
+        seconds["render"] = time.perf_counter() - start
+    else:
+        scene = load_scene_dict(description)
+        seconds["load"] = time.perf_counter() - start
+        if job.stats and jit:
+            dr.kernel_history()  # clears it
+            dr.set_flag(dr.JitFlag.KernelHistory, True)
+        start = time.perf_counter()
+        image = np.array(mi.render(scene), np.float32)
+        seconds["render"] = time.perf_counter() - start
+        if job.stats:
+            stats = scene.integrator().ray_counts()
+            if jit:
+                dr.set_flag(dr.JitFlag.KernelHistory, False)
+                stats["kernels"] = sum(1 for k in dr.kernel_history() if k["type"] == dr.KernelType.JIT)
     if job.stats:
-        integrator = scene.integrator()
-        stats = dict(integrator.ray_counts(), aovs=list(job.aovs),
-                     environment_kind=type(scene.environment()).__name__ if scene.environment() else None)
-        if jit:
-            dr.set_flag(dr.JitFlag.KernelHistory, False)
-            stats["kernels"] = sum(1 for k in dr.kernel_history() if k["type"] == dr.KernelType.JIT)
+        stats.update(aovs=list(job.aovs), environment_kind=(
+            None if description.get("background") is None else
+            "CubeMapEmitter" if description["background"]["type"] == "course_cubemap" else "Emitter"))
 
     layers = split_layers(image, job.aovs)
     if job.filter:
