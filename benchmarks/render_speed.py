@@ -21,7 +21,6 @@ process. The course binary's times come from the course README.
 from __future__ import annotations
 
 import argparse
-import json
 import statistics
 import subprocess
 import sys
@@ -29,6 +28,7 @@ import tempfile
 import time
 from pathlib import Path
 
+from benchmarks import write_json
 from benchmarks.course import DEFAULT_COURSE, ROOT, course_runs
 
 
@@ -137,10 +137,7 @@ def main(argv: list[str] | None = None) -> int:
     results = measure(args.course, args.repeat, args.variant)
     print(report(results))
     if args.json:
-        from imaging.image_io import atomic_path
-
-        with atomic_path(args.json, ".json") as tmp:
-            tmp.write_text(json.dumps(results, indent=2) + "\n")
+        write_json(args.json, results)
     return 0
 
 

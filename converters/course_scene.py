@@ -35,6 +35,8 @@ from pathlib import Path
 
 import numpy as np
 
+from imaging.image_io import CUBE_FACES
+
 from . import transforms
 from .errors import SceneError, describe
 from .model import (Background, Camera, DirectionalLight, Material, Plane, PointLight, Scene,
@@ -207,16 +209,24 @@ class _Parser:
                 values, end = self.fields({"position": self.vector, "color": self.vector, "falloff": self.number},
                                           {"position", "color"})
                 falloff = values.get("falloff", 1.0)
-                if falloff < 0.0:
+                if falloff <= 0.0:  # the intensity is color / (falloff * d^2)
                     raise SceneError(self.path, token.line, token.col,
-                                     f"expected a falloff >= 0, found {falloff:g}")
+                                     f"expected a falloff > 0, found {falloff:g}")
                 return PointLight(values["position"], values["color"], falloff)
             raise self.error(token, "DirectionalLight or PointLight")
         return self.counted("numLights", light)
 
     def background(self) -> Background:
+        start = self.peek()
         values, _ = self.fields({"color": self.vector, "ambientLight": self.vector, "cubeMap": self.path_value},
                                 set())
+        folder = values.get("cubeMap")
+        if folder is not None:
+            missing = [f for f in CUBE_FACES if not (folder / f"{f}.png").is_file()]
+            if missing:
+                raise SceneError(self.path, start.line, start.col,
+                                 f"expected cube-map faces {', '.join(f + '.png' for f in missing)} in {folder}, "
+                                 "found none")
         return Background(values.get("color", (0.0, 0.0, 0.0)), values.get("ambientLight", (0.0, 0.0, 0.0)),
                           values.get("cubeMap"))
 
@@ -293,6 +303,7 @@ class _Parser:
             self.objects.append(TriangleMesh(**common, path=path, positions=positions, faces=faces))
 
     def transform(self, to_world: np.ndarray) -> None:
+        start = self.peek()
         self.expect("{")
         matrix = np.eye(4)
         unary = {"XRotate": transforms.rotate_x, "YRotate": transforms.rotate_y, "ZRotate": transforms.rotate_z,
@@ -322,7 +333,13 @@ class _Parser:
                 matrix = np.array(columns, np.float64).reshape(4, 4).T @ matrix
             else:
                 break
-        self.object(to_world @ matrix)
+        world = to_world @ matrix
+        linear = world[:3, :3]
+        scale = np.abs(linear).max()
+        if not np.all(np.isfinite(world)) or scale == 0.0 or abs(np.linalg.det(linear / scale)) < 1e-12:
+            raise SceneError(self.path, start.line, start.col,
+                             "expected an invertible transform, found a singular one (a scale of 0?)")
+        self.object(world)
         self.expect("}")
 
 

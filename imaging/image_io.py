@@ -62,7 +62,11 @@ def read_png(path: str | Path) -> np.ndarray:
         return np.asarray(image.convert("RGB"))
 
 
-def read_cube_map(folder: Path, faces: tuple[str, ...]) -> np.ndarray:
+#: The six face files of a course cube map folder, in the order they are stored
+CUBE_FACES = ("left", "right", "up", "down", "front", "back")
+
+
+def read_cube_map(folder: Path, faces: tuple[str, ...] = CUBE_FACES) -> np.ndarray:
     """Reads the six faces ``folder/<face>.png`` as uint8 RGBX (6, N, N, 4), X
     being padding so that a texel is one aligned 32-bit word, decoding
     them in parallel (the PNG decoder releases the GIL). Scenes that share a

@@ -5,10 +5,7 @@ from pathlib import Path
 
 import drjit as dr
 import mitsuba as mi
-import numpy as np
 
-#: Face files of a course cube map, in the order they are stored
-FACES = ("left", "right", "up", "down", "front", "back")
 
 
 class CubeMapEmitter(mi.Emitter):
@@ -46,7 +43,7 @@ class CubeMapEmitter(mi.Emitter):
         from imaging.image_io import read_cube_map
         # relative to the XML file's folder when loaded from XML
         self.folder = Path(str(mi.file_resolver().resolve(props.get("filename"))))
-        faces = read_cube_map(self.folder, FACES)  # (6, N, N, 4) uint8 RGBX
+        faces = read_cube_map(self.folder)  # (6, N, N, 4) uint8 RGBX, faces in CUBE_FACES order
         self.size = faces.shape[1]
         self.scale = float(props.get("scale", 1.0))
         # One little-endian 32-bit word per texel (R | G << 8 | B << 16 | X << 24):

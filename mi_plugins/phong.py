@@ -37,6 +37,14 @@ class PhongBSDF(mi.BSDF):
        - Phong shininess :math:`s \geq 0` (Default: 0)
        - |exposed|
 
+     * - sampling
+       - |string|
+       - ``phong``: sample the diffuse and glossy lobes (a path tracer then
+         renders the full model); ``mirror``: sample only the Whitted mirror
+         (a path tracer then follows exactly the light paths of the
+         ``whitted`` integrator: direct light plus mirror recursion)
+         (Default: ``phong``)
+
     The shading model of the course's ray tracer, written as a BSDF so that
     Mitsuba's own integrators can use it. With :math:`\omega_o` the direction
     towards the light and :math:`R` the mirror image of the direction towards
@@ -82,6 +90,9 @@ class PhongBSDF(mi.BSDF):
         self.exponent = float(props.get("exponent", 0.0))
         if not self.exponent >= 0.0:
             raise ValueError(f"phong: exponent must be >= 0, got {self.exponent}")
+        self.sampling = str(props.get("sampling", "phong"))
+        if self.sampling not in ("phong", "mirror"):
+            raise ValueError(f"phong: sampling must be 'phong' or 'mirror', got {self.sampling!r}")
         self._update_flags()
 
     @staticmethod
@@ -113,8 +124,9 @@ class PhongBSDF(mi.BSDF):
             return ctx.is_enabled(flag, index)
         return enabled(0, mi.BSDFFlags.DiffuseReflection), enabled(1, mi.BSDFFlags.GlossyReflection)
 
-    @staticmethod
-    def _mirror_only(ctx: mi.BSDFContext) -> bool:
+    def _mirror_only(self, ctx: mi.BSDFContext) -> bool:
+        if self.sampling == "mirror":
+            return True
         mask = ctx.type_mask
         return (mi.has_flag(mask, mi.BSDFFlags.DeltaReflection)
                 and not mi.has_flag(mask, mi.BSDFFlags.DiffuseReflection)
@@ -144,6 +156,8 @@ class PhongBSDF(mi.BSDF):
 
     def pdf(self, ctx: mi.BSDFContext, si: mi.SurfaceInteraction3f, wo: mi.Vector3f,
             active: bool = True) -> mi.Float:
+        if self.sampling == "mirror":
+            return mi.Float(0.0)  # only the delta lobe is sampled
         diffuse, glossy = self._lobes(ctx)
         cos_i, cos_o = mi.Frame3f.cos_theta(si.wi), mi.Frame3f.cos_theta(wo)
         active = active & (cos_i > 0.0) & (cos_o > 0.0)
@@ -207,4 +221,4 @@ class PhongBSDF(mi.BSDF):
 
     def to_string(self):
         return (f"PhongBSDF[\n  diffuse_reflectance = {self.kd},\n  specular_reflectance = {self.ks},\n"
-                f"  exponent = {self.exponent}\n]")
+                f"  exponent = {self.exponent},\n  sampling = {self.sampling}\n]")

@@ -7,6 +7,9 @@ import re
 
 from .aovs import AOV_CHANNELS, OBJECT_ID_PREFIX, parse_aovs
 
+#: the longest ray (Mitsuba's "largest" float32)
+FLOAT32_MAX = float(np.finfo(np.float32).max)
+
 _OBJECT_ID = re.compile(OBJECT_ID_PREFIX + r"(\d+)(?:_part\d+)?")
 
 
@@ -145,21 +148,34 @@ class WhittedIntegrator(mi.SamplingIntegrator):
         self.counters = dr.zeros(mi.UInt32, size) if dr.is_jit_v(mi.Float) else [0] * size
 
     # -- kernels ------------------------------------------------------------
-    def spawn(self, si: mi.SurfaceInteraction3f, ray: mi.Ray3f) -> mi.Ray3f:
-        """A secondary ray from ``si`` that skips hits closer than ``ray_epsilon``.
+    def spawn(self, si: mi.SurfaceInteraction3f, direction: mi.Vector3f = None,
+              target: mi.Point3f = None) -> mi.Ray3f:
+        """A secondary ray from ``si`` along ``direction`` or towards ``target``
+        that skips hits closer than ``ray_epsilon``.
 
-        ``ray`` comes from ``si.spawn_ray[_to]`` (origin nudged off the surface
-        along the normal, safe at any scale). Where ``ray_epsilon`` is well above
-        the rounding error of the hit point, the ray starts from the hit point
-        itself instead, as in the course, so grazing mirror rays see what the
-        course's solution sees.
+        Without ``ray_epsilon`` this is Mitsuba's ``spawn_ray[_to]``. With it,
+        the ray starts at the hit point moved ``ray_epsilon`` along the ray, as
+        in the course; only where that distance is not well above the rounding
+        error of the hit point (~1e-7 of its coordinates) is the point first
+        nudged off the surface, by a few units of that rounding error. Unlike
+        Mitsuba's own offset, which never goes below ~1e-4 (as large as a
+        scene of that size), both scale with the scene.
         """
         if self.ray_epsilon == 0.0:
-            return ray
-        exact = self.ray_epsilon > (1.0 + dr.max(dr.abs(si.p))) * 1e-4
-        ray.o = dr.fma(ray.d, self.ray_epsilon, dr.select(exact, si.p, ray.o))
-        ray.maxt = dr.maximum(ray.maxt - self.ray_epsilon, 0.0)
-        return ray
+            return si.spawn_ray(direction) if target is None else si.spawn_ray_to(target)
+        reference = target - si.p if target is not None else direction
+        magnitude = dr.max(dr.abs(si.p))
+        nudge = magnitude * 2.0 ** -21  # ~8 float32 ulps of the hit point
+        side = dr.select(dr.dot(si.n, reference) >= 0.0, nudge, -nudge)
+        origin = dr.select(self.ray_epsilon > magnitude * 1e-4, si.p, dr.fma(si.n, side, si.p))
+        if target is None:
+            d, maxt = dr.normalize(direction), FLOAT32_MAX
+        else:
+            d = target - origin
+            distance = dr.norm(d)
+            d, maxt = d / distance, distance * (1.0 - mi.math.ShadowEpsilon)
+        return mi.Ray3f(dr.fma(d, self.ray_epsilon, origin), d, dr.maximum(maxt - self.ray_epsilon, 0.0),
+                        si.time, si.wavelengths)
 
     def shade(self, scene: mi.Scene, si: mi.SurfaceInteraction3f, active: mi.Bool) -> mi.Color3f:
         """Local illumination at ``si``, or the background where it is a miss."""
@@ -179,10 +195,11 @@ class WhittedIntegrator(mi.SamplingIntegrator):
             result += dr.select(hit, self.ambient * bsdf.eval_diffuse_reflectance(si, hit), 0.0)
         for light in self.delta_lights(scene):
             ds, radiance = light.sample_direction(si, mi.Point2f(0.5), hit)
-            lit = hit & (ds.pdf > 0.0)
+            # a point light exactly at the shaded point has no direction: unlit, not inf
+            lit = hit & (ds.pdf > 0.0) & (ds.dist > 0.0)
             if self.shadows:
                 self.count(self.SHADOW, lit)
-                lit &= dr.select(scene.ray_test(self.spawn(si, si.spawn_ray_to(ds.p)), lit), False, True)
+                lit &= dr.select(scene.ray_test(self.spawn(si, target=ds.p), lit), False, True)
             response = bsdf.eval(ctx, si, si.to_local(ds.d), lit)
             result += dr.select(lit, response * radiance, 0.0)
         return result
@@ -228,7 +245,7 @@ class WhittedIntegrator(mi.SamplingIntegrator):
         if not dr.is_jit_v(mi.Float) and not active:
             return mi.Color3f(0.0), dr.zeros(mi.Ray3f)  # scalar variants: no BSDF to call
         bs, weight = si.bsdf().sample(ctx, si, 0.0, mi.Point2f(0.0), active)
-        return weight, self.spawn(si, si.spawn_ray(si.to_world(bs.wo)))
+        return weight, self.spawn(si, direction=si.to_world(bs.wo))
 
     def first_hit_aovs(self, scene: mi.Scene, si: mi.SurfaceInteraction3f, active: mi.Bool) -> list[mi.Float]:
         if not self.aovs:

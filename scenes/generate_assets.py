@@ -21,10 +21,9 @@ from pathlib import Path
 import numpy as np
 
 from imaging.colour import to_course_8bit
-from imaging.image_io import atomic_path, write_image
+from imaging.image_io import CUBE_FACES as FACES, atomic_path, write_image
 
 ROOT = Path(__file__).resolve().parent
-FACES = ("left", "right", "up", "down", "front", "back")  # as mi_plugins.cubemap.FACES
 CUBE_SIZE = 128
 
 

@@ -23,8 +23,6 @@ _LIBLLVM = variants.find_libllvm()
 if _LIBLLVM:
     os.environ["DRJIT_LIBLLVM_PATH"] = _LIBLLVM
 
-import mitsuba as mi  # noqa: E402
-
 COURSE = Path(os.environ.get("COURSE_ROOT", ROOT.parent / "shared" / "course"))
 
 

@@ -7,7 +7,6 @@ import sys
 from pathlib import Path
 
 import numpy as np
-import pytest
 
 from imaging.image_io import read_exr, read_png
 from renderer.cli import build_parser, jobs_from_args, main, resolve_scene

@@ -1,7 +1,6 @@
 """The course's 21 reference images, rendered with its own command lines."""
 from __future__ import annotations
 
-import os
 import re
 
 import numpy as np

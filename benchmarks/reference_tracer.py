@@ -12,11 +12,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from converters.model import DirectionalLight, Plane, PointLight, Scene, Sphere, Triangle, TriangleMesh
+from converters.model import DirectionalLight, Plane, Scene, Sphere, Triangle, TriangleMesh
 from converters.to_mitsuba import RAY_EPSILON_FRACTION, scene_extent
-from imaging.image_io import read_png
-
-FACES = ("left", "right", "up", "down", "front", "back")
+from imaging.image_io import CUBE_FACES as FACES, read_png
 
 
 def normalize(v: np.ndarray) -> np.ndarray:

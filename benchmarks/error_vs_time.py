@@ -1,0 +1,229 @@
+"""Error against run time for each way of rendering a scene.
+
+    python -m benchmarks.error_vs_time [--quick] [--json PATH] [--out DIR]
+
+Per scene (the course's and ours), curves of error against wall time:
+
+- ``whitted``: our integrator with jittered supersampling, 1..256 spp, against
+  a converged whitted render (same light transport: the course's model);
+- ``path``: Mitsuba's path tracer with the full Phong model (all lobes
+  sampled, the background as an emitter), 1..4096 spp, against a converged
+  path render.
+
+Errors are relMSE and mean FLIP (``flip-evaluator``, LDR: the course displays
+linear values clamped to [0, 1]). Writes per scene a log-log plot
+``<out>/<scene>.png``, ``<out>/error_vs_time.csv`` and, with ``--json``,
+``{"points": [{scene, method, spp, seconds, relmse, flip}],
+"slopes": [{scene, method, slope, seconds_to_relmse_1e-3}]}``.
+The slope of log relMSE against log time is near -1 for Monte Carlo.
+"""
+from __future__ import annotations
+
+import argparse
+import csv
+import math
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from benchmarks import write_json
+from benchmarks.course import DEFAULT_COURSE, ROOT
+from benchmarks.crossval import relmse, scene_paths
+
+#: The course's flags per course scene; ours render with 3 bounces and shadows
+COURSE_FLAGS = {"scene06_bunny_1k": dict(bounces=4, shadows=False), "scene07_arch": dict(bounces=4, shadows=True)}
+OWN_FLAGS = dict(bounces=3, shadows=True)
+TARGET_RELMSE = 1e-3
+
+
+def flags_for(path: Path) -> dict:
+    if path.parent == ROOT / "scenes":
+        return OWN_FLAGS
+    return COURSE_FLAGS.get(path.stem, dict(bounces=0, shadows=False))
+
+
+def method_options(method: str, path: Path) -> dict:
+    """RenderOptions fields (beyond size, spp, seed) of a method."""
+    flags = flags_for(path)
+    if method == "whitted":
+        return dict(jitter=True, **flags)
+    if method == "path":
+        # the full model: every lobe, background lights the scene, deeper paths
+        return dict(jitter=True, integrator="path", ambient=False, bounces=max(flags["bounces"], 6),
+                    shadows=True)
+    raise ValueError(method)
+
+
+def flip_error(image: np.ndarray, reference: np.ndarray) -> float:
+    import flip_evaluator
+
+    _, mean, _ = flip_evaluator.evaluate(np.clip(reference, 0, 1).astype(np.float32),
+                                         np.clip(image, 0, 1).astype(np.float32), "LDR",
+                                         applyMagma=False)
+    return float(mean)
+
+
+def render_timed(path: Path, size: int, spp: int, seed: int, options: dict) -> tuple[np.ndarray, float]:
+    import drjit as dr
+    import mitsuba as mi
+
+    from converters.course_scene import load_scene
+    from converters.to_mitsuba import RenderOptions, load_scene_dict, scene_dict
+
+    scene = load_scene_dict(scene_dict(load_scene(path), RenderOptions(width=size, height=size, spp=spp,
+                                                                      seed=seed, **options)))
+    mi.render(scene, spp=1)  # kernels compiled and cached before timing
+    dr.sync_thread()
+    start = time.perf_counter()
+    image = mi.render(scene, spp=spp)  # (an spp argument sticks to the sampler: always pass it)
+    dr.eval(image)
+    dr.sync_thread()
+    seconds = time.perf_counter() - start
+    return np.array(image, np.float32)[..., :3], seconds
+
+
+def fit_slope(points: list[dict]) -> tuple[float, float | None]:
+    """Slope of log relMSE over log time, and the (interpolated or
+    extrapolated) time at which relMSE reaches TARGET_RELMSE.
+
+    Only renders that take at least 3x the quickest one are fitted: below
+    that, fixed per-render costs (kernel launch, film) dominate the time and
+    the curve is steeper than the Monte Carlo rate. At least the last three
+    points are used."""
+    usable = [p for p in points if p["relmse"] > 0 and p["seconds"] > 0]
+    quickest = min((p["seconds"] for p in usable), default=0.0)
+    sampled = [p for p in usable if p["seconds"] >= 3 * quickest]
+    usable = sampled if len(sampled) >= 3 else usable[-3:]
+    if len(usable) < 2:
+        return float("nan"), None
+    x = np.log([p["seconds"] for p in usable])
+    y = np.log([p["relmse"] for p in usable])
+    slope, intercept = np.polyfit(x, y, 1)
+    log_seconds = (math.log(TARGET_RELMSE) - intercept) / slope if slope < 0 else math.inf
+    return float(slope), (math.exp(log_seconds) if log_seconds < 700 else None)
+
+
+def measure(paths: list[Path], size: int, spp_by_method: dict[str, list[int]], reference_spp: dict[str, int],
+            progress=print) -> dict:
+    points, slopes = [], []
+    for path in paths:
+        for method, spps in spp_by_method.items():
+            options = method_options(method, path)
+            reference, _ = render_timed(path, size, reference_spp[method], 99, options)
+            curve = []
+            for spp in spps:
+                image, seconds = render_timed(path, size, spp, 1, options)
+                curve.append({"scene": path.stem, "method": method, "spp": spp, "seconds": seconds,
+                              "relmse": relmse(image, reference), "flip": flip_error(image, reference)})
+            points += curve
+            slope, to_target = fit_slope(curve)
+            slopes.append({"scene": path.stem, "method": method, "slope": slope,
+                           "seconds_to_relmse_1e-3": to_target})
+            progress(f"{path.stem} {method}: slope {slope:.2f}, relMSE 1e-3 after "
+                     f"{'n/a' if to_target is None else f'{to_target:.3g} s'}")
+    return {"points": points, "slopes": slopes,
+            "settings": {"image_size": size, "spp": spp_by_method, "reference_spp": reference_spp}}
+
+
+def refit(results: dict) -> dict:
+    """``results`` with its slopes fitted again from its points."""
+    slopes = []
+    for s in results["slopes"]:
+        curve = [p for p in results["points"] if p["scene"] == s["scene"] and p["method"] == s["method"]]
+        slope, to_target = fit_slope(curve)
+        slopes.append(dict(s, slope=slope, **{"seconds_to_relmse_1e-3": to_target}))
+    return dict(results, slopes=slopes)
+
+
+def plot_scene(results: dict, scene: str):
+    """Log-log relMSE and FLIP against seconds for one scene; returns the figure."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (ax_mse, ax_flip) = plt.subplots(1, 2, figsize=(10, 4))
+    for method in sorted({p["method"] for p in results["points"]}):
+        pts = [p for p in results["points"] if p["scene"] == scene and p["method"] == method]
+        if not pts:
+            continue
+        seconds = [p["seconds"] for p in pts]
+        fit = next(s for s in results["slopes"] if s["scene"] == scene and s["method"] == method)
+        label = f"{method} (slope {fit['slope']:.2f})"
+        ax_mse.loglog(seconds, [p["relmse"] for p in pts], "o-", label=label)
+        ax_flip.loglog(seconds, [p["flip"] for p in pts], "o-", label=method)
+        if fit["seconds_to_relmse_1e-3"]:
+            ax_mse.axvline(fit["seconds_to_relmse_1e-3"], ls=":", color=ax_mse.lines[-1].get_color())
+    ax_mse.axhline(TARGET_RELMSE, color="grey", lw=0.8)
+    ax_mse.set(xlabel="render time (s)", ylabel="relMSE", title=f"{scene}: relMSE (dotted: time to 1e-3)")
+    ax_flip.set(xlabel="render time (s)", ylabel="mean FLIP", title=f"{scene}: FLIP")
+    for ax in (ax_mse, ax_flip):
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend()
+    fig.tight_layout()
+    return fig
+
+
+def write_outputs(results: dict, out: Path) -> list[Path]:
+    from imaging.image_io import atomic_path
+
+    out.mkdir(parents=True, exist_ok=True)
+    written = []
+    for scene in sorted({p["scene"] for p in results["points"]}):
+        fig = plot_scene(results, scene)
+        with atomic_path(out / f"{scene}.png", ".png") as tmp:
+            fig.savefig(tmp, dpi=90, format="png")
+        written.append(out / f"{scene}.png")
+        import matplotlib.pyplot as plt
+
+        plt.close(fig)
+    with atomic_path(out / "error_vs_time.csv", ".csv") as tmp:
+        with open(tmp, "w", newline="") as f:
+            writer = csv.DictWriter(f, fieldnames=["scene", "method", "spp", "seconds", "relmse", "flip"])
+            writer.writeheader()
+            writer.writerows(results["points"])
+    written.append(out / "error_vs_time.csv")
+    return written
+
+
+def settings(quick: bool) -> tuple[int, dict, dict]:
+    if quick:
+        return 32, {"whitted": [1, 4, 16, 64], "path": [4, 16, 64, 256]}, {"whitted": 1024, "path": 4096}
+    return (96, {"whitted": [1, 2, 4, 8, 16, 32, 64, 128, 256], "path": [1, 4, 16, 64, 256, 1024, 4096]},
+            {"whitted": 4096, "path": 32768})
+
+
+def slope_table(results: dict) -> str:
+    """Markdown table: slope of log relMSE over log time, and time to relMSE 1e-3."""
+    lines = ["| scene | method | slope | seconds to relMSE 1e-3 |", "|---|---|---|---|"]
+    for s in results["slopes"]:
+        to_target = "not reached" if s["seconds_to_relmse_1e-3"] is None else f"{s['seconds_to_relmse_1e-3']:.3g}"
+        lines.append(f"| {s['scene']} | {s['method']} | {s['slope']:.2f} | {to_target} |")
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m benchmarks.error_vs_time", description=__doc__.split("\n\n")[0])
+    parser.add_argument("--quick", action="store_true", help="a small version (CI)")
+    parser.add_argument("--json", type=Path, metavar="PATH", help="write the points and slopes as JSON")
+    parser.add_argument("--out", type=Path, default=Path("out/error_vs_time"), help="folder for plots and CSV")
+    parser.add_argument("--course", type=Path, default=DEFAULT_COURSE, help="course folder (default ../shared/course)")
+    args = parser.parse_args(argv)
+    from renderer.variants import set_variant
+
+    set_variant(None, quiet=True)
+    size, spps, reference = settings(args.quick)
+    results = measure(scene_paths(args.course, args.quick), size, spps, reference,
+                      progress=lambda line: print(line, file=sys.stderr))
+    for path in write_outputs(results, args.out):
+        print(path)
+    if args.json:
+        write_json(args.json, results)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
+

@@ -1,0 +1,33 @@
+"""The stress suite's CI subset: every named case, and the fuzzer with 1,000+ inputs."""
+from __future__ import annotations
+
+import pytest
+
+from benchmarks.stress import fuzz, run_case
+from benchmarks.stress_cases import all_cases
+
+CASES = [c for c in all_cases() if c.fast]
+
+
+def test_enough_cases():
+    assert len(CASES) >= 40
+    assert len(all_cases()) >= 60
+
+
+@pytest.mark.parametrize("case", CASES, ids=lambda c: c.name)
+def test_case(variant_llvm_ad_rgb, case):
+    passed, detail = run_case(case)
+    assert passed, detail
+
+
+def test_fuzzer_finds_only_located_scene_errors():
+    assert fuzz(examples=400) >= 1000
+
+
+def test_a_case_can_fail(variant_llvm_ad_rgb):
+    """The checks bite: an error case whose scene is fine fails, and so does a
+    render case whose 'equivalent' differs."""
+    from benchmarks.stress_cases import Case, scene
+
+    assert not run_case(Case("not an error", scene(), "error", expect="anything"))[0]
+    assert not run_case(Case("wrong equivalent", scene(), "render", match=scene(angle="60")))[0]

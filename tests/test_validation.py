@@ -1,0 +1,76 @@
+"""The validation commands in their quick form, and the notebooks (executed small)."""
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import nbformat
+import pytest
+
+from benchmarks import crossval, error_vs_time
+
+ROOT = Path(__file__).resolve().parent.parent
+NOTEBOOKS = sorted((ROOT / "notebooks").glob("*.ipynb"))
+
+
+def test_crossval_quick(variant_llvm_ad_rgb, tmp_path):
+    out = tmp_path / "cv.json"
+    assert crossval.main(["--quick", "--json", str(out)]) == 0
+    results = json.loads(out.read_text())
+    assert len(results["chi2"]) >= 12 and all(c["passed"] for c in results["chi2"])
+    assert {c["theta_deg"] for c in results["chi2"]} >= {85.0}
+    assert all(f["passed"] and f["albedo"] <= 1.0 + 4 * f["stderr"] for f in results["furnace"])
+    assert all(a["relmse_whitted_path"] <= 2 * a["relmse_path_path"] for a in results["agreement"])
+
+
+def test_chi2_detects_a_wrong_pdf(variant_llvm_ad_rgb, monkeypatch):
+    """The chi-square check can fail: a pdf off by a shininess of 10% is caught."""
+    import mitsuba as mi
+
+    registered = type(mi.load_dict({"type": "phong"}))  # the class this variant instantiates
+    original = registered._lobe_pdf
+
+    def wrong(self, cos_alpha):
+        return original(self, cos_alpha) * (1.1 + 0.5 * cos_alpha)  # no longer the sampled density
+
+    monkeypatch.setattr(registered, "_lobe_pdf", wrong)
+    assert not crossval.chi2_case(0.2, 0.8, 50.0, 30.0, sample_count=200_000)["passed"]
+
+
+def test_error_vs_time_quick(variant_llvm_ad_rgb, tmp_path):
+    out = tmp_path / "evt.json"
+    assert error_vs_time.main(["--quick", "--json", str(out), "--out", str(tmp_path / "plots")]) == 0
+    results = json.loads(out.read_text())
+    methods = {(p["scene"], p["method"]) for p in results["points"]}
+    assert {m for _, m in methods} == {"whitted", "path"}
+    for scene, method in methods:
+        curve = [p for p in results["points"] if p["scene"] == scene and p["method"] == method]
+        assert curve[-1]["relmse"] < curve[0]["relmse"]  # more samples, less error
+        assert all(0 <= p["flip"] <= 1 for p in curve)
+    # (the slope itself depends on timings; at the quick size fixed costs dominate)
+    assert all(s["slope"] == s["slope"] for s in results["slopes"])
+    assert (tmp_path / "plots" / "error_vs_time.csv").exists()
+    assert len(list((tmp_path / "plots").glob("*.png"))) == len({s for s, _ in methods})
+
+
+@pytest.mark.parametrize("path", NOTEBOOKS, ids=lambda p: p.stem)
+def test_notebook_is_stored_without_outputs(path):
+    notebook = nbformat.read(path, as_version=4)
+    for cell in notebook.cells:
+        if cell.cell_type == "code":
+            assert cell.outputs == [] and cell.execution_count is None
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("path", NOTEBOOKS, ids=lambda p: p.stem)
+def test_notebook_runs(path, monkeypatch):
+    from nbclient import NotebookClient
+
+    monkeypatch.setenv("NOTEBOOK_QUICK", "1")
+    monkeypatch.setenv("PYTHONPATH", os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]))
+    notebook = nbformat.read(path, as_version=4)
+    NotebookClient(notebook, timeout=600, kernel_name="python3",
+                   resources={"metadata": {"path": str(ROOT)}}).execute()
+    errors = [o for c in notebook.cells if c.cell_type == "code" for o in c.outputs if o.output_type == "error"]
+    assert not errors
