@@ -199,9 +199,9 @@ def object_dict(scene: Scene, index: int, extent: tuple[np.ndarray, float]) -> d
         centre, radius = extent
         height = abs(float(np.dot(centre - point, world_normal)))
         foot = centre - np.dot(centre - point, world_normal) * world_normal
-        return {"type": "plane_tiles",
-                "to_world": [m for m in plane_tiles(_frame_to_world(world_normal), foot,
-                                                             2.0 * radius + height, PLANE_EXTENT * max(radius, height))]}
+        return {"type": "plane_tiles", "to_world": plane_tiles(_frame_to_world(world_normal), foot,
+                                                               2.0 * radius + height,
+                                                               PLANE_EXTENT * max(radius, height))}
     if isinstance(obj, Triangle):
         positions = _transform_points(m, np.asarray(obj.vertices, np.float64))
         return _mesh(positions, np.array([[0, 1, 2]], np.uint32))
@@ -211,21 +211,12 @@ def object_dict(scene: Scene, index: int, extent: tuple[np.ndarray, float]) -> d
 
 
 def _quaternion_xyzw(r: np.ndarray) -> list[float]:
-    """Unit quaternion (x, y, z, w) of a rotation matrix."""
-    trace = np.trace(r)
-    if trace > 0:
-        s = 2.0 * math.sqrt(trace + 1.0)
-        w, x, y, z = 0.25 * s, (r[2, 1] - r[1, 2]) / s, (r[0, 2] - r[2, 0]) / s, (r[1, 0] - r[0, 1]) / s
-    elif r[0, 0] > r[1, 1] and r[0, 0] > r[2, 2]:
-        s = 2.0 * math.sqrt(1.0 + r[0, 0] - r[1, 1] - r[2, 2])
-        w, x, y, z = (r[2, 1] - r[1, 2]) / s, 0.25 * s, (r[0, 1] + r[1, 0]) / s, (r[0, 2] + r[2, 0]) / s
-    elif r[1, 1] > r[2, 2]:
-        s = 2.0 * math.sqrt(1.0 + r[1, 1] - r[0, 0] - r[2, 2])
-        w, x, y, z = (r[0, 2] - r[2, 0]) / s, (r[0, 1] + r[1, 0]) / s, 0.25 * s, (r[1, 2] + r[2, 1]) / s
-    else:
-        s = 2.0 * math.sqrt(1.0 + r[2, 2] - r[0, 0] - r[1, 1])
-        w, x, y, z = (r[1, 0] - r[0, 1]) / s, (r[0, 2] + r[2, 0]) / s, (r[1, 2] + r[2, 1]) / s, 0.25 * s
-    return [x, y, z, w]
+    """Unit quaternion (x, y, z, w) of a rotation matrix (Dr.Jit's conversion)."""
+    import drjit as dr
+    from drjit.scalar import Matrix3f64
+
+    q = dr.matrix_to_quat(Matrix3f64(np.asarray(r, np.float64).tolist()))
+    return [float(q[0]), float(q[1]), float(q[2]), float(q[3])]
 
 
 def scene_dict(scene: Scene, options: RenderOptions = RenderOptions()) -> dict:
