@@ -1,0 +1,211 @@
+"""The denoiser's kernels, as Dr.Jit array code of the active Mitsuba variant.
+
+Images are ``mi.TensorXf`` of shape (H, W, C); pixel (x, y) has flat index
+``y * W + x``. No loop runs per pixel in Python: each filter is a handful of
+kernels over all pixels (a symbolic loop over the window for the bilateral
+filter, one kernel per level for À-Trous).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import drjit as dr
+import mitsuba as mi
+
+#: B3-spline taps of the À-Trous wavelet
+B3 = (1.0 / 16.0, 1.0 / 4.0, 3.0 / 8.0, 1.0 / 4.0, 1.0 / 16.0)
+
+
+@dataclass(frozen=True)
+class BilateralParams:
+    """Joint bilateral weights ``exp(-Σ D²/(2σ²))`` over pixel distance, colour,
+    normal angle (``arccos`` of the normals' dot) and plane distance (the
+    normal dotted with the unit vector between the two positions)."""
+    sigma_coord: float = 32.0
+    sigma_color: float = 0.6
+    sigma_normal: float = 0.1
+    sigma_plane: float = 0.1
+    radius: int = 16  # window (2 radius + 1)^2, for the plain bilateral filter
+
+
+@dataclass(frozen=True)
+class TemporalParams:
+    alpha: float = 0.2  # weight of the current frame; 1 where the history is invalid
+    k: float = 1.0  # clamp the history to mean ± k·σ of the current 7x7 neighbourhood
+    clamp_radius: int = 3
+
+
+def _inv_two_sigma_sq(sigma: float) -> float:
+    # sigma -> 0 means "only identical values": a huge but finite factor keeps exp() at 0, not NaN
+    return 1.0 / max(2.0 * sigma * sigma, 1e-30)
+
+
+def _safe_normalize(v: mi.Vector3f) -> mi.Vector3f:
+    length = dr.norm(v)
+    return dr.select(length > 0.0, v / dr.select(length > 0.0, length, 1.0), 0.0)
+
+
+def edge_log_weight(coefficients: tuple[float, float, float], color_i, normal_i, position_i,
+                    color_j, normal_j, position_j) -> mi.Float:
+    """Sum of the colour, normal and plane terms of the weight's exponent, each
+    D² times its 1/(2σ²) in ``coefficients``. Identical positions give a plane
+    distance of 0, not 0/0."""
+    k_color, k_normal, k_plane = coefficients
+    d_color = dr.squared_norm(color_i - color_j)
+    d_normal = dr.square(dr.acos(dr.clip(dr.dot(normal_i, normal_j), -1.0, 1.0)))
+    d_plane = dr.square(dr.dot(normal_i, _safe_normalize(position_j - position_i)))
+    return d_color * k_color + d_normal * k_normal + d_plane * k_plane
+
+
+def _coefficients(p: BilateralParams, sigma_color: float) -> tuple[float, float, float]:
+    return _inv_two_sigma_sq(sigma_color), _inv_two_sigma_sq(p.sigma_normal), _inv_two_sigma_sq(p.sigma_plane)
+
+
+class Frame:
+    """One frame's buffers as flat Dr.Jit arrays (colour, normal, position).
+
+    Non-finite colours become 0 and normals are normalised (zero-length ones
+    stay 0), so no NaN can spread through the weights."""
+
+    def __init__(self, color: mi.TensorXf, normal: mi.TensorXf, position: mi.TensorXf):
+        self.height, self.width = color.shape[0], color.shape[1]
+        c = dr.unravel(mi.Vector3f, color.array)
+        self.color = dr.select(dr.isfinite(c), c, 0.0)
+        self.normal = _safe_normalize(dr.unravel(mi.Vector3f, normal.array))
+        q = dr.unravel(mi.Vector3f, position.array)
+        self.position = dr.select(dr.isfinite(q), q, 0.0)
+        index = dr.arange(mi.UInt32, self.width * self.height)
+        self.x = mi.Int32(index % self.width)
+        self.y = mi.Int32(index // self.width)
+
+    def gather(self, array: mi.Vector3f, x: mi.Int32, y: mi.Int32, active) -> mi.Vector3f:
+        return dr.gather(mi.Vector3f, array, mi.UInt32(y * self.width + x), active)
+
+    def tensor(self, color: mi.Vector3f) -> mi.TensorXf:
+        return mi.TensorXf(dr.ravel(color), shape=(self.height, self.width, 3))
+
+
+@dr.syntax
+def joint_bilateral(frame: Frame, p: BilateralParams = BilateralParams()) -> mi.TensorXf:
+    """The assignment's joint bilateral filter over a (2r+1)^2 window."""
+    r = p.radius
+    side = 2 * r + 1
+    k_coord = _inv_two_sigma_sq(p.sigma_coord)  # plain floats: not loop state
+    coefficients = _coefficients(p, p.sigma_color)
+    total = mi.Vector3f(frame.color)  # the centre pixel, weight exp(0) = 1
+    weights = mi.Float(1.0)
+    k = mi.UInt32(0)
+    while k < side * side:
+        dx, dy = mi.Int32(k % side) - r, mi.Int32(k // side) - r
+        x, y = frame.x + dx, frame.y + dy
+        inside = (x >= 0) & (x < frame.width) & (y >= 0) & (y < frame.height) & ((dx != 0) | (dy != 0))
+        color_j = frame.gather(frame.color, x, y, inside)
+        log_w = (mi.Float(dx * dx + dy * dy) * k_coord
+                 + edge_log_weight(coefficients, frame.color, frame.normal, frame.position, color_j,
+                                   frame.gather(frame.normal, x, y, inside), frame.gather(frame.position, x, y, inside)))
+        w = dr.select(inside, dr.exp(-log_w), 0.0)
+        total += w * color_j
+        weights += w
+        k += 1
+    return frame.tensor(total / weights)
+
+
+def atrous(frame: Frame, p: BilateralParams = BilateralParams(), levels: int = 5) -> mi.TensorXf:
+    """The À-Trous wavelet: ``levels`` passes of a 5x5 B3-spline kernel with
+    holes (step 2^i), each with the bilateral edge-stopping weights; the
+    colour sigma halves from one level to the next."""
+    color = frame.color
+    for level in range(levels):
+        step = 1 << level
+        coefficients = _coefficients(p, p.sigma_color / step)
+        total, weights = mi.Vector3f(0.0), mi.Float(0.0)
+        for j, hy in enumerate(B3):
+            for i, hx in enumerate(B3):
+                dx, dy = (i - 2) * step, (j - 2) * step
+                x, y = frame.x + dx, frame.y + dy
+                inside = (x >= 0) & (x < frame.width) & (y >= 0) & (y < frame.height)
+                color_j = frame.gather(color, x, y, inside)
+                if dx == 0 and dy == 0:
+                    w = mi.Float(hx * hy)
+                else:
+                    log_w = edge_log_weight(coefficients, color, frame.normal, frame.position, color_j,
+                                            frame.gather(frame.normal, x, y, inside),
+                                            frame.gather(frame.position, x, y, inside))
+                    w = dr.select(inside, hx * hy * dr.exp(-log_w), 0.0)
+                total += w * color_j
+                weights += w
+        color = total / weights
+        dr.eval(color)  # the next level gathers from this one
+    return frame.tensor(color)
+
+
+def reproject(position: mi.TensorXf, ids: mi.TensorXf, prev_ids: mi.TensorXf, object_to_world, prev_object_to_world,
+              prev_world_to_screen) -> tuple[mi.UInt32, mi.Bool]:
+    """Back projection: for each pixel, the flat index of where its surface
+    point was in the previous frame, and whether that is valid (on screen,
+    in front of the camera, and the same object there).
+
+    ``object_to_world`` and ``prev_object_to_world`` are lists of 4x4 NumPy
+    matrices (one per object), ``prev_world_to_screen`` a 4x4 NumPy matrix.
+    """
+    import numpy as np
+
+    height, width = position.shape[0], position.shape[1]
+    p = dr.unravel(mi.Point3f, position.array)
+    obj = mi.Int32(ids.array)
+    count = len(object_to_world)
+    # per object: the previous frame's world from this frame's world, then the screen
+    to_prev = np.stack([np.asarray(prev_world_to_screen) @ np.asarray(prev_object_to_world[k])
+                        @ np.linalg.inv(np.asarray(object_to_world[k])) for k in range(count)]) if count else \
+        np.zeros((0, 4, 4))
+    table = mi.Float(to_prev.astype(np.float32).ravel()) if count else mi.Float(0.0)
+    valid = (obj >= 0) & (obj < count)
+    base = mi.UInt32(dr.select(valid, obj, 0)) * 16
+    rows = [[dr.gather(mi.Float, table, base + 4 * i + j, valid) for j in range(4)] for i in range(4)]
+    sx = rows[0][0] * p.x + rows[0][1] * p.y + rows[0][2] * p.z + rows[0][3]
+    sy = rows[1][0] * p.x + rows[1][1] * p.y + rows[1][2] * p.z + rows[1][3]
+    sw = rows[3][0] * p.x + rows[3][1] * p.y + rows[3][2] * p.z + rows[3][3]
+    valid &= sw > 0.0
+    px = dr.floor(sx / dr.select(valid, sw, 1.0))
+    py = dr.floor(sy / dr.select(valid, sw, 1.0))
+    valid &= dr.isfinite(px) & dr.isfinite(py) & (px >= 0) & (px < width) & (py >= 0) & (py < height)
+    index = dr.select(valid, mi.UInt32(mi.Int32(py)) * width + mi.UInt32(mi.Int32(px)), 0)
+    valid &= mi.Int32(dr.gather(mi.Float, prev_ids.array, index, valid)) == obj
+    return index, valid
+
+
+def clamp_box(color: mi.TensorXf, radius: int = 3) -> tuple[mi.Vector3f, mi.Vector3f]:
+    """Mean and standard deviation of each pixel's (2r+1)^2 neighbourhood (inside
+    the image), computed around the centre value so that HDR values with small
+    noise do not cancel (no negative variance)."""
+    height, width = color.shape[0], color.shape[1]
+    c = dr.unravel(mi.Vector3f, color.array)
+    index = dr.arange(mi.UInt32, width * height)
+    x0, y0 = mi.Int32(index % width), mi.Int32(index // width)
+    total, total_sq, count = mi.Vector3f(0.0), mi.Vector3f(0.0), mi.Float(0.0)
+    for dy in range(-radius, radius + 1):
+        for dx in range(-radius, radius + 1):
+            x, y = x0 + dx, y0 + dy
+            inside = (x >= 0) & (x < width) & (y >= 0) & (y < height)
+            d = dr.select(inside, dr.gather(mi.Vector3f, c, mi.UInt32(y * width + x), inside) - c, 0.0)
+            total += d
+            total_sq += d * d
+            count += dr.select(inside, 1.0, 0.0)
+    mean_offset = total / count
+    variance = dr.maximum(total_sq / count - mean_offset * mean_offset, 0.0)
+    return c + mean_offset, dr.sqrt(variance)
+
+
+def accumulate(current: mi.TensorXf, previous: mi.TensorXf | None, index: mi.UInt32 | None, valid: mi.Bool | None,
+               p: TemporalParams = TemporalParams()) -> mi.TensorXf:
+    """``α·C_i + (1-α)·clamp(C̄_{i-1})`` with the history clamped to mean ± k·σ of
+    the current neighbourhood; α = 1 where the history is invalid."""
+    c = dr.unravel(mi.Vector3f, current.array)
+    if previous is None:
+        return current
+    history = dr.gather(mi.Vector3f, dr.unravel(mi.Vector3f, previous.array), index, valid)
+    mean, sigma = clamp_box(current, p.clamp_radius)
+    history = dr.clip(history, mean - p.k * sigma, mean + p.k * sigma)
+    alpha = dr.select(valid & dr.all(dr.isfinite(history)), p.alpha, 1.0)
+    out = alpha * c + (1.0 - alpha) * history
+    return mi.TensorXf(dr.ravel(out), shape=current.shape)

@@ -1,0 +1,242 @@
+"""The denoiser's Dr.Jit kernels against a plain NumPy implementation of the same maths."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from converters.course_scene import load_scene
+from helpers import render_layers
+
+ROOT = Path(__file__).resolve().parent.parent
+B3 = np.array([1, 4, 6, 4, 1]) / 16.0
+
+
+# -- the NumPy reference ------------------------------------------------------------
+def np_normalize(v):
+    n = np.linalg.norm(v, axis=-1, keepdims=True)
+    return np.divide(v, n, out=np.zeros_like(v), where=n > 0)
+
+
+def shifted(a, dx, dy):
+    """a[y + dy, x + dx] and whether it is inside the image."""
+    h, w = a.shape[:2]
+    out = np.zeros_like(a)
+    inside = np.zeros((h, w), bool)
+    ys, xs = slice(max(0, -dy), min(h, h - dy)), slice(max(0, -dx), min(w, w - dx))
+    ys2, xs2 = slice(max(0, dy), min(h, h + dy)), slice(max(0, dx), min(w, w + dx))
+    out[ys, xs] = a[ys2, xs2]
+    inside[ys, xs] = True
+    return out, inside
+
+
+def np_edge(sc, sn, sp, ci, ni, xi, cj, nj, xj):
+    d_color = ((ci - cj) ** 2).sum(-1)
+    d_normal = np.arccos(np.clip((ni * nj).sum(-1), -1, 1)) ** 2
+    d_plane = (ni * np_normalize(xj - xi)).sum(-1) ** 2
+    return d_color / (2 * sc ** 2) + d_normal / (2 * sn ** 2) + d_plane / (2 * sp ** 2)
+
+
+def np_bilateral(c, n, x, r, s_coord, sc, sn, sp):
+    n = np_normalize(n)
+    total, weights = c.copy(), np.ones(c.shape[:2])
+    for dy in range(-r, r + 1):
+        for dx in range(-r, r + 1):
+            if dx == 0 and dy == 0:
+                continue
+            cj, inside = shifted(c, dx, dy)
+            nj, _ = shifted(n, dx, dy)
+            xj, _ = shifted(x, dx, dy)
+            w = np.exp(-((dx * dx + dy * dy) / (2 * s_coord ** 2) + np_edge(sc, sn, sp, c, n, x, cj, nj, xj)))
+            w = np.where(inside, w, 0)
+            total += w[..., None] * cj
+            weights += w
+    return total / weights[..., None]
+
+
+def np_atrous(c, n, x, levels, sc, sn, sp):
+    n = np_normalize(n)
+    for level in range(levels):
+        step = 1 << level
+        total, weights = np.zeros_like(c), np.zeros(c.shape[:2])
+        for j in range(5):
+            for i in range(5):
+                dx, dy = (i - 2) * step, (j - 2) * step
+                cj, inside = shifted(c, dx, dy)
+                nj, _ = shifted(n, dx, dy)
+                xj, _ = shifted(x, dx, dy)
+                if dx == 0 and dy == 0:
+                    w = np.full(c.shape[:2], B3[i] * B3[j])
+                else:
+                    w = np.where(inside, B3[i] * B3[j] * np.exp(-np_edge(sc / step, sn, sp, c, n, x, cj, nj, xj)), 0)
+                total += w[..., None] * cj
+                weights += w
+        c = total / weights[..., None]
+    return c
+
+
+def np_accumulate(current, previous, index, valid, alpha, k, r):
+    h, w = current.shape[:2]
+    flat = previous.reshape(-1, 3)
+    history = np.where(valid.reshape(h, w, 1), flat[index].reshape(h, w, 3), 0)
+    mean, count, square = np.zeros_like(current), np.zeros((h, w, 1)), np.zeros_like(current)
+    for dy in range(-r, r + 1):
+        for dx in range(-r, r + 1):
+            cj, inside = shifted(current, dx, dy)
+            mean += np.where(inside[..., None], cj, 0)
+            square += np.where(inside[..., None], cj * cj, 0)
+            count += inside[..., None]
+    mean /= count
+    sigma = np.sqrt(np.maximum(square / count - mean ** 2, 0))
+    history = np.clip(history, mean - k * sigma, mean + k * sigma)
+    a = np.where(valid.reshape(h, w, 1), alpha, 1.0)
+    return a * current + (1 - a) * history
+
+
+# -- fixtures ------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def buffers():
+    """Realistic buffers: G-buffers of our showcase scene and a noisy 1-spp path-traced beauty."""
+    from conftest import _set
+
+    _set("llvm_ad_rgb")
+    scene = load_scene(ROOT / "scenes" / "showcase.txt")
+    g = render_layers(scene, width=40, height=28, aovs=("normal", "position", "id"))
+    noisy = render_layers(scene, width=40, height=28, spp=1, jitter=True, integrator="path", bounces=3)[""]
+    return noisy.astype(np.float64), g["normal"].astype(np.float64), g["position"].astype(np.float64), g["id"]
+
+
+def tensors(*arrays):
+    import mitsuba as mi
+
+    return [mi.TensorXf(np.ascontiguousarray(a, np.float32)) for a in arrays]
+
+
+def close(ours, reference):
+    ours, reference = np.asarray(ours, np.float64), np.asarray(reference, np.float64)
+    scale = np.maximum(np.abs(reference), 1e-2)
+    return float(np.max(np.abs(ours - reference) / scale))
+
+
+# -- tests ---------------------------------------------------------------------------
+def test_joint_bilateral_matches_numpy(variant_llvm_ad_rgb, buffers):
+    from denoise.filters import BilateralParams, Frame, joint_bilateral
+
+    c, n, x, _ = buffers
+    p = BilateralParams(sigma_coord=3.0, sigma_color=0.6, sigma_normal=0.3, sigma_plane=0.3, radius=4)
+    ours = np.array(joint_bilateral(Frame(*tensors(c, n, x)), p))
+    reference = np_bilateral(c, n, x, 4, 3.0, 0.6, 0.3, 0.3)
+    assert close(ours, reference) < 1e-4
+    assert np.abs(np.diff(ours, axis=1)).mean() < np.abs(np.diff(c, axis=1)).mean()  # it smooths
+
+
+def test_atrous_matches_numpy(variant_llvm_ad_rgb, buffers):
+    from denoise.filters import BilateralParams, Frame, atrous
+
+    c, n, x, _ = buffers
+    p = BilateralParams(sigma_color=0.6, sigma_normal=0.3, sigma_plane=0.3)
+    ours = np.array(atrous(Frame(*tensors(c, n, x)), p, levels=3))
+    assert close(ours, np_atrous(c, n, x, 3, 0.6, 0.3, 0.3)) < 1e-4
+
+
+def test_accumulate_matches_numpy(variant_llvm_ad_rgb, buffers):
+    import mitsuba as mi
+
+    from denoise.filters import TemporalParams, accumulate
+
+    c, _, _, _ = buffers
+    rng = np.random.default_rng(5)
+    previous = c * 0.8 + 0.1
+    index = rng.integers(0, c.shape[0] * c.shape[1], c.shape[0] * c.shape[1])
+    valid = rng.random(index.shape) > 0.3
+    current, prev = tensors(c, previous)
+    ours = np.array(accumulate(current, prev, mi.UInt32(index.astype(np.uint32)), mi.Bool(valid),
+                               TemporalParams(alpha=0.2, k=1.0, clamp_radius=3)))
+    assert close(ours, np_accumulate(c, previous, index, valid, 0.2, 1.0, 3)) < 1e-4
+
+
+def test_screen_matrix_and_static_reprojection(variant_llvm_ad_rgb, buffers):
+    """The world-to-screen matrix sends each pixel's surface point to that pixel;
+    so in a static scene every hit reprojects onto itself and the background is invalid."""
+    from denoise.filters import reproject
+    from denoise.frames import camera_matrices
+
+    _, _, x, ids = buffers
+    h, w = ids.shape
+    scene = load_scene(ROOT / "scenes" / "showcase.txt")
+    _, screen = camera_matrices(scene.camera, w, h)
+    hit = ids >= 0
+    p = np.concatenate([x[hit], np.ones((hit.sum(), 1))], 1) @ screen.T
+    pixels = np.floor(p[:, :2] / p[:, 3:])
+    rows, cols = np.nonzero(hit)
+    assert np.mean((pixels[:, 0] == cols) & (pixels[:, 1] == rows)) > 0.999
+    objects = [np.eye(4)] * len(scene.objects)
+    index, valid = reproject(*tensors(x, ids, ids), objects, objects, screen)
+    index, valid = np.array(index), np.array(valid)
+    assert not valid[~hit.ravel()].any()
+    own = np.arange(h * w)
+    assert np.mean(valid[hit.ravel()] & (index[hit.ravel()] == own[hit.ravel()])) > 0.999
+
+
+def test_frame_folder_round_trip(tmp_path):
+    from denoise.frames import FrameData, read_frame, write_frame
+
+    rng = np.random.default_rng(2)
+    frame = FrameData(rng.random((4, 5, 3)), rng.random((4, 5, 3)), rng.random((4, 5, 3)), rng.random((4, 5)),
+                      rng.integers(-1, 3, (4, 5)), [np.eye(4), np.diag([2.0, 2, 2, 1])], np.eye(4) * 3, np.eye(4) * 4)
+    write_frame(tmp_path, 0, frame)
+    back = read_frame(tmp_path, 0)
+    assert np.allclose(back.beauty, frame.beauty, atol=1e-6) and np.array_equal(back.ids, frame.ids)
+    assert np.allclose(back.object_to_world[1], frame.object_to_world[1])
+    assert np.allclose(back.world_to_screen, frame.world_to_screen)
+    (tmp_path / "matrix_0.mat").write_bytes(b"\x02\x00\x00\x00")
+    with pytest.raises(ValueError, match="expected 260 bytes for 2 objects"):
+        read_frame(tmp_path, 0)
+
+
+DIFFUSE_SCENE = """
+PerspectiveCamera { center 0 2 7 direction 0 -0.25 -1 up 0 1 0 angle 40 }
+Lights { numLights 1 DirectionalLight { direction -0.3 -1 -0.4 color 0.8 0.8 0.8 } }
+Background { color 0.2 0.3 0.5 ambientLight 0.15 0.15 0.15 }
+Materials { numMaterials 3 Material { diffuseColor 0.7 0.7 0.65 } Material { diffuseColor 0.8 0.2 0.2 }
+            Material { diffuseColor 0.2 0.3 0.8 } }
+Group { numObjects 3
+  MaterialIndex 0 Plane { normal 0 1 0 offset 0 }
+  MaterialIndex 1 Sphere { center -1 0.8 0 radius 0.8 }
+  MaterialIndex 2 Transform { Translate 1.2 0.6 0.3 UniformScale 0.6 Sphere { center 0 0 0 radius 1 } } }
+"""
+
+
+@pytest.mark.parametrize("motion", ["camera", "object"])
+def test_reprojection_of_the_ground_truth(variant_llvm_ad_rgb, tmp_path, motion):
+    """The previous frame's ground truth, back-projected onto the current frame,
+    matches the current ground truth: relMSE <= 1e-3 over the valid pixels.
+    (Ground truth here: whitted through the pixel centres, the points the
+    G-buffers describe, on a diffuse scene, so only geometry can differ.)"""
+    import mitsuba as mi
+
+    from benchmarks.crossval import relmse
+    from denoise.export import Spec, export, reference_folder
+    from denoise.filters import reproject
+    from denoise.frames import read_frame
+    from imaging.image_io import read_exr
+
+    (tmp_path / "diffuse.txt").write_text(DIFFUSE_SCENE)
+    moves = {"camera": dict(camera={"orbit": {"center": [0, 0.5, 0], "degrees": 4}, "pan": [0.2, 0, 0]}),
+             "object": dict(objects={"2": {"translate": [-0.3, 0, 0.2]}})}[motion]
+    spec = Spec(scene=str(tmp_path / "diffuse.txt"), frames=2, size=(96, 64), spp=1, reference_spp=1,
+                bounces=0, shadows=False, jitter=False, **moves)
+    target = tmp_path / "seq"
+    assert export(spec, target, whitted=True) == [0, 1]
+    assert export(spec, target, whitted=True) == []  # resumes: nothing left to do
+    before, after = read_frame(target, 0), read_frame(target, 1)
+    truth = [np.stack([read_exr(reference_folder(target) / f"beauty_{i}.exr")[c] for c in "RGB"], -1)
+             for i in (0, 1)]
+    index, valid = reproject(*tensors(after.position, after.ids, before.ids), after.object_to_world,
+                             before.object_to_world, before.world_to_screen)
+    index, valid = np.array(index), np.array(valid)
+    assert valid.mean() > 0.5  # the rest is sky or newly visible
+    warped = truth[0].reshape(-1, 3)[index][valid]
+    assert relmse(warped, truth[1].reshape(-1, 3)[valid]) <= 1e-3
+    assert relmse(truth[0].reshape(-1, 3)[valid], truth[1].reshape(-1, 3)[valid]) > 1e-3  # it did move
