@@ -2,11 +2,12 @@
 
     python -m benchmarks.stress [--json PATH] [--fuzz N] [--quick]
 
-Runs every named case of :mod:`benchmarks.stress_cases` (each states its
-expected behaviour) and fuzzes the parser and converter with hypothesis:
+Runs every named case of :mod:`benchmarks.stress_cases` (the renderer) and
+:mod:`benchmarks.stress_denoise` (the denoiser), each stating its expected
+behaviour, and fuzzes the parser and converter with hypothesis:
 mutated scenes, token soup, and raw bytes as scene and as OBJ files. Only
 :class:`SceneError`, with ``file:line:col``, may come out. Prints and writes
-``{"cases": N, "passed": N, "fuzz_inputs": M, "failures": [...]}``; exits
+``{"cases": N, "passed": N, "fuzz_inputs": M}`` (with ``--json``, every case's result too); exits
 non-zero on any failure.
 """
 from __future__ import annotations
@@ -201,11 +202,17 @@ def run(fuzz_examples: int, quick: bool) -> dict:
     from renderer.variants import set_variant
 
     set_variant(None, quiet=True)
+    from benchmarks.stress_denoise import denoise_cases
+
     cases = [c for c in all_cases() if c.fast or not quick]
     results = []
     for case in cases:
         passed, detail = run_case(case)
-        results.append({"name": case.name, "kind": case.kind, "passed": passed, "detail": detail})
+        results.append({"name": case.name, "kind": case.kind, "passed": bool(passed), "detail": detail})
+    for case in denoise_cases():
+        if case.fast or not quick:
+            passed, detail = case.check()
+            results.append({"name": case.name, "kind": "denoise", "passed": bool(passed), "detail": detail})
     fuzz_inputs, fuzz_failure = 0, None
     try:
         fuzz_inputs = fuzz(fuzz_examples)

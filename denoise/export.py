@@ -118,7 +118,7 @@ def render_frame(scene: Scene, spec: Spec, index: int, whitted: bool = False) ->
     from renderer.job import split_layers
 
     width, height = spec.size
-    aovs = ("depth", "normal", "position", "id")
+    aovs = ("depth", "normal", "position", "id", "albedo")
     gbuffer = RenderOptions(width=width, height=height, aovs=aovs)
     image = np.array(mi.render(load_scene_dict(scene_dict(scene, gbuffer))), np.float32)
     layers = split_layers(image, aovs)
@@ -134,6 +134,7 @@ def render_frame(scene: Scene, spec: Spec, index: int, whitted: bool = False) ->
     frame = FrameData(beauty(spec.spp, 1 + index), layers["normal"], layers["position"], layers["depth"],
                       layers["id"].astype(np.int32), [o.to_world for o in scene.objects], world_to_camera,
                       world_to_screen)
+    frame.albedo = layers["albedo"]  # not in the course's layout; OIDN uses it
     return frame, beauty(spec.reference_spp, 1_000_003 + index)
 
 

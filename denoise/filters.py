@@ -45,6 +45,13 @@ def _safe_normalize(v: mi.Vector3f) -> mi.Vector3f:
     return dr.select(length > 0.0, v / dr.select(length > 0.0, length, 1.0), 0.0)
 
 
+def pack(v: mi.Vector3f) -> mi.Float:
+    """RGB/XYZ per pixel as consecutive 4-float records (the 4th is padding)."""
+    packed = dr.ravel(mi.Vector4f(v.x, v.y, v.z, 0.0))
+    dr.eval(packed)
+    return packed
+
+
 def edge_log_weight(coefficients: tuple[float, float, float], color_i, normal_i, position_i,
                     color_j, normal_j, position_j) -> mi.Float:
     """Sum of the colour, normal and plane terms of the weight's exponent, each
@@ -74,12 +81,16 @@ class Frame:
         self.normal = _safe_normalize(dr.unravel(mi.Vector3f, normal.array))
         q = dr.unravel(mi.Vector3f, position.array)
         self.position = dr.select(dr.isfinite(q), q, 0.0)
+        # neighbours are read as one aligned 4-float record each (a packet gather)
+        self.normal4, self.position4 = pack(self.normal), pack(self.position)
         index = dr.arange(mi.UInt32, self.width * self.height)
         self.x = mi.Int32(index % self.width)
         self.y = mi.Int32(index // self.width)
 
-    def gather(self, array: mi.Vector3f, x: mi.Int32, y: mi.Int32, active) -> mi.Vector3f:
-        return dr.gather(mi.Vector3f, array, mi.UInt32(y * self.width + x), active)
+    def gather(self, packed: mi.Float, x: mi.Int32, y: mi.Int32, active) -> mi.Vector3f:
+        """The value at (x, y) of an image packed by :func:`pack`."""
+        v = dr.gather(mi.Vector4f, packed, mi.UInt32(y * self.width + x), active)
+        return mi.Vector3f(v.x, v.y, v.z)
 
     def tensor(self, color: mi.Vector3f) -> mi.TensorXf:
         return mi.TensorXf(dr.ravel(color), shape=(self.height, self.width, 3))
@@ -93,16 +104,18 @@ def joint_bilateral(frame: Frame, p: BilateralParams = BilateralParams()) -> mi.
     k_coord = _inv_two_sigma_sq(p.sigma_coord)  # plain floats: not loop state
     coefficients = _coefficients(p, p.sigma_color)
     total = mi.Vector3f(frame.color)  # the centre pixel, weight exp(0) = 1
+    color4 = pack(frame.color)
     weights = mi.Float(1.0)
     k = mi.UInt32(0)
     while k < side * side:
         dx, dy = mi.Int32(k % side) - r, mi.Int32(k // side) - r
         x, y = frame.x + dx, frame.y + dy
         inside = (x >= 0) & (x < frame.width) & (y >= 0) & (y < frame.height) & ((dx != 0) | (dy != 0))
-        color_j = frame.gather(frame.color, x, y, inside)
+        color_j = frame.gather(color4, x, y, inside)
         log_w = (mi.Float(dx * dx + dy * dy) * k_coord
                  + edge_log_weight(coefficients, frame.color, frame.normal, frame.position, color_j,
-                                   frame.gather(frame.normal, x, y, inside), frame.gather(frame.position, x, y, inside)))
+                                   frame.gather(frame.normal4, x, y, inside),
+                                   frame.gather(frame.position4, x, y, inside)))
         w = dr.select(inside, dr.exp(-log_w), 0.0)
         total += w * color_j
         weights += w
@@ -118,19 +131,20 @@ def atrous(frame: Frame, p: BilateralParams = BilateralParams(), levels: int = 5
     for level in range(levels):
         step = 1 << level
         coefficients = _coefficients(p, p.sigma_color / step)
+        color4 = pack(color)
         total, weights = mi.Vector3f(0.0), mi.Float(0.0)
         for j, hy in enumerate(B3):
             for i, hx in enumerate(B3):
                 dx, dy = (i - 2) * step, (j - 2) * step
                 x, y = frame.x + dx, frame.y + dy
                 inside = (x >= 0) & (x < frame.width) & (y >= 0) & (y < frame.height)
-                color_j = frame.gather(color, x, y, inside)
+                color_j = frame.gather(color4, x, y, inside)
                 if dx == 0 and dy == 0:
                     w = mi.Float(hx * hy)
                 else:
                     log_w = edge_log_weight(coefficients, color, frame.normal, frame.position, color_j,
-                                            frame.gather(frame.normal, x, y, inside),
-                                            frame.gather(frame.position, x, y, inside))
+                                            frame.gather(frame.normal4, x, y, inside),
+                                            frame.gather(frame.position4, x, y, inside))
                     w = dr.select(inside, hx * hy * dr.exp(-log_w), 0.0)
                 total += w * color_j
                 weights += w
@@ -154,10 +168,15 @@ def reproject(position: mi.TensorXf, ids: mi.TensorXf, prev_ids: mi.TensorXf, ob
     p = dr.unravel(mi.Point3f, position.array)
     obj = mi.Int32(ids.array)
     count = len(object_to_world)
-    # per object: the previous frame's world from this frame's world, then the screen
-    to_prev = np.stack([np.asarray(prev_world_to_screen) @ np.asarray(prev_object_to_world[k])
-                        @ np.linalg.inv(np.asarray(object_to_world[k])) for k in range(count)]) if count else \
-        np.zeros((0, 4, 4))
+    # per object: the previous frame's world from this frame's world, then the screen;
+    # an object whose matrix cannot be inverted has no history (NaN: invalid below)
+    def to_previous(k: int) -> np.ndarray:
+        current = np.asarray(object_to_world[k], np.float64)
+        if not np.all(np.isfinite(current)) or abs(np.linalg.det(current)) < 1e-30:
+            return np.full((4, 4), np.nan)
+        return np.asarray(prev_world_to_screen) @ np.asarray(prev_object_to_world[k]) @ np.linalg.inv(current)
+
+    to_prev = np.stack([to_previous(k) for k in range(count)]) if count else np.zeros((0, 4, 4))
     table = mi.Float(to_prev.astype(np.float32).ravel()) if count else mi.Float(0.0)
     valid = (obj >= 0) & (obj < count)
     base = mi.UInt32(dr.select(valid, obj, 0)) * 16
@@ -180,6 +199,7 @@ def clamp_box(color: mi.TensorXf, radius: int = 3) -> tuple[mi.Vector3f, mi.Vect
     noise do not cancel (no negative variance)."""
     height, width = color.shape[0], color.shape[1]
     c = dr.unravel(mi.Vector3f, color.array)
+    c4 = pack(c)
     index = dr.arange(mi.UInt32, width * height)
     x0, y0 = mi.Int32(index % width), mi.Int32(index // width)
     total, total_sq, count = mi.Vector3f(0.0), mi.Vector3f(0.0), mi.Float(0.0)
@@ -187,7 +207,8 @@ def clamp_box(color: mi.TensorXf, radius: int = 3) -> tuple[mi.Vector3f, mi.Vect
         for dx in range(-radius, radius + 1):
             x, y = x0 + dx, y0 + dy
             inside = (x >= 0) & (x < width) & (y >= 0) & (y < height)
-            d = dr.select(inside, dr.gather(mi.Vector3f, c, mi.UInt32(y * width + x), inside) - c, 0.0)
+            v = dr.gather(mi.Vector4f, c4, mi.UInt32(y * width + x), inside)
+            d = dr.select(inside, mi.Vector3f(v.x, v.y, v.z) - c, 0.0)
             total += d
             total_sq += d * d
             count += dr.select(inside, 1.0, 0.0)

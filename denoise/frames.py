@@ -32,6 +32,7 @@ class FrameData:
     object_to_world: list[np.ndarray]
     world_to_camera: np.ndarray
     world_to_screen: np.ndarray
+    albedo: np.ndarray | None = None  # (H, W, 3), optional albedo_i.exr (an extra beside the layout)
 
 
 def frame_indices(folder: Path) -> list[int]:
@@ -87,8 +88,10 @@ def read_frame(folder: Path, index: int) -> FrameData:
     if len(shapes) != 1:
         raise ValueError(f"{folder}: frame {index}'s buffers differ in size: {sorted(shapes)}")
     objects, camera, screen = read_matrices(folder / f"matrix_{index}.mat")
+    albedo_path = folder / f"albedo_{index}.exr"
+    albedo = _rgb(read_exr(albedo_path), albedo_path) if albedo_path.exists() else None
     return FrameData(rgb["beauty"], rgb["normal"], rgb["position"], single["depth"],
-                     np.rint(single["ID"]).astype(np.int32), objects, camera, screen)
+                     np.rint(single["ID"]).astype(np.int32), objects, camera, screen, albedo)
 
 
 def write_frame(folder: Path, index: int, frame: FrameData) -> None:
@@ -96,6 +99,8 @@ def write_frame(folder: Path, index: int, frame: FrameData) -> None:
     for name, data in (("beauty", frame.beauty), ("normal", frame.normal), ("position", frame.position),
                        ("depth", frame.depth), ("ID", frame.ids.astype(np.float32))):
         write_exr(folder / f"{name}_{index}.exr", {"": data})
+    if frame.albedo is not None:
+        write_exr(folder / f"albedo_{index}.exr", {"": frame.albedo})
     write_matrices(folder / f"matrix_{index}.mat", frame.object_to_world, frame.world_to_camera,
                    frame.world_to_screen)
 

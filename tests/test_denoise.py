@@ -214,7 +214,6 @@ def test_reprojection_of_the_ground_truth(variant_llvm_ad_rgb, tmp_path, motion)
     matches the current ground truth: relMSE <= 1e-3 over the valid pixels.
     (Ground truth here: whitted through the pixel centres, the points the
     G-buffers describe, on a diffuse scene, so only geometry can differ.)"""
-    import mitsuba as mi
 
     from benchmarks.crossval import relmse
     from denoise.export import Spec, export, reference_folder
@@ -240,3 +239,27 @@ def test_reprojection_of_the_ground_truth(variant_llvm_ad_rgb, tmp_path, motion)
     warped = truth[0].reshape(-1, 3)[index][valid]
     assert relmse(warped, truth[1].reshape(-1, 3)[valid]) <= 1e-3
     assert relmse(truth[0].reshape(-1, 3)[valid], truth[1].reshape(-1, 3)[valid]) > 1e-3  # it did move
+
+
+def test_denoise_command_and_benchmark_quick(variant_llvm_ad_rgb, tmp_path):
+    """The quick benchmark renders both sequences small, runs every method (OIDN
+    included) and writes finite numbers; `python -m denoise` writes one result per frame."""
+    import json
+
+    from benchmarks import denoise as bench
+    from denoise.__main__ import main as denoise_main
+    from imaging.image_io import read_exr
+
+    out = tmp_path / "dn.json"
+    assert bench.main(["--quick", "--json", str(out), "--work", str(tmp_path / "work")]) == 0
+    results = json.loads(out.read_text())
+    assert {r["method"] for r in results["results"]} == set(bench.METHODS)
+    assert all(np.isfinite([r["relmse"], r["flip"], r["ms"]]).all() for r in results["results"])
+    for sequence in {r["sequence"] for r in results["results"]}:
+        last = {r["method"]: r["relmse"] for r in results["results"] if r["sequence"] == sequence and r["frame"] == 3}
+        assert last["atrous+temporal"] < last["raw"] / 2  # it denoises
+    folder = next(p for p in sorted((tmp_path / "work").iterdir()) if not p.name.endswith("_reference"))
+    assert denoise_main([str(folder), str(tmp_path / "results"), "--method", "atrous"]) == 0
+    results = sorted((tmp_path / "results").glob("result_*.exr"))
+    assert len(results) == 4
+    assert all(np.isfinite(np.stack(list(read_exr(p).values()))).all() for p in results)

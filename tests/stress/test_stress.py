@@ -5,13 +5,21 @@ import pytest
 
 from benchmarks.stress import fuzz, run_case
 from benchmarks.stress_cases import all_cases
+from benchmarks.stress_denoise import denoise_cases
 
 CASES = [c for c in all_cases() if c.fast]
+DENOISE_CASES = [c for c in denoise_cases() if c.fast]
 
 
 def test_enough_cases():
-    assert len(CASES) >= 40
-    assert len(all_cases()) >= 60
+    assert len(CASES) + len(DENOISE_CASES) >= 40
+    assert len(all_cases()) + len(denoise_cases()) >= 60
+
+
+@pytest.mark.parametrize("case", DENOISE_CASES, ids=lambda c: c.name)
+def test_denoise_case(variant_llvm_ad_rgb, case):
+    passed, detail = case.check()
+    assert passed, detail
 
 
 @pytest.mark.parametrize("case", CASES, ids=lambda c: c.name)

@@ -1,0 +1,227 @@
+"""Named stress cases for the denoiser: extreme parameters and bad frames.
+
+Each case builds small frames, runs the denoiser and checks its stated
+behaviour: a finite result (equal to a well-conditioned equivalent where one
+exists) or one clear error. Used by ``tests/stress`` and ``python -m benchmarks.stress``.
+"""
+from __future__ import annotations
+
+import tempfile
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+H, W = 12, 16
+
+
+@dataclass(frozen=True)
+class DenoiseCase:
+    name: str
+    check: Callable[[], tuple[bool, str]]
+    fast: bool = True
+
+
+def _frame(seed: int = 0, beauty=None, normal=None, position=None, ids=None, objects=None):
+    from denoise.frames import FrameData
+
+    rng = np.random.default_rng(seed)
+    ys, xs = np.mgrid[0:H, 0:W].astype(np.float64)
+    default_position = np.stack([xs / W, np.zeros_like(xs), -ys / H - 2], -1)
+    screen = np.array([[W, 0, 0, 0], [0, -H, 0, -2.0 * H], [0, 0, 1, 0], [0, 0, 0, 1.0]])  # x, -z -> pixels
+    return FrameData(
+        beauty=rng.random((H, W, 3)) if beauty is None else beauty,
+        normal=np.tile([0.0, 1.0, 0.0], (H, W, 1)) if normal is None else normal,
+        position=default_position if position is None else position,
+        depth=np.ones((H, W)), ids=np.zeros((H, W), np.int32) if ids is None else ids,
+        object_to_world=[np.eye(4)] if objects is None else objects, world_to_camera=np.eye(4),
+        world_to_screen=screen)
+
+
+def _run(frames, **options) -> list[np.ndarray]:
+    from denoise.filters import BilateralParams, TemporalParams
+    from denoise.pipeline import DenoiseOptions, Denoiser
+
+    bilateral = BilateralParams(**options.pop("bilateral", {"radius": 3}))
+    temporal = TemporalParams(**options.pop("temporal_params", {}))
+    denoiser = Denoiser(DenoiseOptions(bilateral=bilateral, temporal_params=temporal, **options))
+    return [denoiser.step(f) for f in frames]
+
+
+def _finite(results) -> tuple[bool, str]:
+    ok = all(np.all(np.isfinite(r)) for r in results)
+    return ok, "finite" if ok else "NaN or inf in the output"
+
+
+def _close(a, b, tolerance=1e-4) -> tuple[bool, str]:
+    error = float(np.max(np.abs(np.asarray(a) - np.asarray(b)) / np.maximum(np.abs(b), 1e-3)))
+    return error <= tolerance, f"largest relative difference {error:.2e}"
+
+
+def sigma_to_zero(method):
+    def check():
+        frames = [_frame(1)]
+        out = _run(frames, method=method, temporal=False,
+                   bilateral=dict(sigma_coord=1e-30, sigma_color=1e-30, sigma_normal=1e-30, sigma_plane=1e-30, radius=3))
+        ok, detail = _finite(out)
+        return ok and _close(out[0], frames[0].beauty)[0], detail + "; equals the input (no neighbour has weight)"
+    return check
+
+
+def sigma_huge(method):
+    def check():
+        frames = [_frame(2)]
+        out = _run(frames, method=method, temporal=False,
+                   bilateral=dict(sigma_coord=1e30, sigma_color=1e30, sigma_normal=1e30, sigma_plane=1e30, radius=3))
+        ok, detail = _finite(out)
+        return ok and np.std(out[0]) < np.std(frames[0].beauty), detail + "; smoother than the input"
+    return check
+
+
+def bad_beauty(value):
+    def check():
+        beauty = _frame(3).beauty.copy()
+        beauty[2, 3] = value
+        beauty[5, :, 1] = value
+        out = _run([_frame(3, beauty=beauty), _frame(4, beauty=beauty)], method="atrous")
+        return _finite(out)
+    return check
+
+
+def negative_beauty():
+    out = _run([_frame(5, beauty=-_frame(5).beauty)], method="bilateral", temporal=False)
+    return _finite(out)
+
+
+def zero_normals():
+    normal = np.zeros((H, W, 3))
+    out = _run([_frame(6, normal=normal), _frame(7, normal=normal)], method="atrous")
+    return _finite(out)
+
+
+def identical_positions():
+    out = _run([_frame(8, position=np.zeros((H, W, 3)))], method="bilateral", temporal=False)
+    return _finite(out)
+
+
+def all_background():
+    ids = -np.ones((H, W), np.int32)
+    out = _run([_frame(9, ids=ids), _frame(10, ids=ids)], method="atrous")
+    ok, detail = _finite(out)
+    # no pixel has history: the second frame is its spatial filtering alone
+    alone = _run([_frame(10, ids=ids)], method="atrous", temporal=False)[0]
+    return ok and _close(out[1], alone)[0], detail + "; history unused"
+
+
+def singular_matrix():
+    objects = [np.zeros((4, 4))]
+    out = _run([_frame(11, objects=objects), _frame(12, objects=objects)], method="atrous")
+    return _finite(out)
+
+
+def matrix_file_error(content: bytes, expect: str):
+    def check():
+        from denoise.frames import read_matrices
+
+        with tempfile.TemporaryDirectory() as tmp:
+            path = Path(tmp) / "matrix_0.mat"
+            path.write_bytes(content)
+            try:
+                read_matrices(path)
+            except ValueError as error:
+                return expect in str(error) and "\n" not in str(error), str(error)
+        return False, "no error"
+    return check
+
+
+def different_sizes():
+
+    small = _frame(13)
+    big = replace(_frame(14), beauty=np.zeros((H + 1, W, 3)), normal=np.zeros((H + 1, W, 3)),
+                  position=np.zeros((H + 1, W, 3)), ids=np.zeros((H + 1, W), np.int32))
+    try:
+        _run([small, big], method="atrous")
+    except ValueError as error:
+        return "frame size changed" in str(error), str(error)
+    return False, "no error"
+
+
+def missing_file():
+    from denoise.frames import write_frame
+    from denoise.pipeline import denoise_folder
+
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = Path(tmp)
+        for i in (0, 1, 2):
+            write_frame(folder, i, _frame(i))
+        (folder / "normal_1.exr").unlink()
+        try:
+            denoise_folder(folder, folder / "out")
+        except FileNotFoundError as error:
+            return "frame 1 lacks normal_1.exr" in str(error), str(error)
+        (folder / "beauty_1.exr").unlink()
+    return False, "no error"
+
+
+def hdr_clamp():
+    from denoise.filters import clamp_box
+
+    import mitsuba as mi
+
+    rng = np.random.default_rng(15)
+    # noise of 1 on 1e6: E[x^2] - E[x]^2 in float32 would be pure cancellation (1e12 has a spacing of 65536)
+    base = 1e6 * np.ones((H, W, 3)) + rng.normal(0, 1.0, (H, W, 3))
+    mean, sigma = clamp_box(mi.TensorXf(base.astype(np.float32)), 3)
+    sigma = np.array(sigma)
+    ok = np.all(np.isfinite(np.array(mean))) and np.all((sigma > 0.5) & (sigma < 2.0))
+    return bool(ok), f"sigma in [{sigma.min():.3g}, {sigma.max():.3g}] for noise 1 at 1e6"
+
+
+def alpha(value):
+    def check():
+        frames = [_frame(16), _frame(17)]
+        out = _run(frames, method="atrous", temporal_params={"alpha": value})
+        ok, detail = _finite(out)
+        if value == 1.0:  # only the current frame counts
+            alone = _run([frames[1]], method="atrous", temporal=False)[0]
+            ok = ok and _close(out[1], alone)[0]
+        return ok, detail
+    return check
+
+
+def static_drift(count: int):
+    def check():
+        frame = _frame(18)
+        out = _run([frame] * count, method="atrous")
+        ok, detail = _finite(out)
+        drift = float(np.max(np.abs(out[-1] - out[len(out) // 2])))
+        return ok and drift < 1e-4, f"{detail}; change over the last {count // 2} frames {drift:.2e}"
+    return check
+
+
+def denoise_cases() -> list[DenoiseCase]:
+    return [
+        DenoiseCase("bilateral sigma -> 0", sigma_to_zero("bilateral")),
+        DenoiseCase("atrous sigma -> 0", sigma_to_zero("atrous")),
+        DenoiseCase("bilateral sigma huge", sigma_huge("bilateral")),
+        DenoiseCase("atrous sigma huge", sigma_huge("atrous")),
+        DenoiseCase("NaN in beauty", bad_beauty(np.nan)),
+        DenoiseCase("inf in beauty", bad_beauty(np.inf)),
+        DenoiseCase("-inf in beauty", bad_beauty(-np.inf)),
+        DenoiseCase("negative beauty", negative_beauty),
+        DenoiseCase("zero-length normals", zero_normals),
+        DenoiseCase("identical positions (plane term 0/0)", identical_positions),
+        DenoiseCase("all-background frames", all_background),
+        DenoiseCase("singular object matrix", singular_matrix),
+        DenoiseCase("non-finite matrix file", matrix_file_error(
+            np.array([1], "<i4").tobytes() + np.full(48, np.nan, "<f4").tobytes(), "expected finite matrices")),
+        DenoiseCase("truncated matrix file", matrix_file_error(np.array([3], "<i4").tobytes(), "expected 324 bytes")),
+        DenoiseCase("frames of different sizes", different_sizes),
+        DenoiseCase("missing file in a sequence", missing_file),
+        DenoiseCase("HDR 1e6 with small noise: stable clamp", hdr_clamp),
+        DenoiseCase("alpha -> 0", alpha(1e-6)),
+        DenoiseCase("alpha = 1", alpha(1.0)),
+        DenoiseCase("100 frames of a static scene", static_drift(100)),
+        DenoiseCase("1000 frames of a static scene", static_drift(1000), fast=False),
+    ]
