@@ -136,7 +136,6 @@ def matrix_file_error(content: bytes, expect: str):
 
 
 def different_sizes():
-
     small = _frame(13)
     big = replace(_frame(14), beauty=np.zeros((H + 1, W, 3)), normal=np.zeros((H + 1, W, 3)),
                   position=np.zeros((H + 1, W, 3)), ids=np.zeros((H + 1, W), np.int32))
