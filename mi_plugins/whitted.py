@@ -94,6 +94,7 @@ class WhittedIntegrator(mi.SamplingIntegrator):
         self.shadows = bool(props.get("shadows", False))
         ambient = props.get("ambient", mi.ScalarColor3f(0.0))
         self.ambient = mi.ScalarColor3f(ambient)
+        self.has_ambient = any(float(self.ambient[k]) != 0.0 for k in range(3))
         self.aovs = parse_aovs(props.get("aovs", ""))
         self.ray_epsilon = float(props.get("ray_epsilon", 0.0))
         self.stats = bool(props.get("stats", False))
@@ -105,16 +106,18 @@ class WhittedIntegrator(mi.SamplingIntegrator):
         return [channel for name in self.aovs for channel in AOV_CHANNELS[name]]
 
     # -- scene analysis (trace time) ----------------------------------------
-    def analyse(self, scene: mi.Scene) -> tuple[list[mi.Emitter], bool]:
-        """(delta lights, any mirror lobe) of ``scene``; computed once per scene
-        (scalar variants call the integrator once per ray)."""
+    def analyse(self, scene: mi.Scene) -> tuple[list[mi.Emitter], bool, dict[str, int]]:
+        """(delta lights, any mirror lobe, shape id -> object id) of ``scene``;
+        computed once per scene (scalar variants call the integrator once per ray)."""
         key = id(scene)
         if getattr(self, "_analysed", (None,))[0] != key:
+            shapes = scene.shapes()
             lights = [e for e in scene.emitters() if mi.has_flag(e.flags(), mi.EmitterFlags.Delta)]
             mirrors = any(s.bsdf() is not None and mi.has_flag(s.bsdf().flags(), mi.BSDFFlags.DeltaReflection)
-                          for s in scene.shapes())
-            self._analysed = (key, lights, mirrors)
-        return self._analysed[1], self._analysed[2]
+                          for s in shapes)
+            ids = {s.id(): object_index(s, position) for position, s in enumerate(shapes)}
+            self._analysed = (key, lights, mirrors, ids)
+        return self._analysed[1:]
 
     def delta_lights(self, scene: mi.Scene) -> list[mi.Emitter]:
         return self.analyse(scene)[0]
@@ -191,7 +194,7 @@ class WhittedIntegrator(mi.SamplingIntegrator):
             return result  # scalar variants: a miss has no BSDF to call
         ctx = mi.BSDFContext()
         bsdf = si.bsdf()
-        if dr.any(dr.ravel(self.ambient) != 0.0):
+        if self.has_ambient:
             result += dr.select(hit, self.ambient * bsdf.eval_diffuse_reflectance(si, hit), 0.0)
         for light in self.delta_lights(scene):
             ds, radiance = light.sample_direction(si, mi.Point2f(0.5), hit)
@@ -270,16 +273,16 @@ class WhittedIntegrator(mi.SamplingIntegrator):
                 values.append(dr.select(hit, self.object_ids(scene, si), -1.0))
         return values
 
-    @staticmethod
-    def object_ids(scene: mi.Scene, si: mi.SurfaceInteraction3f) -> mi.Float:
-        shapes = scene.shapes()
+    def object_ids(self, scene: mi.Scene, si: mi.SurfaceInteraction3f) -> mi.Float:
+        ids = self.analyse(scene)[2]
         if not dr.is_jit_v(mi.Float):
-            return mi.Float(-1.0 if si.shape is None else object_index(si.shape, [s.id() for s in shapes].index(si.shape.id())))
+            return mi.Float(-1.0 if si.shape is None else ids[si.shape.id()])
         # JIT variants: shape pointers are registry indices; map them through a table
+        shapes = scene.shapes()
         registry = [int(dr.reinterpret_array(mi.UInt32, mi.ShapePtr(s))[0]) for s in shapes]
         table = np.full(max(registry) + 1, -1.0, np.float32)
-        for position, (shape, index) in enumerate(zip(shapes, registry)):
-            table[index] = object_index(shape, position)
+        for shape, index in zip(shapes, registry):
+            table[index] = ids[shape.id()]
         return dr.gather(mi.Float, mi.Float(table), dr.reinterpret_array(mi.UInt32, si.shape))
 
     def to_string(self):

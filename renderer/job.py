@@ -80,7 +80,7 @@ def split_layers(image: np.ndarray, aovs: tuple[str, ...]) -> dict[str, np.ndarr
     return layers
 
 
-def render(job: RenderJob, progress=None) -> RenderResult:
+def render(job: RenderJob) -> RenderResult:
     """Renders ``job`` with the active variant (see :mod:`renderer.variants`)."""
     import mitsuba as mi
 
@@ -115,9 +115,9 @@ def render(job: RenderJob, progress=None) -> RenderResult:
                 dr.set_flag(dr.JitFlag.KernelHistory, False)
                 stats["kernels"] = sum(1 for k in dr.kernel_history() if k["type"] == dr.KernelType.JIT)
     if job.stats:
+        background = description.get("background")
         stats.update(aovs=list(job.aovs), environment_kind=(
-            None if description.get("background") is None else
-            "CubeMapEmitter" if description["background"]["type"] == "course_cubemap" else "Emitter"))
+            None if background is None else "cube map" if background["type"] == "course_cubemap" else "colour"))
 
     layers = split_layers(image, job.aovs)
     if job.filter:

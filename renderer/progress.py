@@ -40,7 +40,7 @@ class _TqdmAppender(mi.Appender):
 def format_stats(name: str, stats: dict) -> str:
     mirror = stats.get("mirror_by_depth", [])
     per_depth = " + ".join(str(n) for n in mirror) if mirror else "0"
-    kind = {"CubeMapEmitter": "cube map", None: "none"}.get(stats.get("environment_kind"), "colour")
+    kind = stats.get("environment_kind") or "none"
     lines = [f"{name}: traced",
              f"  camera rays        {stats.get('camera', 0)}",
              f"  shadow rays        {stats.get('shadow', 0)}",

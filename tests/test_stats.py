@@ -48,7 +48,7 @@ def check(path: Path, flags: dict):
     if not environment:
         assert stats["environment"] == 0 and stats["environment_kind"] is None
     else:
-        assert (stats["environment_kind"] == "CubeMapEmitter") == (scene.background.cube_map is not None)
+        assert stats["environment_kind"] == ("cube map" if scene.background.cube_map is not None else "colour")
         # every camera miss, plus mirror rays that escape
         assert misses <= stats["environment"] <= misses + sum(mirrors)
         if flags["bounces"] == 0:
