@@ -17,7 +17,7 @@ from typing import Iterator, Mapping
 import numpy as np
 from PIL import Image
 
-from converters.errors import SceneError
+from core.errors import SceneError
 
 
 @contextmanager

@@ -15,7 +15,7 @@ import sys
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
-from converters.errors import SceneError
+from core.errors import SceneError, UsageError
 
 from .job import DepthOutput, RenderJob, render, with_outputs_in, write_outputs
 
@@ -24,10 +24,6 @@ OUR_SCENES = ROOT / "scenes"
 DEFAULT_SCENE = "showcase"
 #: Where CI and the development machines keep the course's data
 DEFAULT_COURSE_DATA = ROOT.parent / "shared" / "course" / "data"
-
-
-class UsageError(Exception):
-    pass
 
 
 def course_data_dir(explicit: str | None) -> Path | None:

@@ -1,0 +1,59 @@
+"""The error types a user can see, one per failure class.
+
+Every entry point (``render.py``, ``--batch``, ``python -m converters``,
+``python -m denoise``, ``python -m denoise.export``) turns a
+:class:`ToolkitError` into exactly one line on stderr and exit code 2 (see
+:func:`core.entry.run`). ``str(error)`` is that line without the program
+name, so a message must say what was wrong and where (a file, a line, a flag).
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+
+class ToolkitError(Exception):
+    """Base class: a problem with what the user gave us, not a bug."""
+
+
+class SceneError(ToolkitError):
+    """A problem in a scene, mesh or cube-map file, located as ``file:line:col``.
+
+    ``str(error)`` is the one line shown to the user, e.g.
+    ``scene.txt:12:5: expected a number, found 'radius'``.
+    """
+
+    def __init__(self, path: str | Path, line: int, col: int, message: str):
+        self.path, self.line, self.col, self.message = str(path), line, col, message
+        super().__init__(f"{self.path}:{line}:{col}: {message}")
+
+
+class UsageError(ToolkitError):
+    """A command-line flag or parameter out of range, or a combination that makes no sense."""
+
+
+class LimitError(ToolkitError):
+    """Work the machine or the variant cannot do: too many samples to index,
+    more memory than is available. Raised before any work starts."""
+
+
+class OutputError(ToolkitError):
+    """An output path that cannot be written: no permission, unknown format,
+    two outputs on one file, a folder where a file should be."""
+
+
+class FrameError(ToolkitError):
+    """A damaged, missing or inconsistent frame folder (names the file)."""
+
+
+class SpecError(ToolkitError):
+    """A sequence/export spec that is malformed, out of range, or does not
+    match the folder it would be resumed into."""
+
+
+def describe(text: str | None) -> str:
+    """How a found token is quoted in messages."""
+    if text is None:
+        return "end of file"
+    if len(text) > 40:
+        text = text[:37] + "..."
+    return repr(text)
