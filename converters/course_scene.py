@@ -35,7 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
-from imaging.image_io import CUBE_FACES
+from imaging.image_io import CUBE_FACES, read_cube_map
 
 from . import transforms
 from .errors import SceneError, describe
@@ -44,6 +44,13 @@ from .model import (Background, Camera, DirectionalLight, Material, Plane, Point
 from .obj import read_obj
 
 _TOKEN = re.compile(r"[{}]|[^\s{}]+")
+
+#: The renderer stores every number as float32: larger magnitudes are not representable
+FLOAT32_MAX = float(np.finfo(np.float32).max)
+
+#: Deepest nesting of Group and Transform blocks (scenes nest a handful; the
+#: limit keeps the recursive parser far from Python's recursion limit)
+MAX_NESTING = 200
 
 
 @dataclass(frozen=True)
@@ -71,6 +78,7 @@ class _Parser:
         self.material_index: int | None = None
         self.objects = []
         self.mesh_cache: dict[Path, tuple[np.ndarray, np.ndarray]] = {}
+        self.nesting = 0  # Group and Transform blocks open around the current token
 
     # -- tokens -------------------------------------------------------------
     def peek(self) -> _Token:
@@ -98,7 +106,18 @@ class _Parser:
             raise self.error(token, "a number") from None
         if not math.isfinite(value):
             raise self.error(token, "a finite number")
+        if abs(value) > FLOAT32_MAX:
+            raise self.error(token, f"a number of magnitude at most {FLOAT32_MAX:.7g} (float32)")
         return value
+
+    def finite32(self, token: _Token, what: str, values) -> None:
+        """A value derived from the scene (not typed by the user) must also fit float32."""
+        values = np.asarray(values, np.float64)
+        if not np.all(np.isfinite(values)) or np.any(np.abs(values) > FLOAT32_MAX):
+            shown = " ".join(f"{v:g}" for v in values.ravel()[:3])
+            raise SceneError(self.path, token.line, token.col,
+                             f"expected {what} within float32 range (magnitude at most {FLOAT32_MAX:.7g}), "
+                             f"found {shown}")
 
     def integer(self, minimum: int = 0) -> int:
         token = self.next()
@@ -204,6 +223,8 @@ class _Parser:
                 if not any(values["direction"]):
                     raise SceneError(self.path, token.line, token.col,
                                      "expected a non-zero light direction, found 0 0 0")
+                # the converter multiplies by pi (see converters.to_mitsuba)
+                self.finite32(token, "a light irradiance (color * pi)", np.asarray(values["color"]) * math.pi)
                 return DirectionalLight(values["direction"], values["color"])
             if token.text == "PointLight":
                 values, end = self.fields({"position": self.vector, "color": self.vector, "falloff": self.number},
@@ -212,6 +233,8 @@ class _Parser:
                 if falloff <= 0.0:  # the intensity is color / (falloff * d^2)
                     raise SceneError(self.path, token.line, token.col,
                                      f"expected a falloff > 0, found {falloff:g}")
+                self.finite32(token, "a light intensity (color * pi / falloff)",
+                              np.asarray(values["color"]) * (math.pi / falloff))
                 return PointLight(values["position"], values["color"], falloff)
             raise self.error(token, "DirectionalLight or PointLight")
         return self.counted("numLights", light)
@@ -227,6 +250,9 @@ class _Parser:
                 raise SceneError(self.path, start.line, start.col,
                                  f"expected cube-map faces {', '.join(f + '.png' for f in missing)} in {folder}, "
                                  "found none")
+            # decoded now (and cached for the renderer), so that a damaged or
+            # non-square face is a located error before any work starts
+            read_cube_map(folder)
         return Background(values.get("color", (0.0, 0.0, 0.0)), values.get("ambientLight", (0.0, 0.0, 0.0)),
                           values.get("cubeMap"))
 
@@ -237,12 +263,29 @@ class _Parser:
                 raise self.error(token, "Material or PhongMaterial")
             values, _ = self.fields({"diffuseColor": self.vector, "specularColor": self.vector,
                                      "shininess": self.number}, set())
+            if values.get("shininess", 0.0) < 0.0:
+                raise SceneError(self.path, token.line, token.col,
+                                 f"expected a shininess >= 0, found {values['shininess']:g}")
             return Material(values.get("diffuseColor", (1.0, 1.0, 1.0)),
                             values.get("specularColor", (0.0, 0.0, 0.0)), values.get("shininess", 0.0))
         return self.counted("numMaterials", material)
 
     # -- objects ------------------------------------------------------------
+    def in_world(self, token: _Token, to_world: np.ndarray, points) -> None:
+        """An object's points, moved into the world, must stay float32 numbers."""
+        points = np.asarray(points, np.float64).reshape(-1, 3)
+        with np.errstate(over="ignore", invalid="ignore"):
+            world = points @ to_world[:3, :3].T + to_world[:3, 3]
+        self.finite32(token, "the object's world-space coordinates", world)
+
+    def enter(self, token: _Token) -> None:
+        self.nesting += 1
+        if self.nesting > MAX_NESTING:
+            raise SceneError(self.path, token.line, token.col,
+                             f"expected at most {MAX_NESTING} nested groups and transforms, found more")
+
     def group(self, to_world: np.ndarray) -> None:
+        self.enter(self.peek())
         self.expect("{")
         token = self.next()
         if token.text != "numObjects":
@@ -265,6 +308,7 @@ class _Parser:
         if found != count:
             raise self.error(self.peek(), f"{count} objects (numObjects {count}) but found {found}, then")
         self.next()
+        self.nesting -= 1
 
     def object(self, to_world: np.ndarray) -> None:
         token = self.next()
@@ -284,26 +328,34 @@ class _Parser:
             if values["radius"] <= 0.0:
                 raise SceneError(self.path, token.line, token.col,
                                  f"expected a sphere radius > 0, found {values['radius']:g}")
+            corners = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], np.float64)
+            self.in_world(token, to_world, np.asarray(values["center"]) + values["radius"] * corners)
             self.objects.append(Sphere(**common, center=values["center"], radius=values["radius"]))
         elif kind == "Plane":
             values, _ = self.fields({"normal": self.vector, "offset": self.number}, {"normal", "offset"})
             if not any(values["normal"]):
                 raise SceneError(self.path, token.line, token.col, "expected a non-zero plane normal, found 0 0 0")
+            normal = np.asarray(values["normal"], np.float64)
+            self.in_world(token, to_world, [normal / np.linalg.norm(normal) * values["offset"]])
             self.objects.append(Plane(**common, normal=values["normal"], offset=values["offset"]))
         elif kind == "Triangle":
             values, _ = self.fields({"vertex0": self.vector, "vertex1": self.vector, "vertex2": self.vector},
                                     {"vertex0", "vertex1", "vertex2"})
-            self.objects.append(Triangle(**common, vertices=(values["vertex0"], values["vertex1"], values["vertex2"])))
+            vertices = (values["vertex0"], values["vertex1"], values["vertex2"])
+            self.in_world(token, to_world, vertices)
+            self.objects.append(Triangle(**common, vertices=vertices))
         else:
             values, _ = self.fields({"obj_file": self.path_value}, {"obj_file"})
             path = values["obj_file"]
             if path not in self.mesh_cache:
                 self.mesh_cache[path] = read_obj(path)
             positions, faces = self.mesh_cache[path]
+            self.in_world(token, to_world, positions)
             self.objects.append(TriangleMesh(**common, path=path, positions=positions, faces=faces))
 
     def transform(self, to_world: np.ndarray) -> None:
         start = self.peek()
+        self.enter(start)
         self.expect("{")
         matrix = np.eye(4)
         unary = {"XRotate": transforms.rotate_x, "YRotate": transforms.rotate_y, "ZRotate": transforms.rotate_z,
@@ -333,7 +385,9 @@ class _Parser:
                 matrix = np.array(columns, np.float64).reshape(4, 4).T @ matrix
             else:
                 break
-        world = to_world @ matrix
+        with np.errstate(over="ignore", invalid="ignore"):
+            world = to_world @ matrix
+        self.finite32(start, "a transform matrix", world)
         linear = world[:3, :3]
         scale = np.abs(linear).max()
         if not np.all(np.isfinite(world)) or scale == 0.0 or abs(np.linalg.det(linear / scale)) < 1e-12:
@@ -341,6 +395,7 @@ class _Parser:
                              "expected an invertible transform, found a singular one (a scale of 0?)")
         self.object(world)
         self.expect("}")
+        self.nesting -= 1
 
 
 def parse_scene(text: str, path: str | Path = "<string>") -> Scene:

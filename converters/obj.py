@@ -15,6 +15,9 @@ import numpy as np
 
 from .errors import SceneError, describe
 
+#: The renderer stores coordinates as float32
+FLOAT32_MAX = float(np.finfo(np.float32).max)
+
 _IGNORED = {"vn", "vp", "o", "g", "s", "usemtl", "mtllib", "l"}
 
 
@@ -58,6 +61,9 @@ def read_obj(path: Path) -> tuple[np.ndarray, np.ndarray]:
                 if not math.isfinite(value):
                     raise SceneError(path, line_no, col(i),
                                      f"expected a finite number, found {describe(fields[i])}")
+                if abs(value) > FLOAT32_MAX:
+                    raise SceneError(path, line_no, col(i), f"expected a number of magnitude at most "
+                                     f"{FLOAT32_MAX:.7g} (float32), found {describe(fields[i])}")
                 values.append(value)
             if key == "v":
                 positions.append(tuple(values))

@@ -8,7 +8,8 @@ from __future__ import annotations
 
 import functools
 import os
-import tempfile
+import struct
+import zlib
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 from pathlib import Path
@@ -17,24 +18,85 @@ from typing import Iterator, Mapping
 import numpy as np
 from PIL import Image
 
-from core.errors import SceneError
+from core.errors import OutputError, SceneError
+
+
+#: Longest file name (bytes) where the folder's file system does not say
+DEFAULT_NAME_MAX = 255
+
+
+def _name_max(folder: Path) -> int:
+    try:
+        return os.pathconf(folder, "PC_NAME_MAX")
+    except (OSError, ValueError):
+        return DEFAULT_NAME_MAX
+
+
+def _temporary_name(name: str, suffix: str, limit: int) -> str:
+    """``.{name}.{random}{suffix}``, the name cut short so that the whole is
+    at most ``limit`` bytes: the temporary file fits wherever the final one does."""
+    random = os.urandom(4).hex()
+    fixed = len(os.fsencode(f"..{random}{suffix}"))
+    if fixed >= limit:
+        return f".{random}"[:limit]
+    room = limit - fixed
+    stem = name
+    while len(os.fsencode(stem)) > room:
+        stem = stem[:-1]
+    return f".{stem}.{random}{suffix}"
+
+
+def output_target(path: str | Path) -> Path:
+    """The file that writing ``path`` replaces: ``path``, or the file a
+    symbolic link (or a chain of them) points at, so that the link survives.
+    Raises :class:`OutputError` where that is a folder."""
+    path = Path(path)
+    target = Path(os.path.realpath(path)) if path.is_symlink() else path
+    if target.is_dir():
+        raise OutputError(f"{path}: is a folder, not an image file")
+    return target
 
 
 @contextmanager
 def atomic_path(path: str | Path, suffix: str) -> Iterator[Path]:
-    """Yields a temporary path beside ``path``; renames it to ``path`` on success."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=suffix, dir=path.parent)
-    os.close(fd)
-    umask = os.umask(0)
-    os.umask(umask)
-    os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes 0600; finished files get the usual mode
+    """Yields a temporary path beside ``path``'s target; renames it into place on success.
+
+    A symbolic link keeps pointing at its (replaced) target. The temporary
+    name is no longer than the final one allows, and is removed on any
+    exception, Ctrl-C and SIGTERM (:mod:`core.entry` raises through here).
+    Problems with the destination are ``OutputError`` exceptions naming it.
+    """
+    target = output_target(path)
+    folder = target.parent
     try:
-        yield Path(tmp)
-        os.replace(tmp, path)
+        folder.mkdir(parents=True, exist_ok=True)
+    except FileExistsError:
+        raise OutputError(f"{path}: cannot create folder {folder}: a file of that name exists") from None
+    except OSError as error:
+        raise OutputError(f"{path}: cannot create folder {folder}: {error.strerror or error}") from None
+    if target.exists() and not os.access(target, os.W_OK):
+        raise OutputError(f"{path}: the existing file is read-only")
+    limit = _name_max(folder)
+    for _ in range(100):
+        tmp = folder / _temporary_name(target.name, suffix, limit)
+        try:
+            # 0o666 less the umask: the finished file gets the usual mode
+            os.close(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))
+            break
+        except FileExistsError:
+            continue
+        except OSError as error:
+            raise OutputError(f"{path}: cannot write into {folder}: {error.strerror or error}") from None
+    else:
+        raise OutputError(f"{path}: cannot find a free temporary name in {folder}")
+    try:
+        yield tmp
+        try:
+            os.replace(tmp, target)
+        except OSError as error:
+            raise OutputError(f"{path}: cannot replace the file: {error.strerror or error}") from None
     except BaseException:
-        Path(tmp).unlink(missing_ok=True)
+        tmp.unlink(missing_ok=True)
         raise
 
 
@@ -47,7 +109,7 @@ def write_image(path: str | Path, pixels: np.ndarray) -> None:
     path = Path(path)
     image_format = Image.registered_extensions().get(path.suffix.lower())
     if image_format is None:
-        raise ValueError(f"{path}: unknown image type {path.suffix!r} (use .png, .bmp, .tga or .exr)")
+        raise OutputError(f"{path}: unknown image type {path.suffix!r} (use .png, .bmp, .tga or .exr)")
     with atomic_path(path, path.suffix) as tmp:
         # zlib level 1: a fifth of the default's time, files ~1.3x larger
         options = {"compress_level": 1} if image_format == "PNG" else {}
@@ -61,6 +123,13 @@ def read_png(path: str | Path) -> np.ndarray:
     with Image.open(path) as image:
         return np.asarray(image.convert("RGB"))
 
+
+#: What Pillow raises on damaged, truncated or hostile image files: OSError
+#: (unidentified, truncated), SyntaxError (broken chunks), ValueError and
+#: TypeError (bad header fields), EOFError, struct.error, zlib.error, and the
+#: decompression-bomb check
+IMAGE_DECODE_ERRORS = (OSError, SyntaxError, ValueError, TypeError, EOFError, IndexError, struct.error,
+                       zlib.error, Image.DecompressionBombError, MemoryError)
 
 #: The six face files of a course cube map folder, in the order they are stored
 CUBE_FACES = ("left", "right", "up", "down", "front", "back")
@@ -90,8 +159,9 @@ def _read_cube_map(folder: Path, faces: tuple[str, ...], stamps: tuple) -> np.nd
                 return np.asarray(image.convert("RGBX"))
         except FileNotFoundError:
             raise SceneError(path, 1, 1, "expected a cube-map face image, found no file") from None
-        except OSError as error:
-            raise SceneError(path, 1, 1, f"expected a PNG image, found unreadable data ({error})") from None
+        except IMAGE_DECODE_ERRORS as error:
+            detail = " ".join(str(error).split()) or type(error).__name__
+            raise SceneError(path, 1, 1, f"expected a PNG image, found unreadable data ({detail})") from None
 
     if not folder.is_dir():
         raise SceneError(folder, 1, 1, "expected a cube-map folder, found none")

@@ -5,25 +5,64 @@
     python render.py -input data/scene07_arch.txt -size 800 800 -bounces 4 -shadows \\
                      -output a07.png -normals a07n.png -depth 8 18 a07d.png
     python render.py --batch grading.sh      # one course command line per line
+
+Every input is checked (:mod:`renderer.checks`) before the variant is set and
+anything is rendered; every refusal is one line and exit code 2
+(:func:`core.entry.run`).
 """
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import shlex
 import sys
 from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
 from pathlib import Path
 
-from core.errors import SceneError, UsageError
+from core.entry import one_line, run
+from core.errors import ToolkitError, UsageError, describe
 
-from .job import DepthOutput, RenderJob, render, with_outputs_in, write_outputs
+from . import checks
 
 ROOT = Path(__file__).resolve().parent.parent
 OUR_SCENES = ROOT / "scenes"
 DEFAULT_SCENE = "showcase"
 #: Where CI and the development machines keep the course's data
 DEFAULT_COURSE_DATA = ROOT.parent / "shared" / "course" / "data"
+#: The course binary's default image size (its -size)
+DEFAULT_SIZE = (800, 800)
+#: Batch lines that are shell, not course command lines: skipped (mkdir also
+#: makes its folders; every output's folder is created anyway)
+SHELL_WORDS = ("echo", "mkdir", "true", ":")
+EXAMPLE = f"""example:
+  render.py -size 800 800 -input data/scene07_arch.txt -bounces 4 -shadows \\
+            -output a07.png -normals a07n.png -depth 8 18 a07d.png --exr a07.exr
+
+Every problem (a scene error at file:line:col, a bad flag, an output that
+cannot be written, a render too large for the machine) is one line on stderr
+and exit code 2, found before rendering starts. In a --batch file each course
+command line ([PROGRAM] -input FILE ... ; '\\' continues a line) renders on
+its own: a bad line prints FILE:LINE: MESSAGE, the other lines still render,
+and the exit code is 2 at the end. Blank lines, '#' comments, 'echo ...' and
+'mkdir [-p] DIR ...' (which makes DIR) are allowed; any other line is an error.
+Limits: -bounces <= {checks.MAX_BOUNCES}; at most {checks.MAX_SAMPLES:,} samples per
+render (pixels x spp, x9 with -filter); the memory a render needs must be free."""
+
+
+@dataclass(frozen=True)
+class Preview:
+    """--png: a tone-mapped sRGB PNG of the beauty, beside the EXR."""
+    exr: Path
+    path: Path
+
+
+class ArgumentParser(argparse.ArgumentParser):
+    """argparse whose errors are :class:`UsageError` (one line, exit 2), not usage text and exit."""
+
+    def error(self, message: str):
+        raise UsageError(one_line(message))
 
 
 def course_data_dir(explicit: str | None) -> Path | None:
@@ -37,11 +76,15 @@ def resolve_scene(name: str, data: Path | None) -> Path:
     """A scene by path, or by name in ``scenes/`` then the course data folder.
 
     A name matches ``<name>.txt`` or, if unique, ``<name>_*.txt`` (so
-    ``scene06`` finds ``scene06_bunny_1k.txt``).
+    ``scene06`` finds ``scene06_bunny_1k.txt``). A name that looks like a
+    path (a folder part, or ``.txt``) must be an existing file.
     """
     path = Path(name)
-    if path.suffix == ".txt" and path.exists():
-        return path
+    if path.suffix == ".txt" or path.parent != Path(".") or path.is_absolute():
+        if path.is_file():
+            return path
+        why = "is a folder" if path.is_dir() else "does not exist"
+        raise UsageError(f"scene file {name} {why}")
     folders = [OUR_SCENES] + ([data] if data else [])
     for folder in folders:
         exact = folder / f"{name}.txt"
@@ -59,77 +102,90 @@ def resolve_scene(name: str, data: Path | None) -> Path:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
-        prog="render.py", allow_abbrev=False,
-        description="Render course scenes with Mitsuba (whitted integrator, course camera and cube map).",
-        epilog="The course binary's flags (-input -size -output -normals -depth -bounces -shadows "
-               "-jitter -filter) are accepted verbatim.")
+    parser = ArgumentParser(
+        prog="render.py", allow_abbrev=False, formatter_class=argparse.RawDescriptionHelpFormatter,
+        description="Render course scenes with Mitsuba (whitted integrator, course camera and cube map).\n"
+                    "The course binary's flags (-input -size -output -normals -depth -bounces -shadows\n"
+                    "-jitter -filter) are accepted verbatim.",
+        epilog=EXAMPLE)
     parser.add_argument("scenes", nargs="*", metavar="SCENE",
-                        help=f"scene names or .txt paths (default: {DEFAULT_SCENE}); "
-                             "names are looked up in scenes/ and then the course data folder")
+                        help=f"scene names or .txt paths (default: {DEFAULT_SCENE}); names are looked up in "
+                             "scenes/ and then the course data folder; each renders into --out")
     course = parser.add_argument_group("course binary flags")
-    course.add_argument("-input", metavar="FILE", help="scene file")
-    course.add_argument("-size", nargs=2, type=int, metavar=("W", "H"), default=[800, 800])
-    course.add_argument("-output", metavar="FILE", help="beauty image (.png, .bmp, .tga or .exr)")
-    course.add_argument("-normals", metavar="FILE", help="normal image, (N + 1) / 2")
+    course.add_argument("-input", metavar="FILE", help="scene file in the course format (default: none; "
+                                                       "then SCENE names are rendered)")
+    course.add_argument("-size", nargs=2, type=int, metavar=("W", "H"), default=list(DEFAULT_SIZE),
+                        help=f"image width and height in pixels (default: {DEFAULT_SIZE[0]} {DEFAULT_SIZE[1]})")
+    course.add_argument("-output", metavar="FILE", help="beauty image, .png .bmp .tga (8-bit, course encoding) "
+                                                        "or .exr (float) (default: none)")
+    course.add_argument("-normals", metavar="FILE", help="normal image, (N + 1) / 2 (default: none)")
     course.add_argument("-depth", nargs=3, metavar=("MIN", "MAX", "FILE"),
-                        help="depth image, (t - MIN) / (MAX - MIN)")
-    course.add_argument("-bounces", type=int, default=0, metavar="N", help="mirror bounces (default 0)")
-    course.add_argument("-shadows", action="store_true", help="trace shadow rays")
-    course.add_argument("-jitter", action="store_true", help="16 jittered samples per pixel")
-    course.add_argument("-filter", action="store_true", help="render at 3x, then a 3x3 Gaussian down")
+                        help="depth image, (t - MIN) / (MAX - MIN), clamped (default: none)")
+    course.add_argument("-bounces", type=int, default=0, metavar="N",
+                        help=f"mirror bounces, 0..{checks.MAX_BOUNCES} (default: 0, plain ray casting)")
+    course.add_argument("-shadows", action="store_true", help="trace shadow rays (default: off)")
+    course.add_argument("-jitter", action="store_true", help="16 jittered samples per pixel (default: off)")
+    course.add_argument("-filter", action="store_true",
+                        help="render at 3x the size, then a 3x3 Gaussian down (default: off)")
     ours = parser.add_argument_group("toolkit options")
     ours.add_argument("--variant", help="Mitsuba variant (default: llvm_ad_rgb if a usable LLVM exists, "
-                                        "else scalar_rgb)")
+                                        "else scalar_rgb with one line saying why)")
     ours.add_argument("--data", metavar="DIR", help="course data folder for scene names "
                                                     "(default: $COURSE_DATA, else ../shared/course/data)")
-    ours.add_argument("--out", metavar="DIR", default="out", help="output folder for named scenes (default: out)")
+    ours.add_argument("--out", metavar="DIR", default="out",
+                      help="output folder for named scenes: <out>/<scene>.png (default: out)")
     ours.add_argument("--exr", nargs="?", const=True, metavar="FILE",
                       help="also write a multilayer EXR (beauty + depth, normal, position, albedo, id); "
-                           "a FILE with -input, <out>/<scene>.exr for named scenes")
-    ours.add_argument("--spp", type=int, metavar="N", help="samples per pixel (default 1, 16 with -jitter)")
+                           "a FILE with -input, <out>/<scene>.exr for named scenes (default: none)")
+    ours.add_argument("--png", action="store_true",
+                      help="with --exr: also write a tone-mapped sRGB preview PNG beside the EXR "
+                           "(<exr name>.png) unless the beauty is already a PNG (default: off)")
+    ours.add_argument("--spp", type=int, metavar="N",
+                      help=f"samples per pixel, 1..{checks.MAX_SPP} (default: 1, 16 with -jitter)")
     ours.add_argument("--batch", metavar="FILE",
-                      help="run course command lines from FILE, one per line, in this one process")
+                      help="run course command lines from FILE, one per line, in this one process "
+                           "(default: none)")
     ours.add_argument("--stats", action="store_true",
                       help="print what each render traced: camera, shadow and mirror rays, environment "
-                           "lookups, AOVs and kernels launched (adds counting to the kernel)")
-    ours.add_argument("--quiet", action="store_true", help="print nothing but errors")
+                           "lookups, AOVs and kernels launched (adds counting to the kernel) (default: off)")
+    ours.add_argument("--quiet", action="store_true", help="print nothing but errors (default: off)")
     return parser
 
 
-def _checked(args: argparse.Namespace) -> None:
-    w, h = args.size
-    if w < 1 or h < 1:
-        raise UsageError(f"-size wants positive numbers, got {w} {h}")
-    if args.bounces < 0:
-        raise UsageError(f"-bounces wants a number >= 0, got {args.bounces}")
-    if args.spp is not None and args.spp < 1:
-        raise UsageError(f"--spp wants a number >= 1, got {args.spp}")
+def _depth(values: list[str] | None):
+    from .job import DepthOutput
 
-
-def _depth(values: list[str] | None) -> DepthOutput | None:
     if values is None:
         return None
     try:
         near, far = float(values[0]), float(values[1])
     except ValueError:
         raise UsageError(f"-depth wants MIN MAX FILE, got {' '.join(values)}") from None
+    if not (math.isfinite(near) and math.isfinite(far)):
+        raise UsageError(f"-depth wants finite MIN and MAX, got {values[0]} {values[1]}")
     return DepthOutput(near, far, Path(values[2]))
 
 
-def jobs_from_args(args: argparse.Namespace) -> list[RenderJob]:
-    """The render jobs one command line asks for."""
-    _checked(args)
+def jobs_from_args(args: argparse.Namespace) -> list:
+    """The render jobs one command line asks for (checked: numbers here, limits
+    and outputs in :func:`checked_jobs`)."""
+    from .job import RenderJob, with_outputs_in
+
+    checks.check_numbers(args.size[0], args.size[1], args.bounces, args.spp)
     base = dict(width=args.size[0], height=args.size[1], bounces=args.bounces, shadows=args.shadows,
                 jitter=args.jitter, filter=args.filter, spp=args.spp, stats=args.stats)
     single_outputs = dict(output=Path(args.output) if args.output else None,
                           normals=Path(args.normals) if args.normals else None, depth=_depth(args.depth),
                           exr=Path(args.exr) if isinstance(args.exr, str) else None)
+    if args.png and not args.exr:
+        raise UsageError("--png writes a preview beside the EXR: use it with --exr")
     if args.input:
         if args.scenes:
             raise UsageError("give either -input or scene names, not both")
         if not any(single_outputs.values()):
-            raise UsageError("-input needs at least one of -output, -normals, -depth, --exr")
+            raise UsageError("-input needs at least one of -output, -normals, -depth, --exr FILE")
+        if args.exr is True:
+            raise UsageError("--exr with -input needs a FILE name (--exr out.exr)")
         return [RenderJob(scene=Path(args.input), **base, **single_outputs)]
 
     data = course_data_dir(args.data)
@@ -143,50 +199,177 @@ def jobs_from_args(args: argparse.Namespace) -> list[RenderJob]:
             for path in scenes]
 
 
-def jobs_from_batch(parser: argparse.ArgumentParser, path: Path) -> list[RenderJob]:
-    """One job per course command line; a leading program name is skipped."""
-    jobs = []
-    for number, line in enumerate(path.read_text().splitlines(), start=1):
-        words = shlex.split(line, comments=True)
+def preview_of(job, wanted: bool) -> Preview | None:
+    """--png: ``<exr>.png`` unless the beauty already is a PNG."""
+    if not wanted or job.exr is None:
+        return None
+    if job.output is not None and job.output.suffix.lower() == ".png":
+        return None
+    return Preview(job.exr, job.exr.with_suffix(".png"))
+
+
+def checked_jobs(args: argparse.Namespace, seen: dict[str, str] | None = None,
+                 memory: int | None = None) -> list[tuple]:
+    """``(job, preview)`` pairs for one command line, every check passed."""
+    pairs = []
+    seen = {} if seen is None else seen
+    for job in jobs_from_args(args):
+        if not job.scene.is_file():
+            raise UsageError(f"scene file {job.scene}: {'is a folder' if job.scene.is_dir() else 'no such file'}")
+        preview = preview_of(job, args.png)
+        checks.check_limits(job, memory)
+        checks.check_outputs(job, seen, [("--png", preview.path)] if preview else [])
+        pairs.append((job, preview))
+    return pairs
+
+
+# -- batches -----------------------------------------------------------------------
+def batch_lines(path: Path) -> list[tuple[int, str]]:
+    """``(line number, text)`` of each logical line: ``\\`` at the end of a line continues it."""
+    try:
+        data = path.read_bytes()
+    except OSError as error:
+        raise UsageError(f"--batch {path}: cannot read it: {error.strerror or error}") from None
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as error:
+        line = data[: error.start].count(b"\n") + 1
+        raise UsageError(f"{path}:{line}: expected text, found binary data") from None
+    lines, pending, start = [], None, 0
+    for number, line in enumerate(text.splitlines(), start=1):
+        if pending is None:
+            pending, start = "", number
+        trailing = len(line) - len(line.rstrip("\\"))
+        if trailing % 2 == 1:  # an odd number of backslashes: the last one escapes the newline
+            pending += line[:-1]
+            continue
+        lines.append((start, pending + line))
+        pending = None
+    if pending is not None:
+        lines.append((start, pending))
+    return lines
+
+
+def _course_words(words: list[str]) -> list[str] | None:
+    """The flags of a course command line ``[PROGRAM [SCRIPT]] -flag ...``, or None."""
+    skipped = 0
+    while words and not words[0].startswith("-") and skipped < 2:
+        words, skipped = words[1:], skipped + 1
+    if words and words[0].startswith("-") and "-input" in words:
+        return words
+    return None
+
+
+@dataclass
+class BatchLine:
+    where: str  # FILE:LINE
+    pairs: list  # (job, preview)
+
+
+def jobs_from_batch(parser: argparse.ArgumentParser, path: Path, memory: int | None = None
+                    ) -> tuple[list[BatchLine], list[str]]:
+    """The good lines' jobs, and one ``FILE:LINE: message`` per bad line."""
+    good, errors, seen = [], [], {}
+    for number, line in batch_lines(path):
+        where = f"{path}:{number}"
+        try:
+            words = shlex.split(line, comments=True)
+        except ValueError as error:  # e.g. an unclosed quote
+            errors.append(f"{where}: expected a course command line, found {describe(line.strip())} ({error})")
+            continue
         if not words:
             continue
-        if not words[0].startswith("-"):
-            words = words[1:]  # the course binary's name, e.g. a2 or ${BIN}
+        if words[0] in SHELL_WORDS:
+            if words[0] == "mkdir":
+                folders = [w for w in words[1:] if not w.startswith("-")]
+                try:
+                    for folder in folders:
+                        Path(folder).mkdir(parents=True, exist_ok=True)
+                except OSError as error:
+                    errors.append(f"{where}: cannot make folder {folder}: {error.strerror or error}")
+            continue
+        flags = _course_words(words)
+        if flags is None:
+            errors.append(f"{where}: expected a course command line ([PROGRAM] -input FILE -output FILE ...), "
+                          f"found {describe(line.strip())}")
+            continue
         try:
-            jobs += jobs_from_args(parser.parse_args(words))
-        except UsageError as error:
-            raise UsageError(f"{path}:{number}: {error}") from None
-    if not jobs:
-        raise UsageError(f"{path}: no command lines")
-    return jobs
+            args = parser.parse_args(flags)
+            if args.batch:
+                raise UsageError("--batch inside a batch file")
+            good.append(BatchLine(where, checked_jobs(args, seen, memory)))
+        except ToolkitError as error:
+            errors.append(f"{where}: {one_line(error)}")
+    if not good and not errors:
+        errors.append(f"{path}: no command lines")
+    return good, errors
 
 
-def _write_and_report(result, progress, variant: str) -> None:
+# -- running -------------------------------------------------------------------------
+def _write_and_report(result, preview: Preview | None, progress, variant: str) -> None:
+    from imaging import colour, image_io
+
+    from .job import write_outputs
+
     written = write_outputs(result)
+    if preview is not None:
+        image_io.write_image(preview.path, colour.to_srgb_8bit(result.layers[""]))
+        written.append(preview.path)
     progress.done(result.job, variant, result.seconds, written, result.stats)
+
+
+def _report(where: str, error: BaseException) -> str:
+    return f"{where}: {one_line(error)}" if where else one_line(error)
+
+
+def _run(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
+    if args.batch:
+        if args.input or args.scenes:
+            raise UsageError("--batch runs the command lines in its file: give no -input or scene names with it")
+        lines, errors = jobs_from_batch(parser, Path(args.batch))
+        for message in errors:
+            print(f"render.py: error: {message}", file=sys.stderr)
+    else:
+        lines, errors = [BatchLine("", checked_jobs(args))], []
+    work = [(line.where, job, preview) for line in lines for job, preview in line.pairs]
+    if not work:
+        raise UsageError(f"{args.batch}: no line can be rendered ({len(errors)} bad)")
+
+    from .variants import set_variant
+
+    variant = set_variant(args.variant, quiet=args.quiet)
+    from .job import render
+    from .progress import RenderProgress
+
+    failed = len(errors)
+    batch = bool(args.batch)
+    # Files are written in the background while the next scene renders
+    with RenderProgress(total=len(work), enabled=not args.quiet) as progress, \
+            ThreadPoolExecutor(max_workers=1) as writer:
+        pending = []
+        for where, job, preview in work:
+            try:
+                result = render(job)
+            except (ToolkitError, MemoryError) as error:
+                if not batch:
+                    raise
+                failed += 1
+                print(f"render.py: error: {_report(where, error)}", file=sys.stderr)
+                continue
+            pending.append((where, writer.submit(_write_and_report, result, preview, progress, variant)))
+        for where, future in pending:
+            try:
+                future.result()
+            except (ToolkitError, OSError) as error:
+                if not batch:
+                    raise
+                failed += 1
+                print(f"render.py: error: {_report(where, error)}", file=sys.stderr)
+    if failed:
+        raise UsageError(f"{args.batch}: {failed} bad line(s) or render(s); the others were rendered")
+    return 0
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
-    args = parser.parse_args(argv)
-    try:
-        jobs = jobs_from_batch(parser, Path(args.batch)) if args.batch else jobs_from_args(args)
-        from .variants import set_variant
-        variant = set_variant(args.variant, quiet=args.quiet)
-        from .progress import RenderProgress
-        # Files are written in the background while the next scene renders
-        with RenderProgress(total=len(jobs), enabled=not args.quiet) as progress, \
-                ThreadPoolExecutor(max_workers=1) as writer:
-            pending = []
-            for job in jobs:
-                result = render(job)
-                pending.append(writer.submit(_write_and_report, result, progress, variant))
-            for future in pending:
-                future.result()
-    except (SceneError, UsageError, ValueError, OSError) as error:
-        print(f"render.py: error: {error}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print("render.py: interrupted; finished files are complete, others were not written", file=sys.stderr)
-        return 130
-    return 0
+    return run("render.py", lambda: _run(parser.parse_args(argv), parser))

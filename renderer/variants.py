@@ -4,13 +4,27 @@ Dr.Jit 1.5's LLVM backend aborts the process with Debian's libLLVM 14-16
 (``LLVM ERROR: Cannot select ... fminimum``), so it is only used with LLVM 17
 or newer. :func:`find_libllvm` looks for one and points ``DRJIT_LIBLLVM_PATH``
 at it; this must happen before Dr.Jit first uses its LLVM backend.
+
+A library that is named right can still be damaged (a truncated copy, a
+garbage file called ``libLLVM-19.so``): loading it in this process ends in
+SIGBUS or an ImportError deep inside Dr.Jit. So every candidate is first
+*probed* in a short child process that loads it with Dr.Jit and runs one tiny
+kernel; the verdict is cached under ``$XDG_CACHE_HOME/course-render/`` (or
+``~/.cache/...``), keyed by the library's path, size and modification time,
+so that a normal start pays for the probe once per library.
 """
 from __future__ import annotations
 
 import glob
+import hashlib
+import json
 import os
 import re
+import subprocess
 import sys
+from pathlib import Path
+
+from core.errors import UsageError
 
 #: Oldest libLLVM major version that Dr.Jit 1.5 works with
 MIN_LLVM = 17
@@ -18,6 +32,12 @@ DEFAULT_JIT_VARIANT = "llvm_ad_rgb"
 FALLBACK_VARIANT = "scalar_rgb"
 _SEARCH = ("/usr/lib/x86_64-linux-gnu/libLLVM*.so*", "/usr/lib/llvm-*/lib/libLLVM*.so*",
            "/usr/lib64/libLLVM*.so*", "/usr/local/lib/libLLVM*.so*")
+#: Seconds a probe may take (loading libLLVM and compiling one kernel takes ~0.5 s)
+PROBE_TIMEOUT = 60
+#: Loads the library given as argv[1] with Dr.Jit and runs one kernel
+_PROBE = ("import os, sys; os.environ['DRJIT_LIBLLVM_PATH'] = sys.argv[1]; import drjit as dr; "
+          "from drjit.llvm import Float; x = dr.arange(Float, 4) * 2 + 1; dr.eval(x); "
+          "assert x.numpy().tolist() == [1, 3, 5, 7]; print('ok')")
 
 
 def llvm_major(path: str) -> int | None:
@@ -29,15 +49,117 @@ def llvm_major(path: str) -> int | None:
     return int(match.group(1) or match.group(2))
 
 
-def find_libllvm() -> str | None:
-    """A usable libLLVM (>= 17): ``DRJIT_LIBLLVM_PATH`` if it is one, else the newest found."""
+def _cache_file() -> Path:
+    root = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    return Path(root) / "course-render" / "libllvm-probe.json"
+
+
+def _key(path: str) -> str | None:
+    """What a verdict depends on: the library's real path, size and mtime, and Dr.Jit's version."""
+    try:
+        real = os.path.realpath(path)
+        stat = os.stat(real)
+    except OSError:
+        return None
+    try:  # the installed Dr.Jit, by its file's stamp (cheaper than reading package metadata)
+        from importlib.util import find_spec
+        origin = find_spec("drjit").origin
+        drjit = f"{origin}@{os.stat(origin).st_mtime_ns}"
+    except (ImportError, AttributeError, TypeError, OSError):  # no Dr.Jit: the probe then says no anyway
+        drjit = "?"
+    return hashlib.sha1(f"{real}|{stat.st_size}|{stat.st_mtime_ns}|{drjit}".encode()).hexdigest()
+
+
+def _read_cache() -> dict:
+    try:
+        data = json.loads(_cache_file().read_text())
+        return data if isinstance(data, dict) else {}
+    except (OSError, ValueError):
+        return {}
+
+
+def _write_cache(cache: dict) -> None:
+    path = _cache_file()
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_name(f".{path.name}.{os.getpid()}")
+        tmp.write_text(json.dumps(cache))
+        os.replace(tmp, path)
+    except OSError:
+        pass  # no cache: the next start probes again
+
+
+def probe_libllvm(path: str) -> str | None:
+    """``None`` if Dr.Jit can load ``path`` and run a kernel with it, else why not (one line)."""
+    key = _key(path)
+    if key is None:
+        return "cannot be read"
+    cache = _read_cache()
+    if key in cache:
+        return cache[key] or None
+    try:
+        done = subprocess.run([sys.executable, "-c", _PROBE, path], capture_output=True, text=True,
+                              timeout=PROBE_TIMEOUT, env={**os.environ, "DRJIT_LIBLLVM_PATH": path})
+        if done.returncode == 0 and done.stdout.strip().endswith("ok"):
+            why = ""
+        elif done.returncode < 0:
+            why = f"loading it ends in {_signal_name(-done.returncode)}"
+        else:
+            last = [line for line in done.stderr.splitlines() if line.strip()]
+            why = "Dr.Jit cannot use it" + (f" ({last[-1].strip()[:120]})" if last else "")
+    except subprocess.TimeoutExpired:
+        why = f"loading it takes more than {PROBE_TIMEOUT} s"
+    except OSError as error:
+        return f"cannot be probed ({error.strerror or error})"  # not cached: says nothing of the library
+    cache[key] = why
+    _write_cache(cache)
+    return why or None
+
+
+def _signal_name(number: int) -> str:
+    import signal
+
+    try:
+        return signal.Signals(number).name
+    except ValueError:
+        return f"signal {number}"
+
+
+def llvm_candidates() -> list[str]:
+    """``DRJIT_LIBLLVM_PATH`` if set, else every libLLVM >= 17 found, newest first."""
     configured = os.environ.get("DRJIT_LIBLLVM_PATH")
     if configured:
-        major = llvm_major(configured)
-        return configured if os.path.exists(configured) and (major or 0) >= MIN_LLVM else None
-    candidates = [(llvm_major(p), p) for pattern in _SEARCH for p in glob.glob(pattern)]
-    usable = sorted((m, p) for m, p in candidates if m is not None and m >= MIN_LLVM)
-    return usable[-1][1] if usable else None
+        return [configured]
+    found = {p: llvm_major(p) for pattern in _SEARCH for p in glob.glob(pattern)}
+    return [p for m, p in sorted(((m, p) for p, m in found.items() if m is not None and m >= MIN_LLVM),
+                                 reverse=True)]
+
+
+def choose_libllvm() -> tuple[str | None, list[str]]:
+    """A libLLVM that Dr.Jit can use, and one line per candidate that was passed over."""
+    notes = []
+    configured = os.environ.get("DRJIT_LIBLLVM_PATH")
+    for path in llvm_candidates():
+        major = llvm_major(path)
+        if not os.path.exists(path):
+            notes.append(f"DRJIT_LIBLLVM_PATH={path} does not exist")
+            continue
+        if (major or 0) < MIN_LLVM:
+            notes.append(f"DRJIT_LIBLLVM_PATH={path} is not LLVM >= {MIN_LLVM}")
+            continue
+        why = probe_libllvm(path)
+        if why is None:
+            return path, notes
+        notes.append(f"{'DRJIT_LIBLLVM_PATH=' if configured else ''}{path} is damaged: {why}")
+    if not notes:
+        notes.append(f"no libLLVM >= {MIN_LLVM} found (apt-get install libllvm19)")
+    return None, notes
+
+
+def find_libllvm() -> str | None:
+    """A usable libLLVM (>= 17, and one that loads): ``DRJIT_LIBLLVM_PATH`` if
+    it is one, else the newest found that works."""
+    return choose_libllvm()[0]
 
 
 def choose_variant(requested: str | None = None, quiet: bool = False) -> str:
@@ -46,33 +168,40 @@ def choose_variant(requested: str | None = None, quiet: bool = False) -> str:
     Without a request: ``llvm_ad_rgb`` where a usable LLVM exists, else
     ``scalar_rgb`` with one line on stderr saying why. An explicit ``llvm_*``
     request without a usable LLVM falls back the same way, never a crash.
+    An unknown variant is a :class:`UsageError`.
     """
-    import mitsuba as mi
-
     variant = requested or DEFAULT_JIT_VARIANT
-    if variant not in mi.variants():
-        raise ValueError(f"unknown variant {variant!r}; available: {', '.join(mi.variants())}")
-    if variant.startswith("llvm_"):
-        library = find_libllvm()
+    library, notes = None, []
+    if variant.startswith("llvm_") or "mitsuba" not in sys.modules:
+        # before Mitsuba is imported: importing Dr.Jit loads DRJIT_LIBLLVM_PATH (a damaged one: SIGBUS)
+        library, notes = choose_libllvm()
         if library is None:
-            if not quiet:
-                configured = os.environ.get("DRJIT_LIBLLVM_PATH")
-                why = (f"DRJIT_LIBLLVM_PATH={configured} is not LLVM >= {MIN_LLVM}" if configured
-                       else f"no libLLVM >= {MIN_LLVM} found (apt-get install libllvm19)")
-                print(f"render: {why}; using {FALLBACK_VARIANT} instead of {variant}", file=sys.stderr)
-            variant = FALLBACK_VARIANT
+            os.environ.pop("DRJIT_LIBLLVM_PATH", None)
         else:
             os.environ["DRJIT_LIBLLVM_PATH"] = library
+
+    import mitsuba as mi
+
+    if variant not in mi.variants():
+        raise UsageError(f"--variant: unknown variant {variant!r}; available: {', '.join(mi.variants())}")
+    if variant.startswith("llvm_") and not quiet and notes:
+        instead = f"using {library}" if library else f"using {FALLBACK_VARIANT} instead of {variant}"
+        print(f"render: {'; '.join(notes)}; {instead}", file=sys.stderr)
+    if variant.startswith("llvm_") and library is None:
+        variant = FALLBACK_VARIANT
     return variant
 
 
 def set_variant(requested: str | None = None, quiet: bool = False) -> str:
     """Chooses the variant, sets it and registers the project's plugins."""
+    variant = choose_variant(requested, quiet)  # first: it decides what Dr.Jit loads on import
     import mitsuba as mi
 
     import mi_plugins
 
-    variant = choose_variant(requested, quiet)
-    mi.set_variant(variant)
+    try:
+        mi.set_variant(variant)
+    except (ImportError, RuntimeError, AttributeError) as error:  # e.g. a cuda_* variant without a GPU
+        raise UsageError(f"--variant {variant} cannot be used here: {' '.join(str(error).split())[:200]}") from None
     mi_plugins.register()
     return variant

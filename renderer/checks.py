@@ -1,0 +1,191 @@
+"""Every input of a render checked before any work starts.
+
+A render that cannot succeed must fail in the first second with one line,
+not after minutes of rendering, and never with a signal:
+
+- numbers: ``-size`` and ``--spp`` positive, ``-bounces`` in 0..:data:`MAX_BOUNCES`;
+- limits (:class:`LimitError`): the samples of one render must be indexable
+  by the variant (:data:`MAX_SAMPLES`) and the memory the render needs
+  (:func:`render_memory`) must be available (:func:`available_memory`);
+- outputs (:class:`OutputError`): a known format per flag, no two outputs on
+  one file (also across the lines of a batch, and across named scenes that
+  map to the same ``<out>/<stem>.png``), no folder where a file should go, a
+  folder that exists or can be created, and permission to write there.
+"""
+from __future__ import annotations
+
+import os
+import resource
+from pathlib import Path
+
+from core.errors import LimitError, OutputError, UsageError
+
+#: Deepest mirror recursion accepted. Each bounce multiplies by the mirror's
+#: specular colour; past a few dozen bounces nothing changes in an 8-bit image
+#: unless mirrors reflect nearly all light, and a huge count (1e9) would only
+#: make two parallel mirrors loop for hours.
+MAX_BOUNCES = 1000
+#: Mitsuba and Dr.Jit index the samples of one render (pixels x samples per
+#: pixel, x9 with -filter) with 32-bit integers; beyond this they crash (SIGSEGV).
+MAX_SAMPLES = 2**32 - 1
+#: Largest --spp, so that huge numbers are refused as a count, not as memory
+MAX_SPP = 2**20
+#: Peak memory per film pixel and channel, in float32 copies: Mitsuba's image
+#: block, the developed film, the NumPy copy, the split layers and the encoded
+#: files (measured: 106 bytes per pixel for the 5 beauty channels, 20 more per
+#: AOV channel, at 1200x1200 with llvm_ad_rgb; /usr/bin/time -v, 2026-11-28)
+COPIES = 6
+#: Film channels besides the AOVs: R, G, B, alpha and the filter weight
+BEAUTY_CHANNELS = 5
+#: What the process needs besides the film (Mitsuba, Dr.Jit, LLVM, the scene)
+BASELINE_BYTES = 400 * 2**20
+#: Image formats per flag, by suffix
+IMAGE_SUFFIXES = (".png", ".bmp", ".tga", ".exr")
+
+
+def check_numbers(width: int, height: int, bounces: int, spp: int | None) -> None:
+    """The command line's numbers, before anything is loaded."""
+    if width < 1 or height < 1:
+        raise UsageError(f"-size wants positive numbers, got {width} {height}")
+    if not 0 <= bounces <= MAX_BOUNCES:
+        raise UsageError(f"-bounces wants a number in 0..{MAX_BOUNCES}, got {bounces}")
+    if spp is not None and not 1 <= spp <= MAX_SPP:
+        raise UsageError(f"--spp wants a number in 1..{MAX_SPP}, got {spp}")
+
+
+def render_samples(job) -> int:
+    options = job.options()
+    return options.width * options.height * options.spp
+
+
+def render_memory(job) -> int:
+    """Bytes a render of ``job`` needs at its peak (see :data:`COPIES`)."""
+    from mi_plugins.aovs import AOV_CHANNELS
+
+    options = job.options()
+    channels = BEAUTY_CHANNELS + sum(len(AOV_CHANNELS[name]) for name in job.aovs)
+    return BASELINE_BYTES + options.width * options.height * channels * 4 * COPIES
+
+
+def available_memory() -> int | None:
+    """Bytes this process may still allocate: the least of the system's
+    available memory, the cgroup's remaining limit and the address-space limit."""
+    limits = []
+    try:
+        with open("/proc/meminfo") as meminfo:
+            for line in meminfo:
+                if line.startswith("MemAvailable:"):
+                    limits.append(int(line.split()[1]) * 1024)
+    except (OSError, ValueError, IndexError):
+        try:
+            limits.append(os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE"))
+        except (OSError, ValueError):
+            pass
+    try:
+        maximum = Path("/sys/fs/cgroup/memory.max").read_text().strip()
+        if maximum != "max":
+            current = int(Path("/sys/fs/cgroup/memory.current").read_text())
+            limits.append(int(maximum) - current)
+    except (OSError, ValueError):
+        pass
+    soft, _ = resource.getrlimit(resource.RLIMIT_AS)
+    if soft != resource.RLIM_INFINITY:
+        limits.append(soft)
+    return min(limits) if limits else None
+
+
+def _gib(n: int) -> str:
+    return f"{n / 2**30:.1f} GiB"
+
+
+def check_limits(job, memory: int | None = None) -> None:
+    """Samples and memory of one render (``memory``: bytes available; measured if None)."""
+    options = job.options()
+    what = f"{options.width}x{options.height} pixels x {options.spp} spp"
+    if job.filter:
+        what += " (-filter renders at 3x)"
+    samples = render_samples(job)
+    if samples > MAX_SAMPLES:
+        raise LimitError(f"{samples:,} samples ({what}) exceed the {MAX_SAMPLES:,} that one render can index "
+                         f"(32-bit); use a smaller -size or fewer samples")
+    memory = available_memory() if memory is None else memory
+    needed = render_memory(job)
+    if memory is not None and needed > memory:
+        raise LimitError(f"the render needs about {_gib(needed)} of memory ({what}, "
+                         f"{BEAUTY_CHANNELS}+{len(job.aovs)} layers) but {_gib(memory)} is available; "
+                         f"use a smaller -size, or fewer outputs")
+
+
+def job_outputs(job) -> list[tuple[str, Path]]:
+    """``(flag, path)`` for every file ``job`` writes."""
+    outputs = []
+    if job.output is not None:
+        outputs.append(("-output", job.output))
+    if job.normals is not None:
+        outputs.append(("-normals", job.normals))
+    if job.depth is not None:
+        outputs.append(("-depth", job.depth.path))
+    if job.exr is not None:
+        outputs.append(("--exr", job.exr))
+    return outputs
+
+
+def _identity(path: Path) -> str:
+    """Two spellings of one file (relative, through links) give one identity."""
+    return os.path.normcase(os.path.realpath(path))
+
+
+def check_writable(flag: str, path: Path) -> None:
+    """``path`` can become a file: not a folder, its folder exists or can be
+    created, and we may write there (and replace it, if it exists)."""
+    if path.name in ("", ".", ".."):
+        raise OutputError(f"{flag} {path}: expected a file name, found a folder")
+    target = Path(os.path.realpath(path)) if path.is_symlink() else path
+    if target.is_dir():
+        raise OutputError(f"{flag} {path}: is a folder, not a file")
+    if target.exists():
+        if not os.access(target, os.W_OK) or not target.stat().st_mode & 0o222:
+            raise OutputError(f"{flag} {path}: the existing file is read-only")
+    folder = target.parent if str(target.parent) else Path(".")
+    existing = folder
+    while not existing.exists():
+        if existing.is_symlink():
+            raise OutputError(f"{flag} {path}: {existing} is a broken link")
+        existing = existing.parent
+    if not existing.is_dir():
+        raise OutputError(f"{flag} {path}: cannot create folder {folder}: {existing} is a file")
+    if not os.access(existing, os.W_OK | os.X_OK):
+        raise OutputError(f"{flag} {path}: no permission to write in {existing}")
+
+
+def check_outputs(job, seen: dict[str, str] | None = None, extra: list[tuple[str, Path]] = ()) -> None:
+    """Formats, distinct files and writability of ``job``'s outputs (and of
+    ``extra`` ``(flag, path)`` ones).
+
+    ``seen`` maps the files of earlier jobs (of a batch, or of other named
+    scenes) to who writes them; this job's files are added to it.
+    """
+    seen = {} if seen is None else seen
+    for flag, path in job_outputs(job) + list(extra):
+        suffix = path.suffix.lower()
+        if flag == "--exr" and suffix != ".exr":
+            raise OutputError(f"--exr {path}: expected a .exr file name, found {suffix or 'no suffix'}")
+        if flag == "--png" and suffix != ".png":
+            raise OutputError(f"--png {path}: expected a .png file name")
+        if suffix not in IMAGE_SUFFIXES:
+            raise OutputError(f"{flag} {path}: unknown image format {suffix or '(no suffix)'}; "
+                              f"use {', '.join(IMAGE_SUFFIXES)}")
+        identity = _identity(path)
+        writer = f"{flag} {path}"
+        if identity in seen:
+            raise OutputError(f"{writer}: the same file as {seen[identity]}; give each output its own file")
+        check_writable(flag, path)
+        seen[identity] = writer
+
+
+def check_jobs(jobs, seen: dict[str, str] | None = None, memory: int | None = None) -> None:
+    """Everything about ``jobs`` that can be known before loading a scene."""
+    seen = {} if seen is None else seen
+    for job in jobs:
+        check_limits(job, memory)
+        check_outputs(job, seen)
