@@ -82,6 +82,8 @@ def _compare(a: np.ndarray, b: np.ndarray, case: Case, what: str) -> tuple[bool,
 
 def run_case(case: Case) -> tuple[bool, str]:
     """(passed, what happened) for one case."""
+    if hasattr(case, "check"):  # a command-line case (benchmarks.stress_cases_inputs.CliCase)
+        return case.check()
     from converters.course_scene import load_scene, parse_scene
     from converters.to_mitsuba import scene_dict
 
@@ -198,6 +200,81 @@ def fuzz(examples: int, seed: int = 0) -> int:
     return count
 
 
+#: Words the command-line fuzzer draws from: every flag, numbers that are fine, odd or absurd,
+#: and paths that are fine, missing, duplicated, of unknown format, read-only or through links
+CLI_VOCABULARY = ["-input", "-size", "-output", "-normals", "-depth", "-bounces", "-shadows", "-jitter", "-filter",
+                  "--exr", "--png", "--spp", "--out", "--stats", "--data", "--variant", "--batch",
+                  "0", "1", "2", "3", "7", "-1", "1e3", "nan", "x", "", "1000000000", "4294967296", "300000",
+                  "s.txt", "bad.txt", "missing.txt", "missing/s.txt", "showcase", "a.png", "a.png", "b.exr",
+                  "c.jpg", "dir", "dir/x.png", "new/y.bmp", "ro.png", "link.png", "notes.txt/x.png", "b.sh",
+                  "nope_rgb", "scalar_spectral", "é.png", "-", "--", "-size=4"]
+SHELL_VOCABULARY = ["a2", "${BIN}", "python3", "render.py", "clear", "echo", "mkdir", "-p", "cd", "#", "\\", "'",
+                    '"', ";", "&&", "|"]
+
+
+def fuzz_cli(examples: int, seed: int = 0) -> int:
+    """Random ``render.py`` argument lists and ``--batch`` files, run in-process
+    in a scratch folder: each must end in exit 0, or exit 2 with one
+    ``render.py: error:`` line (per bad batch line), never a traceback or another
+    exception. Returns how many inputs were tried; raises on the first escape."""
+    import contextlib
+    import io
+    import os
+
+    from hypothesis import HealthCheck, given, settings, strategies as st
+
+    from benchmarks.stress_cases_inputs import contract_problems
+    from renderer.cli import main
+
+    folder = Path(tempfile.mkdtemp(prefix="stress-cli-"))
+    (folder / "s.txt").write_text(base_scene())
+    (folder / "bad.txt").write_text("PerspectiveCamera { center 0 0 1 }")
+    (folder / "dir").mkdir()
+    (folder / "notes.txt").write_text("x")
+    (folder / "ro.png").write_text("old")
+    (folder / "ro.png").chmod(0o444)
+    os.symlink("a.png", folder / "link.png")
+    (folder / "b.sh").write_text("a2 -input s.txt -size 4 3 -output batch.png\nclear\n")
+    count = 0
+
+    def check(argv: list[str], batch: bool) -> None:
+        nonlocal count
+        count += 1
+        stderr = io.StringIO()
+        cwd = os.getcwd()
+        os.chdir(folder)
+        try:
+            with contextlib.redirect_stderr(stderr), contextlib.redirect_stdout(io.StringIO()):
+                code = main(argv)
+        except SystemExit as stop:  # argparse's own exits (none expected: its errors are UsageErrors)
+            code = stop.code
+        finally:
+            os.chdir(cwd)
+        problems = contract_problems(code, stderr.getvalue(), batch or "--batch" in argv)
+        assert not problems, f"{argv}: {problems}: {stderr.getvalue()[-500:]}"
+
+    common = settings(max_examples=examples, deadline=None, database=None, derandomize=True,
+                      suppress_health_check=list(HealthCheck))
+
+    @common
+    @given(st.lists(st.sampled_from(CLI_VOCABULARY), max_size=10))
+    def arguments(words):
+        # a small default size first, so that what renders renders fast; later words may override it
+        check(["-size", "6", "4", "--quiet", *words], batch=False)
+
+    @common
+    @given(st.lists(st.lists(st.sampled_from(CLI_VOCABULARY + SHELL_VOCABULARY), max_size=8), min_size=1, max_size=4))
+    def batches(lines):
+        text = "\n".join(" ".join(["-size", "5", "3", *words] if words and words[0] == "-input" else words)
+                         for words in lines)
+        (folder / "fuzz.sh").write_text(text + "\n")
+        check(["--batch", "fuzz.sh", "--quiet"], batch=True)
+
+    arguments()
+    batches()
+    return count
+
+
 def run(fuzz_examples: int, quick: bool) -> dict:
     from renderer.variants import set_variant
 
@@ -216,6 +293,7 @@ def run(fuzz_examples: int, quick: bool) -> dict:
     fuzz_inputs, fuzz_failure = 0, None
     try:
         fuzz_inputs = fuzz(fuzz_examples)
+        fuzz_inputs += fuzz_cli(max(10, fuzz_examples // 35))
     except Exception as error:  # the first escaping input, as hypothesis reports it
         fuzz_failure = f"{type(error).__name__}: {error}"
     return {"cases": len(results), "passed": sum(r["passed"] for r in results), "fuzz_inputs": fuzz_inputs,

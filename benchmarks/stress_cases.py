@@ -193,4 +193,5 @@ def error_cases() -> list[Case]:
 
 
 def all_cases() -> list[Case]:
-    return render_cases() + error_cases()
+    from benchmarks.stress_cases_inputs import all_input_cases  # inputs, CLI, files, batches (issue 14)
+    return render_cases() + error_cases() + all_input_cases()

@@ -111,8 +111,9 @@ def check_limits(job, memory: int | None = None) -> None:
     memory = available_memory() if memory is None else memory
     needed = render_memory(job)
     if memory is not None and needed > memory:
-        raise LimitError(f"the render needs about {_gib(needed)} of memory ({what}, "
-                         f"{BEAUTY_CHANNELS}+{len(job.aovs)} layers) but {_gib(memory)} is available; "
+        channels = (needed - BASELINE_BYTES) // (options.width * options.height * 4 * COPIES)
+        raise LimitError(f"the render needs about {_gib(needed)} of memory ({what}, {channels} float "
+                         f"channels) but {_gib(memory)} is available; "
                          f"use a smaller -size, or fewer outputs")
 
 

@@ -80,6 +80,8 @@ def resolve_scene(name: str, data: Path | None) -> Path:
     path (a folder part, or ``.txt``) must be an existing file.
     """
     path = Path(name)
+    if path.is_dir():
+        raise UsageError(f"scene {name} is a folder, not a scene file")
     if path.suffix == ".txt" or path.parent != Path(".") or path.is_absolute():
         if path.is_file():
             return path
@@ -269,6 +271,8 @@ class BatchLine:
 def jobs_from_batch(parser: argparse.ArgumentParser, path: Path, memory: int | None = None
                     ) -> tuple[list[BatchLine], list[str]]:
     """The good lines' jobs, and one ``FILE:LINE: message`` per bad line."""
+    from converters.course_scene import load_scene
+
     good, errors, seen = [], [], {}
     for number, line in batch_lines(path):
         where = f"{path}:{number}"
@@ -297,7 +301,10 @@ def jobs_from_batch(parser: argparse.ArgumentParser, path: Path, memory: int | N
             args = parser.parse_args(flags)
             if args.batch:
                 raise UsageError("--batch inside a batch file")
-            good.append(BatchLine(where, checked_jobs(args, seen, memory)))
+            pairs = checked_jobs(args, seen, memory)
+            for job, _ in pairs:  # scene errors now, in line order, not after the lines before render
+                load_scene(job.scene)
+            good.append(BatchLine(where, pairs))
         except ToolkitError as error:
             errors.append(f"{where}: {one_line(error)}")
     if not good and not errors:
@@ -323,6 +330,9 @@ def _report(where: str, error: BaseException) -> str:
 
 
 def _run(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
+    from .variants import prepare_libllvm
+
+    prepare_libllvm(args.variant)  # first: the checks below import Mitsuba, which loads libLLVM
     if args.batch:
         if args.input or args.scenes:
             raise UsageError("--batch runs the command lines in its file: give no -input or scene names with it")

@@ -162,6 +162,24 @@ def find_libllvm() -> str | None:
     return choose_libllvm()[0]
 
 
+_PREPARED: dict = {}
+
+
+def prepare_libllvm(requested: str | None = None) -> tuple[str | None, list[str]]:
+    """Chooses the libLLVM (once per process) and points ``DRJIT_LIBLLVM_PATH``
+    at it, or removes a damaged one from the environment. Call it before
+    anything imports Mitsuba: importing Dr.Jit loads that library."""
+    variant = requested or DEFAULT_JIT_VARIANT
+    if not _PREPARED and (variant.startswith("llvm_") or "drjit" not in sys.modules):
+        library, notes = choose_libllvm()
+        if library is None:
+            os.environ.pop("DRJIT_LIBLLVM_PATH", None)
+        else:
+            os.environ["DRJIT_LIBLLVM_PATH"] = library
+        _PREPARED["choice"] = (library, notes)
+    return _PREPARED.get("choice", (None, []))
+
+
 def choose_variant(requested: str | None = None, quiet: bool = False) -> str:
     """Sets up and returns the variant to use.
 
@@ -171,19 +189,14 @@ def choose_variant(requested: str | None = None, quiet: bool = False) -> str:
     An unknown variant is a :class:`UsageError`.
     """
     variant = requested or DEFAULT_JIT_VARIANT
-    library, notes = None, []
-    if variant.startswith("llvm_") or "mitsuba" not in sys.modules:
-        # before Mitsuba is imported: importing Dr.Jit loads DRJIT_LIBLLVM_PATH (a damaged one: SIGBUS)
-        library, notes = choose_libllvm()
-        if library is None:
-            os.environ.pop("DRJIT_LIBLLVM_PATH", None)
-        else:
-            os.environ["DRJIT_LIBLLVM_PATH"] = library
+    library, notes = prepare_libllvm(requested)  # before Mitsuba is imported (see there)
 
     import mitsuba as mi
 
-    if variant not in mi.variants():
-        raise UsageError(f"--variant: unknown variant {variant!r}; available: {', '.join(mi.variants())}")
+    usable = [v for v in mi.variants() if v.endswith("_rgb")]  # the plugins shade in RGB
+    if variant not in usable:
+        what = "an RGB variant" if variant in mi.variants() else "a known variant"
+        raise UsageError(f"--variant: expected {what} ({', '.join(usable)}), found {variant!r}")
     if variant.startswith("llvm_") and not quiet and notes:
         instead = f"using {library}" if library else f"using {FALLBACK_VARIANT} instead of {variant}"
         print(f"render: {'; '.join(notes)}; {instead}", file=sys.stderr)

@@ -1,0 +1,232 @@
+"""render.py from the outside: inputs checked before any work, one line and exit 2
+for every refusal, batches that report FILE:LINE and go on, the libLLVM probe,
+--help and --png, and a fuzzer over argument lists and batch files (issue 14)."""
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from benchmarks.stress_cases import scene
+
+ROOT = Path(__file__).resolve().parent.parent
+LIBLLVM19 = "/usr/lib/x86_64-linux-gnu/libLLVM-19.so"
+
+
+def run(*args: str, cwd: Path, env: dict | None = None, timeout: float = 120) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, str(ROOT / "render.py"), *args], cwd=cwd, capture_output=True,
+                          text=True, env={**os.environ, **(env or {})}, timeout=timeout)
+
+
+def one_error_line(result: subprocess.CompletedProcess) -> str:
+    assert result.returncode == 2, (result.returncode, result.stderr[-2000:])
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("render.py: error: "), result.stderr[-2000:]
+    return lines[0]
+
+
+@pytest.fixture
+def scene_file(tmp_path) -> Path:
+    path = tmp_path / "s.txt"
+    path.write_text(scene())
+    return path
+
+
+def test_help_states_every_option_with_its_default_and_an_example(tmp_path):
+    result = run("--help", cwd=tmp_path, timeout=60)
+    assert result.returncode == 0 and result.stderr == ""
+    text = result.stdout
+    assert "-size W H" in text and "(default: 800 800)" in text
+    assert "example:" in text and "-input" in text.split("example:")[1]
+    from renderer.cli import build_parser
+
+    for action in build_parser()._actions:
+        if action.dest not in ("help", "scenes"):
+            assert action.help and "default" in action.help, action.dest
+
+
+def test_limits_are_refused_at_once_with_the_limit_named(tmp_path, scene_file):
+    cases = {("-size", "5600", "5600", "-jitter", "-filter"): "4,294,967,295",  # > 2^32 samples
+             ("-size", "60000", "60000", "--exr", "a.exr"): "memory",
+             ("-size", "8", "8", "-bounces", "1000000000"): "0..1000",
+             ("-size", "8", "8", "--spp", "5000000000"): "--spp"}
+    for flags, named in cases.items():
+        start = time.perf_counter()
+        line = one_error_line(run("-input", str(scene_file), "-output", "a.png", *flags, cwd=tmp_path))
+        assert named in line, line
+        assert time.perf_counter() - start < 30  # found before rendering, not after
+    assert not (tmp_path / "a.png").exists() and not (tmp_path / "a.exr").exists()
+
+
+def test_memory_estimate_against_a_small_machine(scene_file):
+    """check_limits with 1 GiB available refuses 4000x4000 with every AOV, accepts 400x400."""
+    from core.errors import LimitError
+    from renderer import checks
+    from renderer.job import RenderJob
+
+    big = RenderJob(scene=scene_file, width=4000, height=4000, exr=Path("a.exr"))
+    with pytest.raises(LimitError, match="memory"):
+        checks.check_limits(big, memory=2**30)
+    checks.check_limits(RenderJob(scene=scene_file, width=400, height=400, exr=Path("a.exr")), memory=2**30)
+    # the estimate covers what a render really holds: 106 bytes per pixel measured for the beauty alone
+    assert checks.render_memory(RenderJob(scene=scene_file, width=1000, height=1000)) >= 106e6
+
+
+def test_outputs_are_checked_before_the_variant_is_set(tmp_path, scene_file, monkeypatch):
+    """No render starts (nor is the variant even set) when an output cannot be written."""
+    import renderer.cli as cli
+    import renderer.variants as variants
+
+    def no_work(*args, **kwargs):
+        raise AssertionError("work started before the outputs were checked")
+
+    monkeypatch.setattr(variants, "set_variant", no_work)
+    monkeypatch.setattr(cli, "set_variant", no_work, raising=False)
+    monkeypatch.setattr(cli, "render", no_work, raising=False)
+    (tmp_path / "folder.png").mkdir()
+    (tmp_path / "notes").write_text("x")
+    monkeypatch.chdir(tmp_path)
+    bad = [["-output", "a.png", "-normals", "a.png"], ["-output", "a.jpg"], ["-output", "folder.png"],
+           ["-output", "notes/a.png"], ["--exr", "a.png"]]
+    for outputs in bad:
+        assert cli.main(["-input", str(scene_file), "-size", "4", "4", "--quiet", *outputs]) == 2, outputs
+
+
+def test_entry_point_errors_are_one_line(tmp_path, scene_file):
+    assert "/no/such/folder/s.txt" in one_error_line(run("/no/such/folder/s.txt", "-size", "4", "4",
+                                                         cwd=tmp_path))
+    assert "--variant" in one_error_line(run("-input", str(scene_file), "-output", "a.png", "-size", "4", "4",
+                                             "--variant", "llvm_ad_rbg", cwd=tmp_path))
+    assert "-size" in one_error_line(run("-input", str(scene_file), "-output", "a.png", "-size", "4",
+                                         cwd=tmp_path))
+    (tmp_path / "ro.png").write_text("old")
+    (tmp_path / "ro.png").chmod(0o444)
+    assert "ro.png" in one_error_line(run("-input", str(scene_file), "-output", "ro.png", "-size", "4", "4",
+                                          cwd=tmp_path))
+    assert (tmp_path / "ro.png").read_text() == "old"
+
+
+def test_batch_reports_bad_lines_renders_good_ones_and_fails_at_the_end(tmp_path, scene_file):
+    batch = tmp_path / "grading.sh"
+    batch.write_text("#!/bin/sh\n"
+                     "mkdir -p results\n"
+                     "echo rendering the course scenes\n"
+                     "a2 -size 8 6 -input s.txt \\\n"
+                     "   -output results/a.png -normals results/an.png   # a continued line\n"
+                     "a2 -size 8 6 -input s.txt -output results/b.png -bounces lots\n"
+                     "clear\n"
+                     "${BIN} -size 8 6 -input s.txt -depth 0 9 results/c.png\n")
+    result = run("--batch", str(batch), "--quiet", cwd=tmp_path)
+    assert result.returncode == 2
+    errors = result.stderr.strip().splitlines()
+    assert f"{batch}:6: " in errors[0] and "-bounces" in errors[0]
+    assert f"{batch}:7: expected a course command line" in errors[1] and "'clear'" in errors[1]
+    assert len(errors) == 3  # and one summary line
+    for name in ("a.png", "an.png", "c.png"):
+        assert (tmp_path / "results" / name).is_file(), name
+    assert not (tmp_path / "results" / "b.png").exists()
+    assert not (tmp_path / "out").exists()  # 'clear' rendered nothing
+
+
+def test_a_batch_of_only_good_lines_exits_0(tmp_path, scene_file):
+    batch = tmp_path / "b.sh"
+    batch.write_text("\n# comment\npython3 render.py -input s.txt -size 4 3 -output 'x y.png'\n\n")
+    result = run("--batch", str(batch), "--quiet", cwd=tmp_path)
+    assert result.returncode == 0, result.stderr
+    assert (tmp_path / "x y.png").is_file()
+
+
+def test_a_stray_word_in_a_batch_renders_nothing(tmp_path):
+    (tmp_path / "b.sh").write_text("clear\n")
+    result = run("--batch", "b.sh", cwd=tmp_path)
+    assert result.returncode == 2 and "b.sh:1: expected a course command line" in result.stderr
+    assert not (tmp_path / "out").exists()
+
+
+def test_exr_with_png_preview(tmp_path, scene_file):
+    result = run("-input", str(scene_file), "-size", "12", "8", "--exr", "a.exr", "--png", "--quiet",
+                 cwd=tmp_path)
+    assert result.returncode == 0, result.stderr
+    from imaging.colour import to_srgb_8bit
+    from imaging.image_io import read_exr, read_png
+
+    channels = read_exr(tmp_path / "a.exr")
+    beauty = np.stack([channels[c] for c in "RGB"], axis=-1)
+    np.testing.assert_array_equal(read_png(tmp_path / "a.png"), to_srgb_8bit(beauty))
+
+
+# -- the libLLVM probe ---------------------------------------------------------------
+@pytest.fixture
+def damaged_llvm(tmp_path) -> Path:
+    if not os.path.exists(LIBLLVM19):
+        pytest.skip(f"no {LIBLLVM19} to damage")
+    path = tmp_path / "libLLVM-19.so"
+    with open(LIBLLVM19, "rb") as source:
+        path.write_bytes(source.read(2_000_000))  # a truncated copy: mapping it gives SIGBUS
+    return path
+
+
+def test_damaged_libllvm_falls_back_to_scalar_with_one_line(tmp_path, damaged_llvm, scene_file):
+    env = {"DRJIT_LIBLLVM_PATH": str(damaged_llvm), "XDG_CACHE_HOME": str(tmp_path / "cache")}
+    result = run("-input", str(scene_file), "-size", "6", "4", "-output", "a.png", cwd=tmp_path, env=env)
+    assert result.returncode == 0, result.stderr[-2000:]
+    notes = [line for line in result.stderr.splitlines() if "scalar_rgb" in line]
+    assert len(notes) == 1 and "damaged" in notes[0] and str(damaged_llvm) in notes[0]
+    assert (tmp_path / "a.png").is_file()
+
+
+def test_a_garbage_libllvm_in_a_searched_folder_is_passed_over(tmp_path, monkeypatch, damaged_llvm):
+    from renderer import variants
+
+    if variants.find_libllvm() is None:
+        pytest.skip("no working libLLVM to prefer")
+    garbage = tmp_path / "libLLVM-99.so"  # newest by name: the one picked without a probe
+    garbage.write_bytes(os.urandom(4096))
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+    monkeypatch.delenv("DRJIT_LIBLLVM_PATH", raising=False)
+    monkeypatch.setattr(variants, "_SEARCH", (str(tmp_path / "libLLVM*.so*"), *variants._SEARCH))
+    library, notes = variants.choose_libllvm()
+    assert library is not None and Path(library).resolve() != garbage.resolve()
+    assert any(str(garbage) in note and "damaged" in note for note in notes)
+    assert variants.find_libllvm() == library
+
+
+def test_probe_verdicts_are_cached(tmp_path, monkeypatch, damaged_llvm):
+    from renderer import variants
+
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+    first = variants.probe_libllvm(str(damaged_llvm))
+    assert first is not None and ("SIG" in first or "cannot" in first)
+
+    def no_probe(*args, **kwargs):
+        raise AssertionError("probed again")
+
+    monkeypatch.setattr(variants.subprocess, "run", no_probe)
+    assert variants.probe_libllvm(str(damaged_llvm)) == first
+    with open(damaged_llvm, "ab") as library:  # another file: probed again
+        library.write(b"\0")
+    with pytest.raises(AssertionError, match="probed again"):
+        variants.probe_libllvm(str(damaged_llvm))
+
+
+# -- the fuzzer ------------------------------------------------------------------------
+def test_random_argument_lists_and_batches_keep_the_contract(variant_llvm_ad_rgb):
+    from benchmarks.stress import fuzz_cli
+
+    assert fuzz_cli(examples=60) == 120
+
+
+def test_the_contract_check_can_fail():
+    from benchmarks.stress_cases_inputs import contract_problems
+
+    assert contract_problems(1, "Traceback (most recent call last):\n  ...\nKeyError: 'x'\n", batch=False)
+    assert contract_problems(2, "usage: render.py [-h]\nrender.py: error: bad\n", batch=False)
+    assert contract_problems(-11, "", batch=False)
+    assert contract_problems(0, "render.py: error: x\n", batch=False)
+    assert not contract_problems(2, "render.py: error: x\n", batch=False)
+    assert not contract_problems(2, "render.py: error: b:1: x\nrender.py: error: b: 1 bad\n", batch=True)
