@@ -46,6 +46,17 @@ def _temporary_name(name: str, suffix: str, limit: int) -> str:
     return f".{stem}.{random}{suffix}"
 
 
+def is_read_only(path: Path) -> bool:
+    """An existing file we may not, or should not, replace: no write permission
+    for us, or no write bit at all (which root could override, but the user
+    marked the file as one to keep)."""
+    try:
+        mode = path.stat().st_mode
+    except OSError:
+        return False
+    return not os.access(path, os.W_OK) or not mode & 0o222
+
+
 def output_target(path: str | Path) -> Path:
     """The file that writing ``path`` replaces: ``path``, or the file a
     symbolic link (or a chain of them) points at, so that the link survives.
@@ -74,7 +85,7 @@ def atomic_path(path: str | Path, suffix: str) -> Iterator[Path]:
         raise OutputError(f"{path}: cannot create folder {folder}: a file of that name exists") from None
     except OSError as error:
         raise OutputError(f"{path}: cannot create folder {folder}: {error.strerror or error}") from None
-    if target.exists() and not os.access(target, os.W_OK):
+    if is_read_only(target):
         raise OutputError(f"{path}: the existing file is read-only")
     limit = _name_max(folder)
     for _ in range(100):

@@ -144,9 +144,10 @@ def check_writable(flag: str, path: Path) -> None:
     target = Path(os.path.realpath(path)) if path.is_symlink() else path
     if target.is_dir():
         raise OutputError(f"{flag} {path}: is a folder, not a file")
-    if target.exists():
-        if not os.access(target, os.W_OK) or not target.stat().st_mode & 0o222:
-            raise OutputError(f"{flag} {path}: the existing file is read-only")
+    from imaging.image_io import is_read_only
+
+    if is_read_only(target):
+        raise OutputError(f"{flag} {path}: the existing file is read-only")
     folder = target.parent if str(target.parent) else Path(".")
     existing = folder
     while not existing.exists():
