@@ -137,7 +137,7 @@ class CliCase:
     """``render.py ARGV`` in a fresh folder (``{dir}`` in an argument is that folder).
 
     ``files``: name -> bytes to create first (``"->target"`` makes a symbolic
-    link, ``"/"`` a folder, ``"ro:"`` prefix a read-only file); ``code``: the
+    link, ``"/"`` a folder, ``"|"`` a named pipe, ``"ro:"`` prefix a read-only file); ``code``: the
     exit code; ``expect``: pieces of stderr; ``written``/``absent``: files
     that must / must not exist afterwards (``links``: must still be links).
     """
@@ -210,6 +210,8 @@ def _make_files(folder: Path, files: dict) -> None:
             os.symlink(data[2:].replace("{dir}", str(folder)), path)
         elif data == "/":
             path.mkdir(exist_ok=True)
+        elif data == "|":
+            os.mkfifo(path)
         elif isinstance(data, str) and data.startswith("ro:"):
             path.write_text(data[3:])
             path.chmod(0o444)
@@ -261,6 +263,8 @@ def cli_cases() -> list[CliCase]:
                 {**scene_file, "out.png": "/"}),
         CliCase("output folder is a file", (*inp, *TINY, "-output", "notes.txt/a.png"), 2, ("is a file",),
                 {**scene_file, "notes.txt": b"x"}),
+        CliCase("output onto a named pipe (not replaced by a file)", (*inp, *TINY, "-normals", "pipe.png"), 2,
+                ("not a regular file",), {**scene_file, "pipe.png": "|"}),
         CliCase("read-only existing output", (*inp, *TINY, "-output", "a.png"), 2, ("read-only",),
                 {**scene_file, "a.png": "ro:old"}),
         CliCase("255-byte output name", (*inp, *TINY, "-output", long_name), 0, (), scene_file,

@@ -65,6 +65,8 @@ def output_target(path: str | Path) -> Path:
     target = Path(os.path.realpath(path)) if path.is_symlink() else path
     if target.is_dir():
         raise OutputError(f"{path}: is a folder, not an image file")
+    if target.exists() and not target.is_file():  # a device or a pipe: replacing it would destroy it
+        raise OutputError(f"{path}: is not a regular file (a device or a pipe?)")
     return target
 
 

@@ -141,9 +141,12 @@ def check_writable(flag: str, path: Path) -> None:
     created, and we may write there (and replace it, if it exists)."""
     if path.name in ("", ".", ".."):
         raise OutputError(f"{flag} {path}: expected a file name, found a folder")
-    target = Path(os.path.realpath(path)) if path.is_symlink() else path
-    if target.is_dir():
-        raise OutputError(f"{flag} {path}: is a folder, not a file")
+    from imaging.image_io import output_target
+
+    try:
+        target = output_target(path)
+    except OutputError as error:
+        raise OutputError(f"{flag} {error}") from None
     from imaging.image_io import is_read_only
 
     if is_read_only(target):

@@ -231,3 +231,24 @@ def test_the_contract_check_can_fail():
     assert contract_problems(0, "render.py: error: x\n", batch=False)
     assert not contract_problems(2, "render.py: error: x\n", batch=False)
     assert not contract_problems(2, "render.py: error: b:1: x\nrender.py: error: b: 1 bad\n", batch=True)
+
+
+def test_cli_cases_and_the_fuzzer_can_fail(variant_llvm_ad_rgb, monkeypatch):
+    """A case whose command line is fine but expects a refusal fails, so does one
+    expecting a file that is not written; the fuzzer stops on an escaping exception."""
+    from benchmarks.stress import fuzz_cli
+    from benchmarks.stress_cases_inputs import SCENE, CliCase
+
+    files = {"s.txt": SCENE}
+    assert not CliCase("not an error", ("-input", "s.txt", "-size", "4", "3", "-output", "a.png", "--quiet"), 2,
+                       files=files).check()[0]
+    assert not CliCase("nothing written", ("-input", "s.txt", "-size", "4", "3", "-output", "a.png", "--quiet"), 0,
+                       files=files, written=("b.png",)).check()[0]
+    import renderer.checks as checks
+
+    def crash(*args, **kwargs):
+        raise KeyError("mirror_by_depth")  # a bug, as a user would meet it
+
+    monkeypatch.setattr(checks, "check_limits", crash)
+    with pytest.raises(Exception, match="traceback|escaped|mirror_by_depth"):
+        fuzz_cli(examples=5)
