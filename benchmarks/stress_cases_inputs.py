@@ -97,9 +97,25 @@ def scene_cases() -> list[Case]:
         Case("nested scales overflow float32", scene(num_objects=1, objects=(
             "MaterialIndex 0 Transform { UniformScale 1e20 Transform { UniformScale 1e20 "
             "Sphere { center 0 0 0 radius 1 } } }")), "error", expect="transform matrix within float32"),
+        Case("scale of 1e-39 (its inverse overflows float32)", scene(num_objects=1, objects=(
+            "MaterialIndex 0 Transform { UniformScale 1e-39 Sphere { center 0 0 0 radius 1 } }")), "error",
+             expect="inverse transform matrix within float32"),
         Case("vertex moved beyond float32", scene(num_objects=1, objects=(
             "MaterialIndex 0 Transform { Translate 3e38 0 0 Triangle { vertex0 3e38 0 0 vertex1 0 1 0 "
             "vertex2 0 0 1 } }")), "error", expect="world-space coordinates"),
+        Case("light direction of length 1e-39 (float32 squares it to 0)",
+             scene(lights="DirectionalLight { direction -3e-40 -1e-39 -5e-40 color 0.7 0.7 0.7 } "
+                          "PointLight { position 1 3 2 color 1 1 1 falloff 0.2 }"), "error",
+             expect="light direction of length"),
+        Case("light direction of length 1e-10 renders like a unit one",
+             scene(lights="DirectionalLight { direction -0.3e-10 -1e-10 -0.5e-10 color 0.7 0.7 0.7 } "
+                          "PointLight { position 1 3 2 color 1 1 1 falloff 0.2 }"), "render", match=scene()),
+        Case("camera direction of length 1e-40", scene(direction="0 -1e-41 -1e-40"), "error",
+             expect="finite float32 rays"),
+        Case("camera angle 1e-50 degrees", scene(angle="1e-50"), "error", expect="finite float32 rays"),
+        Case("camera up of length 1e30", scene(up="0 1e30 0"), "error", expect="finite float32 rays"),
+        Case("camera direction of length 1e-12 renders like a unit one", scene(direction="0 -0.1e-12 -1e-12"),
+             "render", match=scene()),
         Case("negative shininess", scene(materials=material(shininess="-3")), "error", expect="shininess >= 0"),
         Case("shininess -1e-9", scene(materials=material(shininess="-1e-9")), "error", expect="shininess >= 0"),
         Case("1000 nested groups", scene(num_objects=1, objects="MaterialIndex 0 " + _nested(1000, "Group")),

@@ -53,6 +53,36 @@ FLOAT32_MAX = float(np.finfo(np.float32).max)
 MAX_NESTING = 200
 
 
+#: Lengths of direction vectors whose float32 square is a normal, finite number
+#: (Mitsuba normalises them in float32: outside this, a normalised direction is 0 or NaN)
+FLOAT32_LENGTHS = (float(np.sqrt(np.finfo(np.float32).tiny)) * 1.01, float(np.sqrt(FLOAT32_MAX)) * 0.99)
+
+
+def _length_fits_float32(vector) -> bool:
+    length = float(np.linalg.norm(np.asarray(vector, np.float64)))
+    return FLOAT32_LENGTHS[0] <= length <= FLOAT32_LENGTHS[1]
+
+
+def _camera_fits_float32(direction: np.ndarray, up: np.ndarray, angle: float) -> bool:
+    """The course camera's set-up (mi_plugins.course_camera) done in float32: the
+    forward vector D / tan(angle / 2), the horizontal normalize(D x U) and the
+    corner ray D / tan + H + U must all be finite and non-zero."""
+    if not (_length_fits_float32(direction) and _length_fits_float32(up)):
+        return False
+    with np.errstate(all="ignore"):
+        d = np.asarray(direction, np.float32)
+        d = d / np.sqrt(np.sum(d * d, dtype=np.float32))
+        tangent = np.float32(math.tan(math.radians(angle) * 0.5))
+        forward = d / tangent
+        cross = np.cross(d, np.asarray(up, np.float32)).astype(np.float32)
+        cross_length = np.sqrt(np.sum(cross * cross, dtype=np.float32))
+        corner = forward + cross / cross_length + np.asarray(up, np.float32)
+        corner_length = np.sqrt(np.sum(corner * corner, dtype=np.float32))
+    values = np.concatenate([forward, [cross_length, corner_length]])
+    return bool(tangent > 0 and np.all(np.isfinite(values)) and cross_length > np.finfo(np.float32).tiny
+                and corner_length > np.finfo(np.float32).tiny)
+
+
 @dataclass(frozen=True)
 class _Token:
     text: str
@@ -196,6 +226,12 @@ class _Parser:
         if np.linalg.norm(np.cross(direction, up)) <= 1e-12 * np.linalg.norm(direction) * np.linalg.norm(up):
             raise SceneError(self.path, start.line, start.col,
                              "expected a camera up vector not parallel to its direction, found a parallel one")
+        if not _camera_fits_float32(direction, up, angle):
+            raise SceneError(self.path, start.line, start.col,
+                             "expected a camera whose direction, up and angle give finite float32 rays "
+                             f"(lengths {FLOAT32_LENGTHS[0]:g}..{FLOAT32_LENGTHS[1]:g}, angle not tiny), found "
+                             f"|direction| {np.linalg.norm(direction):g}, |up| {np.linalg.norm(up):g}, "
+                             f"angle {angle:g}")
         return Camera(values["center"], values["direction"], values["up"], angle)
 
     def counted(self, count_key: str, item) -> list:
@@ -223,6 +259,11 @@ class _Parser:
                 if not any(values["direction"]):
                     raise SceneError(self.path, token.line, token.col,
                                      "expected a non-zero light direction, found 0 0 0")
+                if not _length_fits_float32(values["direction"]):
+                    raise SceneError(self.path, token.line, token.col,
+                                     f"expected a light direction of length {FLOAT32_LENGTHS[0]:g}.."
+                                     f"{FLOAT32_LENGTHS[1]:g} (float32 squares it), "
+                                     f"found {np.linalg.norm(values['direction']):g}")
                 # the converter multiplies by pi (see converters.to_mitsuba)
                 self.finite32(token, "a light irradiance (color * pi)", np.asarray(values["color"]) * math.pi)
                 return DirectionalLight(values["direction"], values["color"])
@@ -393,6 +434,8 @@ class _Parser:
         if not np.all(np.isfinite(world)) or scale == 0.0 or abs(np.linalg.det(linear / scale)) < 1e-12:
             raise SceneError(self.path, start.line, start.col,
                              "expected an invertible transform, found a singular one (a scale of 0?)")
+        # Mitsuba keeps the inverse too, in float32: a scale of 1e-39 inverts to infinity
+        self.finite32(start, "an inverse transform matrix", np.linalg.inv(world))
         self.object(world)
         self.expect("}")
         self.nesting -= 1
