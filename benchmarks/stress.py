@@ -208,7 +208,7 @@ CLI_VOCABULARY = ["-input", "-size", "-output", "-normals", "-depth", "-bounces"
                   "s.txt", "bad.txt", "missing.txt", "missing/s.txt", "showcase", "a.png", "a.png", "b.exr",
                   "c.jpg", "dir", "dir/x.png", "new/y.bmp", "ro.png", "link.png", "notes.txt/x.png", "b.sh",
                   "nope_rgb", "scalar_spectral", "é.png", "-", "--", "-size=4"]
-SHELL_VOCABULARY = ["a2", "${BIN}", "python3", "render.py", "clear", "echo", "mkdir", "-p", "cd", "#", "\\", "'",
+SHELL_VOCABULARY = ["-h", "--help", "a2", "${BIN}", "python3", "render.py", "clear", "echo", "mkdir", "-p", "cd", "#", "\\", "'",
                     '"', ";", "&&", "|"]
 
 

@@ -327,6 +327,12 @@ def cli_cases() -> list[CliCase]:
                 {**scene_file, "b.sh": b"a2 -input s.txt -output 'a.png\n"}),
         CliCase("batch: cd is not ours", ("--batch", "b.sh", "--quiet"), 2, ("b.sh:1: expected a course",),
                 {**scene_file, "b.sh": b"cd data\n"}),
+        CliCase("batch: --help on a line", ("--batch", "b.sh", "--quiet"), 2, ("b.sh:2: -h/--help",),
+                {**scene_file, "b.sh": b"a2 -input s.txt -size 8 6 -output a.png\na2 -input s.txt --help\n"},
+                written=("a.png",)),
+        CliCase("batch with render flags on the command line", ("--batch", "b.sh", "-size", "8", "8"), 2,
+                ("remove -size",), {**scene_file, "b.sh": b"a2 -input s.txt -size 8 6 -output a.png\n"},
+                absent=("a.png",)),
         CliCase("batch file missing", ("--batch", "nowhere.sh"), 2, ("nowhere.sh",)),
         CliCase("batch file is binary", ("--batch", "b.sh"), 2, ("binary",), {"b.sh": b"\xff\xfe\x00garbage"}),
     ]

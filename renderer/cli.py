@@ -298,6 +298,8 @@ def jobs_from_batch(parser: argparse.ArgumentParser, path: Path, memory: int | N
                           f"found {describe(line.strip())}")
             continue
         try:
+            if "-h" in flags or "--help" in flags:
+                raise UsageError("-h/--help in a batch file")
             args = parser.parse_args(flags)
             if args.batch:
                 raise UsageError("--batch inside a batch file")
@@ -334,8 +336,14 @@ def _run(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
 
     prepare_libllvm(args.variant)  # first: the checks below import Mitsuba, which loads libLLVM
     if args.batch:
-        if args.input or args.scenes:
-            raise UsageError("--batch runs the command lines in its file: give no -input or scene names with it")
+        given = [flag for flag, value, default in (
+            ("SCENE", args.scenes, []), ("-input", args.input, None), ("-size", args.size, list(DEFAULT_SIZE)),
+            ("-output", args.output, None), ("-normals", args.normals, None), ("-depth", args.depth, None),
+            ("-bounces", args.bounces, 0), ("-shadows", args.shadows, False), ("-jitter", args.jitter, False),
+            ("-filter", args.filter, False), ("--exr", args.exr, None), ("--png", args.png, False),
+            ("--spp", args.spp, None), ("--stats", args.stats, False)) if value != default]
+        if given:
+            raise UsageError(f"--batch takes every render flag from its file; remove {', '.join(given)}")
         lines, errors = jobs_from_batch(parser, Path(args.batch))
         for message in errors:
             print(f"render.py: error: {message}", file=sys.stderr)
