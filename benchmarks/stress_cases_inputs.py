@@ -292,6 +292,8 @@ def cli_cases() -> list[CliCase]:
                 written=("x/y/z/a.png",)),
         CliCase("--exr --png writes a preview", (*inp, *TINY, "--exr", "a.exr", "--png"), 0, (), scene_file,
                 written=("a.exr", "a.png")),
+        CliCase("bare --exr beside -output (would be ignored)", ("one/s.txt", *TINY, "-output", "a.png", "--exr"), 2,
+                ("--exr",), {"one/s.txt": SCENE}, absent=("a.png",)),
         CliCase("--png without --exr", (*inp, *TINY, "-output", "a.png", "--png"), 2, ("--png",), scene_file),
         # the entry point: paths, variants
         CliCase("mistyped absolute scene path", ("/nonexistent-folder/scenes/s.txt", *TINY), 2,

@@ -193,6 +193,9 @@ def jobs_from_args(args: argparse.Namespace) -> list:
     data = course_data_dir(args.data)
     scenes = [resolve_scene(name, data) for name in (args.scenes or [DEFAULT_SCENE])]
     if len(scenes) == 1 and any(single_outputs.values()):
+        if args.exr is True:
+            raise UsageError("--exr without a FILE writes <out>/<scene>.exr beside <out>/<scene>.png; "
+                             "with -output, -normals or -depth give it a FILE (--exr out.exr)")
         return [RenderJob(scene=scenes[0], **base, **single_outputs)]
     if any(single_outputs.values()):
         raise UsageError("-output, -normals and -depth name one file: use them with one scene")
