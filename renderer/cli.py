@@ -306,9 +306,11 @@ def jobs_from_batch(parser: argparse.ArgumentParser, path: Path, memory: int | N
             args = parser.parse_args(flags)
             if args.batch:
                 raise UsageError("--batch inside a batch file")
-            pairs = checked_jobs(args, seen, memory)
+            claimed = dict(seen)  # this line's outputs count only if the line is good
+            pairs = checked_jobs(args, claimed, memory)
             for job, _ in pairs:  # scene errors now, in line order, not after the lines before render
                 load_scene(job.scene)
+            seen.update(claimed)
             good.append(BatchLine(where, pairs))
         except ToolkitError as error:
             errors.append(f"{where}: {one_line(error)}")
