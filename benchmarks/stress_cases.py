@@ -193,4 +193,5 @@ def error_cases() -> list[Case]:
 
 
 def all_cases() -> list[Case]:
-    return render_cases() + error_cases()
+    from benchmarks.stress_cases_scale import scale_cases  # (it imports this module)
+    return render_cases() + error_cases() + scale_cases()
