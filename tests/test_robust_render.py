@@ -221,6 +221,18 @@ def test_ctrl_c_stops_a_long_render(variant_llvm_ad_rgb, tmp_path):
     assert list(out.iterdir()) == []  # no output, no temporary file
 
 
+def test_an_integrator_follows_the_scene_it_renders(variant_llvm_ad_rgb):
+    """The integrator's per-scene analysis (lights, tables) is not reused for another scene."""
+    import mitsuba as mi
+
+    options = RenderOptions(width=24, height=18, **FLAGS)
+    first = load_scene_dict(scene_dict(parsed(scene_text()), options))
+    second = load_scene_dict(scene_dict(parsed(scene_text(lights=f"{DIRECTIONAL_SUN} {NEAR_LIGHT}")), options))
+    integrator = first.integrator()
+    mi.render(first, integrator=integrator)
+    np.testing.assert_array_equal(np.array(mi.render(second, integrator=integrator)), np.array(mi.render(second)))
+
+
 # -- many lights -----------------------------------------------------------------
 def many_lights(count: int) -> str:
     rng = np.random.default_rng(1)
