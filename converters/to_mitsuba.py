@@ -97,15 +97,6 @@ def _plane(obj: Plane) -> tuple[np.ndarray, np.ndarray]:
     return point, world_normal / np.linalg.norm(world_normal)
 
 
-def scene_extent(scene: Scene) -> tuple[np.ndarray, float]:
-    """Centre and radius of the camera and all bounded objects (planes and lights excluded)."""
-    points = [np.atleast_2d(np.asarray(scene.camera.center, np.float64))]
-    points += [p for p in map(_world_points, scene.objects) if p is not None]
-    allpoints = np.vstack(points)
-    lo, hi = allpoints.min(axis=0), allpoints.max(axis=0)
-    return (lo + hi) / 2, max(float(np.linalg.norm(hi - lo)) / 2, 1e-30)
-
-
 def view_scale(scene: Scene) -> float:
     """How far the camera looks: the median distance from the camera to the
     bounded objects' centres (1 without any). One object far away does not change it."""
