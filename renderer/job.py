@@ -163,7 +163,7 @@ def centre_description(description: dict) -> dict:
 SINGLE_LAUNCH_SAMPLES = 1 << 20
 #: The first launch of a split render, in samples; later ones aim at LAUNCH_SECONDS
 FIRST_LAUNCH_SAMPLES = 1 << 18
-LAUNCH_SECONDS = 0.4
+LAUNCH_SECONDS = 0.5
 #: Sample indices are 32-bit in the kernel
 MAX_SAMPLES = (1 << 32) - 1
 
@@ -201,20 +201,31 @@ def render_in_launches(scene, spp: int, jitter: bool, seed: int = 0, launch_samp
     image = np.zeros((width * height, channels), np.float32)
     split = launch_samples is not None or total > SINGLE_LAUNCH_SAMPLES
     size = (launch_samples or FIRST_LAUNCH_SAMPLES) if split else total
-    first = 0
-    while first < total:
-        # whole pixels per launch: each pixel's mean is taken in one piece
-        count = min(max(size // spp, 1) * spp, total - first)
-        began = time.perf_counter()
+    first, done = 0, 0
+    queued = None  # (first, count, channels being computed): traced and launched, not yet read
+    began = time.perf_counter()
+    while first < total or queued is not None:
         with signals_between_launches():
-            values = _launch(scene, sensor, width, spp, jitter, seed, first, count, channels)
-        pixels = slice(first // spp, (first + count) // spp)
-        image[pixels] = values if spp == 1 else values.reshape(-1, spp, channels).mean(axis=1, dtype=np.float64)
-        first += count
-        if split:  # shown by render.py's progress bar (as Mitsuba's own renders report)
-            mi.logger().log_progress(first / total, "Rendering", "", "")
-        if split and launch_samples is None:
-            elapsed = max(time.perf_counter() - began, 1e-3)
+            # the next launch is traced and queued while the previous one runs
+            following = None
+            if first < total:
+                # whole pixels per launch: each pixel's mean is taken in one piece
+                count = min(max(size // spp, 1) * spp, total - first)
+                following = (first, count, _launch(scene, sensor, width, spp, jitter, seed, first, count))
+                first += count
+            if queued is not None:
+                start, count, values = queued
+                values = _read(values, count, channels)
+                pixels = slice(start // spp, (start + count) // spp)
+                image[pixels] = values if spp == 1 else values.reshape(-1, spp, channels).mean(axis=1,
+                                                                                                dtype=np.float64)
+                done = start + count
+        queued = following
+        if split and done:  # shown by render.py's progress bar (as Mitsuba's own renders report)
+            mi.logger().log_progress(done / total, "Rendering", "", "")
+        if split and launch_samples is None and done:
+            now = time.perf_counter()
+            elapsed, began = max(now - began, 1e-3), now
             size = max(int(np.clip(size * LAUNCH_SECONDS / elapsed, size // 4, size * 4)), 1 << 14)
     return image.reshape(height, width, channels)
 
@@ -248,9 +259,9 @@ def signals_between_launches():
                 signal.raise_signal(signum)
 
 
-def _launch(scene, sensor, width: int, spp: int, jitter: bool, seed: int, first: int, count: int,
-            channels: int) -> np.ndarray:
-    """Samples ``first .. first + count - 1``: (count, channels) float32, from one kernel."""
+def _launch(scene, sensor, width: int, spp: int, jitter: bool, seed: int, first: int, count: int) -> list:
+    """Samples ``first .. first + count - 1``, RGB then AOVs: one kernel, launched
+    (Dr.Jit's LLVM kernels run in the background until read)."""
     import mitsuba as mi
 
     import drjit as dr
@@ -274,10 +285,15 @@ def _launch(scene, sensor, width: int, spp: int, jitter: bool, seed: int, first:
         spectrum *= weight
         values = [spectrum.x, spectrum.y, spectrum.z] + list(aovs)
         dr.eval(*values)  # one kernel for all channels
-        image = np.empty((count, channels), np.float32)
-        for k, channel in enumerate(values):
-            image[:, k] = np.asarray(channel, np.float32)
-        return image
+        return values
+
+
+def _read(values: list, count: int, channels: int) -> np.ndarray:
+    """The launched channels as (count, channels) float32 (waits for the kernel)."""
+    image = np.empty((count, channels), np.float32)
+    for k, channel in enumerate(values):
+        image[:, k] = np.asarray(channel, np.float32)
+    return image
 
 
 def write_outputs(result: RenderResult) -> list[Path]:
