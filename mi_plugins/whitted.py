@@ -46,6 +46,7 @@ class LightTable:
 
     def __init__(self, count: int, kinds: mi.UInt32, vectors: mi.Float, values: mi.Float):
         self.count = count
+        self.count_opaque = dr.opaque(mi.UInt32, count)
         self.kinds = kinds  # POINT or DIRECTIONAL
         self.vectors = vectors  # 3 per light: the position, or the unit direction towards the light
         self.values = values  # 3 per light: intensity (point) or irradiance (directional)
@@ -244,6 +245,8 @@ class WhittedIntegrator(mi.SamplingIntegrator):
 
     @staticmethod
     def light_table(lights: list) -> LightTable:
+        # (values read one by one: evaluating them together makes one kernel with
+        # thousands of outputs, which LLVM compiles for a minute)
         kinds, vectors, values = [], [], []
         for light, kind in lights:
             params = mi.traverse(light)
@@ -380,7 +383,7 @@ class WhittedIntegrator(mi.SamplingIntegrator):
         result = mi.Color3f(0.0)
         shadow_rays = mi.UInt32(0)  # counted after the loop: no scatter into the counters inside it
         index = mi.UInt32(0)
-        count = analysis.table.count
+        count = analysis.table.count_opaque  # a kernel input: any light count reuses the kernel
         # (not "self" in the body: the loop would capture the integrator's counters, which
         # have pending scatters that cannot be evaluated inside the mirror loop)
         shade_one = self.table_light
