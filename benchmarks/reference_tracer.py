@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from converters.model import DirectionalLight, Plane, Scene, Sphere, Triangle, TriangleMesh
-from converters.to_mitsuba import RAY_EPSILON_FRACTION, scene_extent
+from converters.to_mitsuba import ray_epsilons
 from imaging.image_io import CUBE_FACES as FACES, read_png
 
 
@@ -28,12 +28,13 @@ class Hits:
     t: np.ndarray        # (R,) inf on a miss
     normal: np.ndarray   # (R, 3) world shading normal
     material: np.ndarray  # (R,) int, -1 on a miss
+    index: np.ndarray  # (R,) object index, -1 on a miss
 
 
 class ReferenceTracer:
     def __init__(self, scene: Scene):
         self.scene = scene
-        self.epsilon = RAY_EPSILON_FRACTION * scene_extent(scene)[1]
+        self.epsilons = np.asarray(ray_epsilons(scene) + [0.0])  # per object (index -1: none)
         self.cube = None
         if scene.background.cube_map is not None:
             self.cube = np.stack([read_png(scene.background.cube_map / f"{f}.png") for f in FACES]).astype(np.float64)
@@ -54,13 +55,15 @@ class ReferenceTracer:
     # -- intersection -----------------------------------------------------------
     def intersect(self, o: np.ndarray, d: np.ndarray, tmin: float) -> Hits:
         n_rays = len(o)
-        best = Hits(np.full(n_rays, np.inf), np.zeros((n_rays, 3)), np.full(n_rays, -1))
-        for obj in self.scene.objects:
+        best = Hits(np.full(n_rays, np.inf), np.zeros((n_rays, 3)), np.full(n_rays, -1), np.full(n_rays, -1))
+        tmin = np.broadcast_to(np.asarray(tmin, np.float64), (n_rays,))  # per ray: the epsilon of its origin
+        for index, obj in enumerate(self.scene.objects):
             t, normal = self._intersect_object(obj, o, d, tmin)
             closer = t < best.t
             best.t[closer] = t[closer]
             best.normal[closer] = normal[closer]
             best.material[closer] = obj.material
+            best.index[closer] = index
         return best
 
     def _intersect_object(self, obj, o, d, tmin):
@@ -109,7 +112,7 @@ class ReferenceTracer:
             b1, b2 = np.zeros(len(o)), np.zeros(len(o))
             if near.any():
                 t[near], index[near], b1[near], b2[near] = self._triangles(
-                    o[near], d[near], tmin, p[f[:, 0]], p[f[:, 1]], p[f[:, 2]])
+                    o[near], d[near], tmin[near], p[f[:, 0]], p[f[:, 1]], p[f[:, 2]])
             # vertex normals: mean of unit face normals in object space, then M^-T
             q = obj.positions
             fn = normalize(np.cross(q[f[:, 1]] - q[f[:, 0]], q[f[:, 2]] - q[f[:, 0]]))
@@ -143,7 +146,7 @@ class ReferenceTracer:
                 qvec = np.cross(tvec, e1[None])
                 v = np.sum(d[:, None, :] * qvec, -1) * inv_det
                 t = np.sum(e2[None] * qvec, -1) * inv_det
-            ok = (np.abs(det) > 1e-14) & (u >= 0) & (v >= 0) & (u + v <= 1) & (t > tmin)
+            ok = (np.abs(det) > 1e-14) & (u >= 0) & (v >= 0) & (u + v <= 1) & (t > tmin[:, None])
             t = np.where(ok, t, np.inf)
             i = np.argmin(t, axis=1)
             tt = t[np.arange(n_rays), i]
@@ -204,6 +207,7 @@ class ReferenceTracer:
         ks = np.array([m.specular for m in mats])
         s = np.array([m.shininess for m in mats])
         local = np.asarray(self.scene.background.ambient) * kd
+        epsilon = self.epsilons[hits.index[idx]]
         r = d[idx] - 2 * np.sum(d[idx] * n, -1, keepdims=True) * n
         for light in self.scene.lights:
             if isinstance(light, DirectionalLight):
@@ -217,8 +221,8 @@ class ReferenceTracer:
                 lc = np.asarray(light.color, np.float64) / (light.falloff * dist[:, None] ** 2)
             lit = np.ones(len(p), bool)
             if shadows:
-                blocker = self.intersect(p, to_light, self.epsilon)
-                lit = blocker.t >= dist - self.epsilon
+                blocker = self.intersect(p, to_light, epsilon)
+                lit = blocker.t >= dist - epsilon
             diffuse = np.maximum(np.sum(to_light * n, -1), 0)[:, None] * lc * kd
             cos_r = np.maximum(np.sum(to_light * r, -1), 0)
             with np.errstate(divide="ignore", invalid="ignore"):
@@ -228,7 +232,7 @@ class ReferenceTracer:
             mirror = np.max(ks, -1) > 0
             if mirror.any():
                 sub = np.nonzero(mirror)[0]
-                local[sub] += ks[sub] * self.trace(p[sub], r[sub], bounces - 1, shadows, self.epsilon)
+                local[sub] += ks[sub] * self.trace(p[sub], r[sub], bounces - 1, shadows, epsilon[sub])
         color[idx] = local
         return color
 

@@ -1,14 +1,24 @@
 from __future__ import annotations
 
+import re
 import drjit as dr
 import mitsuba as mi
 import numpy as np
-import re
 
 from .aovs import AOV_CHANNELS, OBJECT_ID_PREFIX, parse_aovs
 
 #: the longest ray (Mitsuba's "largest" float32)
 FLOAT32_MAX = float(np.finfo(np.float32).max)
+
+#: Radiance is clamped to this (and NaN, from inf * 0, set to 0), so that sums
+#: over lights, bounces and samples stay finite in float32
+MAX_RADIANCE = 2.0 ** 100
+
+#: A few (~8) float32 rounding units of a coordinate, relative to its magnitude
+ROUNDING = 2.0 ** -21
+
+#: Light kinds of the light table (the symbolic light loop)
+POINT, DIRECTIONAL = 0, 1
 
 _OBJECT_ID = re.compile(OBJECT_ID_PREFIX + r"(\d+)(?:_part\d+)?")
 
@@ -18,6 +28,66 @@ def object_index(shape: mi.Shape, position: int) -> int:
     (the converter's names), else its position in the scene."""
     match = _OBJECT_ID.fullmatch(shape.id())
     return int(match.group(1)) if match else position
+
+
+def parse_epsilons(text: str) -> list[float]:
+    values = [float(v) for v in text.replace(",", " ").split()]
+    bad = [v for v in values if not (np.isfinite(v) and v >= 0.0)]
+    if bad:
+        raise ValueError(f"whitted: ray_epsilons must be finite and >= 0, got {bad[0]}")
+    return values
+
+
+class LightTable:
+    """Point and directional lights as Dr.Jit arrays, for the symbolic light loop.
+
+    (Plain classes, not dataclasses: Dr.Jit would take a dataclass's arrays
+    for loop state.)"""
+
+    def __init__(self, count: int, kinds: mi.UInt32, vectors: mi.Float, values: mi.Float):
+        self.count = count
+        self.count_opaque = dr.opaque(mi.UInt32, count)
+        self.kinds = kinds  # POINT or DIRECTIONAL
+        self.vectors = vectors  # 3 per light: the position, or the unit direction towards the light
+        self.values = values  # 3 per light: intensity (point) or irradiance (directional)
+
+
+class SceneAnalysis:
+    """What the kernel needs to know about one scene, computed once per scene."""
+
+    def __init__(self, shapes, emitters, unrolled, table, mirrors, ids, epsilons, scales):
+        self.shapes = shapes  # held, so that their identity shows the analysis belongs to a scene
+        self.emitters = emitters
+        self.unrolled = unrolled  # delta lights shaded one by one (Python loop at trace time)
+        self.table: LightTable | None = table  # point and directional lights shaded in a symbolic loop
+        self.mirrors = mirrors  # any mirror lobe
+        self.ids = ids  # shape id -> object id             (scalar variants)
+        self.epsilons = epsilons  # shape id -> ray epsilon           (scalar variants)
+        self.scales = scales  # shape id -> coordinate magnitude  (scalar variants)
+        self.id_table = self.epsilon_table = self.scale_table = None  # JIT: the same by registry index
+        self.bsphere = (0.0, 0.0, 0.0, 0.0)  # scene's bounding sphere (centre, radius), for directional lights
+
+    def belongs_to(self, scene: mi.Scene) -> bool:
+        shapes, emitters = scene.shapes(), scene.emitters()
+        return (len(shapes) == len(self.shapes) and len(emitters) == len(self.emitters)
+                and all(a is b for a, b in zip(shapes, self.shapes))
+                and all(a is b for a, b in zip(emitters, self.emitters)))
+
+
+def _light_kind(light: mi.Emitter) -> int | None:
+    """POINT or DIRECTIONAL for Mitsuba's ``point`` and ``directional`` emitters with
+    constant colours, else None (shaded through the emitter's own methods)."""
+    name = str(light).split("[", 1)[0]
+    params = mi.traverse(light)
+    if name == "PointLight" and "intensity.value" in params:
+        return POINT
+    if name == "DirectionalEmitter" and "irradiance.value" in params:
+        return DIRECTIONAL
+    return None
+
+
+def _vector(value) -> list[float]:
+    return [float(v) for v in np.asarray(value, np.float64).reshape(-1)[:3]]
 
 
 class WhittedIntegrator(mi.SamplingIntegrator):
@@ -44,14 +114,31 @@ class WhittedIntegrator(mi.SamplingIntegrator):
        - Ambient light, multiplied by each surface's diffuse reflectance
          (Default: 0)
 
+     * - ray_epsilons
+       - |string|
+       - Per object: secondary (mirror and shadow) rays leaving object ``k``
+         (the shape ``object_<k>`` or ``object_<k>_part<j>``) ignore hits
+         closer than the ``k``-th of these comma-separated distances, on top
+         of a floating-point-safe offset of a few rounding units of the hit
+         point and of the hit shape's coordinates. The course's solution
+         skips hits within a small distance, which decides what grazing
+         mirror rays see; the scene converter sets each object's distance to
+         a fixed fraction of that object's own size, so the image depends on
+         neither the scale of the scene nor on lights or other objects far
+         away (Default: none)
+
      * - ray_epsilon
        - |float|
-       - Secondary (mirror and shadow) rays ignore hits closer than this
-         distance, on top of Mitsuba's floating-point-safe ray offset. The
-         course's solution skips hits within a small distance, which decides
-         what grazing mirror rays see; the scene converter sets this to a
-         fixed fraction of the scene's size, so the image does not change
-         when the whole scene is scaled (Default: 0)
+       - The same distance for shapes that ``ray_epsilons`` does not cover
+         (Default: 0; with no distances at all, secondary rays use Mitsuba's
+         own offset)
+
+     * - max_unrolled_lights
+       - |int|
+       - Up to this many point and directional lights are unrolled into the
+         kernel one by one; more are shaded in one symbolic loop over arrays
+         of light data, so that compile time does not grow with their number
+         (Default: 8)
 
      * - stats
        - |bool|
@@ -72,11 +159,14 @@ class WhittedIntegrator(mi.SamplingIntegrator):
     ray that hits nothing returns the scene's environment emitter (a colour or
     a cube map) or black. The ideal mirror direction is then followed with
     the weight of the BSDF's delta-reflection lobe, up to ``max_depth`` times.
+    Radiance is clamped to :data:`MAX_RADIANCE` (a NaN from ``inf * 0``
+    becomes 0), so no output is ever non-finite.
 
-    The traced kernel is specialised to the scene: the lights are unrolled by
-    kind, and no shadow ray, mirror loop, environment lookup or AOV is traced
-    unless the flags and the scene need it. The mirror loop is a symbolic loop
-    that ends as soon as no lane continues.
+    The traced kernel is specialised to the scene: a few lights are unrolled
+    by kind, many are a symbolic loop, and no shadow ray, mirror loop,
+    environment lookup or AOV is traced unless the flags and the scene need
+    it. The mirror loop is a symbolic loop that ends as soon as no lane
+    continues.
 
     .. tabs::
 
@@ -97,33 +187,93 @@ class WhittedIntegrator(mi.SamplingIntegrator):
         self.has_ambient = any(float(self.ambient[k]) != 0.0 for k in range(3))
         self.aovs = parse_aovs(props.get("aovs", ""))
         self.ray_epsilon = float(props.get("ray_epsilon", 0.0))
+        if not (np.isfinite(self.ray_epsilon) and self.ray_epsilon >= 0.0):
+            raise ValueError(f"whitted: ray_epsilon must be finite and >= 0, got {self.ray_epsilon}")
+        self.ray_epsilons = parse_epsilons(props.get("ray_epsilons", ""))
+        #: Mitsuba's own offset where no distance is given at all
+        self.mitsuba_offset = self.ray_epsilon == 0.0 and not any(self.ray_epsilons)
+        self.max_unrolled_lights = int(props.get("max_unrolled_lights", 8))
         self.stats = bool(props.get("stats", False))
         self.counters = None
-        if not self.ray_epsilon >= 0.0:
-            raise ValueError(f"whitted: ray_epsilon must be >= 0, got {self.ray_epsilon}")
+        self._analysed: SceneAnalysis | None = None
 
     def aov_names(self) -> list[str]:
         return [channel for name in self.aovs for channel in AOV_CHANNELS[name]]
 
     # -- scene analysis (trace time) ----------------------------------------
-    def analyse(self, scene: mi.Scene) -> tuple[list[mi.Emitter], bool, dict[str, int]]:
-        """(delta lights, any mirror lobe, shape id -> object id) of ``scene``;
-        computed once per scene (scalar variants call the integrator once per ray)."""
-        key = id(scene)
-        if getattr(self, "_analysed", (None,))[0] != key:
-            shapes = scene.shapes()
-            lights = [e for e in scene.emitters() if mi.has_flag(e.flags(), mi.EmitterFlags.Delta)]
-            mirrors = any(s.bsdf() is not None and mi.has_flag(s.bsdf().flags(), mi.BSDFFlags.DeltaReflection)
-                          for s in shapes)
-            ids = {s.id(): object_index(s, position) for position, s in enumerate(shapes)}
-            self._analysed = (key, lights, mirrors, ids)
-        return self._analysed[1:]
+    def analyse(self, scene: mi.Scene) -> SceneAnalysis:
+        """Lights, mirrors and per-shape tables of ``scene``, computed once per
+        scene (scalar variants call the integrator once per ray). The analysis
+        holds the scene's shapes and emitters and is reused only while the
+        scene still has exactly those, so a new scene at a freed one's address
+        is never mistaken for it."""
+        if self._analysed is not None and self._analysed.belongs_to(scene):
+            return self._analysed
+        shapes, emitters = scene.shapes(), scene.emitters()
+        lights = [e for e in emitters if mi.has_flag(e.flags(), mi.EmitterFlags.Delta)]
+        jit = dr.is_jit_v(mi.Float)
+        kinds = [_light_kind(light) for light in lights]
+        looped = jit and sum(k is not None for k in kinds) > self.max_unrolled_lights
+        unrolled = [light for light, kind in zip(lights, kinds) if not (looped and kind is not None)]
+        table = self.light_table([(l, k) for l, k in zip(lights, kinds) if k is not None]) if looped else None
+        mirrors = any(s.bsdf() is not None and mi.has_flag(s.bsdf().flags(), mi.BSDFFlags.DeltaReflection)
+                      for s in shapes)
+        ids, epsilons, scales = {}, {}, {}
+        for position, shape in enumerate(shapes):
+            k = object_index(shape, position)
+            ids[shape.id()] = k
+            epsilons[shape.id()] = self.ray_epsilons[k] if k < len(self.ray_epsilons) else self.ray_epsilon
+            box = shape.bbox()
+            scales[shape.id()] = float(max(dr.max(dr.abs(box.min)), dr.max(dr.abs(box.max))))
+        analysis = SceneAnalysis(shapes, emitters, unrolled, table, mirrors, ids, epsilons, scales)
+        if shapes:
+            box = scene.bbox()
+            sphere = box.bounding_sphere()
+            analysis.bsphere = (*_vector(sphere.center), float(sphere.radius))
+        if jit:
+            # shape pointers are registry indices; the tables map them (0: no shape)
+            registry = np.array(dr.reinterpret_array(mi.UInt32, scene.shapes_dr()), np.int64).reshape(-1)
+            size = int(registry.max()) + 1 if len(registry) else 1
+            for name, values, default in (("id_table", ids, -1.0), ("epsilon_table", epsilons, self.ray_epsilon),
+                                          ("scale_table", scales, 0.0)):
+                table_values = np.full(size, default, np.float32)
+                for shape, index in zip(shapes, registry):
+                    table_values[index] = values[shape.id()]
+                setattr(analysis, name, mi.Float(table_values))
+        self._analysed = analysis
+        return analysis
+
+    @staticmethod
+    def light_table(lights: list) -> LightTable:
+        # (values read one by one: evaluating them together makes one kernel with
+        # thousands of outputs, which LLVM compiles for a minute)
+        kinds, vectors, values = [], [], []
+        for light, kind in lights:
+            params = mi.traverse(light)
+            kinds.append(kind)
+            if kind == POINT:
+                vectors += _vector(params["position"])
+                values += _vector(params["intensity.value"])
+            else:
+                # the directional emitter's travel direction is its to_world's +z
+                vectors += [-v for v in _vector(params["to_world"] @ mi.Vector3f(0.0, 0.0, 1.0))]
+                values += _vector(params["irradiance.value"])
+        return LightTable(len(kinds), mi.UInt32(kinds), mi.Float(vectors), mi.Float(values))
 
     def delta_lights(self, scene: mi.Scene) -> list[mi.Emitter]:
-        return self.analyse(scene)[0]
+        """The delta lights unrolled into the kernel (all of them, below the loop threshold)."""
+        return self.analyse(scene).unrolled
 
     def recursion_enabled(self, scene: mi.Scene) -> bool:
-        return self.max_depth > 0 and self.analyse(scene)[1]
+        return self.max_depth > 0 and self.analyse(scene).mirrors
+
+    def per_shape(self, analysis: SceneAnalysis, si: mi.SurfaceInteraction3f, name: str) -> mi.Float:
+        """The hit shape's entry of an analysis table: ``ids``, ``epsilons`` or ``scales``."""
+        if dr.is_jit_v(mi.Float):
+            return dr.gather(mi.Float, getattr(analysis, name[:-1] + "_table" if name != "ids" else "id_table"),
+                             dr.reinterpret_array(mi.UInt32, si.shape))
+        default = {"ids": -1.0, "epsilons": self.ray_epsilon, "scales": 0.0}[name]
+        return mi.Float(default if si.shape is None else getattr(analysis, name)[si.shape.id()])
 
     # -- ray statistics ------------------------------------------------------
     #: counter slots: camera, shadow, environment, then mirror rays of depth 1..max_depth
@@ -151,36 +301,38 @@ class WhittedIntegrator(mi.SamplingIntegrator):
         self.counters = dr.zeros(mi.UInt32, size) if dr.is_jit_v(mi.Float) else [0] * size
 
     # -- kernels ------------------------------------------------------------
-    def spawn(self, si: mi.SurfaceInteraction3f, direction: mi.Vector3f = None,
-              target: mi.Point3f = None) -> mi.Ray3f:
+    def spawn(self, si: mi.SurfaceInteraction3f, epsilon: mi.Float, scale: mi.Float,
+              direction: mi.Vector3f = None, target: mi.Point3f = None) -> mi.Ray3f:
         """A secondary ray from ``si`` along ``direction`` or towards ``target``
-        that skips hits closer than ``ray_epsilon``.
+        that skips hits closer than ``epsilon`` (the hit object's distance).
 
-        Without ``ray_epsilon`` this is Mitsuba's ``spawn_ray[_to]``. With it,
-        the ray starts at the hit point moved ``ray_epsilon`` along the ray, as
-        in the course; only where that distance is not well above the rounding
-        error of the hit point (~1e-7 of its coordinates) is the point first
-        nudged off the surface, by a few units of that rounding error. Unlike
-        Mitsuba's own offset, which never goes below ~1e-4 (as large as a
-        scene of that size), both scale with the scene.
+        With no distances configured this is Mitsuba's ``spawn_ray[_to]``.
+        Otherwise the ray starts at the hit point moved ``epsilon`` along the
+        ray, as in the course; only where that distance is not well above
+        the rounding error of the hit point and of the hit shape's own
+        coordinates (``scale``: ~1e-7 of their magnitude) is the point first
+        nudged off the surface, by a few units of that rounding error.
+        Unlike Mitsuba's own offset, which never goes below ~1e-4 (as large
+        as a scene of that size), both follow the geometry that was hit, and
+        nothing else: no light and no other object changes them.
         """
-        if self.ray_epsilon == 0.0:
+        if self.mitsuba_offset:
             return si.spawn_ray(direction) if target is None else si.spawn_ray_to(target)
         reference = target - si.p if target is not None else direction
-        magnitude = dr.max(dr.abs(si.p))
-        nudge = magnitude * 2.0 ** -21  # ~8 float32 ulps of the hit point
+        magnitude = dr.maximum(dr.max(dr.abs(si.p)), scale)
+        nudge = magnitude * ROUNDING
         side = dr.select(dr.dot(si.n, reference) >= 0.0, nudge, -nudge)
-        origin = dr.select(self.ray_epsilon > magnitude * 1e-4, si.p, dr.fma(si.n, side, si.p))
+        origin = dr.select(epsilon > magnitude * 1e-4, si.p, dr.fma(si.n, side, si.p))
         if target is None:
             d, maxt = dr.normalize(direction), FLOAT32_MAX
         else:
             d = target - origin
             distance = dr.norm(d)
             d, maxt = d / distance, distance * (1.0 - mi.math.ShadowEpsilon)
-        return mi.Ray3f(dr.fma(d, self.ray_epsilon, origin), d, dr.maximum(maxt - self.ray_epsilon, 0.0),
-                        si.time, si.wavelengths)
+        return mi.Ray3f(dr.fma(d, epsilon, origin), d, dr.maximum(maxt - epsilon, 0.0), si.time, si.wavelengths)
 
-    def shade(self, scene: mi.Scene, si: mi.SurfaceInteraction3f, active: mi.Bool) -> mi.Color3f:
+    def shade(self, scene: mi.Scene, analysis: SceneAnalysis, si: mi.SurfaceInteraction3f,
+              active: mi.Bool) -> mi.Color3f:
         """Local illumination at ``si``, or the background where it is a miss."""
         hit = active & si.is_valid()
         result = mi.Color3f(0.0)
@@ -192,20 +344,78 @@ class WhittedIntegrator(mi.SamplingIntegrator):
 
         if not dr.is_jit_v(mi.Float) and not hit:
             return result  # scalar variants: a miss has no BSDF to call
-        ctx = mi.BSDFContext()
         bsdf = si.bsdf()
         if self.has_ambient:
             result += dr.select(hit, self.ambient * bsdf.eval_diffuse_reflectance(si, hit), 0.0)
-        for light in self.delta_lights(scene):
+        if not analysis.unrolled and analysis.table is None:
+            return result
+        epsilon = self.per_shape(analysis, si, "epsilons") if self.shadows else None
+        scale = self.per_shape(analysis, si, "scales") if self.shadows else None
+        for light in analysis.unrolled:
             ds, radiance = light.sample_direction(si, mi.Point2f(0.5), hit)
-            # a point light exactly at the shaded point has no direction: unlit, not inf
-            lit = hit & (ds.pdf > 0.0) & (ds.dist > 0.0)
-            if self.shadows:
-                self.count(self.SHADOW, lit)
-                lit &= dr.select(scene.ray_test(self.spawn(si, target=ds.p), lit), False, True)
-            response = bsdf.eval(ctx, si, si.to_local(ds.d), lit)
-            result += dr.select(lit, response * radiance, 0.0)
+            result += self.lit_by(scene, si, bsdf, hit, ds.p, ds.d, ds.dist, ds.pdf > 0.0, radiance,
+                                  epsilon, scale)[0]
+        if analysis.table is not None:
+            result += self.shade_light_loop(scene, analysis, si, bsdf, hit, epsilon, scale)
         return result
+
+    def lit_by(self, scene, si, bsdf, hit, target, direction, distance, valid, radiance,
+               epsilon, scale, count: bool = True) -> tuple[mi.Color3f, mi.Bool]:
+        """One light's contribution: the BSDF's response towards ``direction``
+        times ``radiance``, unless a shadow ray towards ``target`` is blocked;
+        and where a shadow ray was traced (counted here if ``count``)."""
+        # a point light exactly at the shaded point has no direction: unlit, not inf
+        lit = hit & valid & (distance > 0.0)
+        traced = lit if self.shadows else hit & False
+        if self.shadows:
+            if count:
+                self.count(self.SHADOW, lit)
+            # (not "&=": that would change "traced" too, the same array)
+            lit = lit & dr.select(scene.ray_test(self.spawn(si, epsilon, scale, target=target), lit), False, True)
+        response = bsdf.eval(mi.BSDFContext(), si, si.to_local(direction), lit)
+        # a light too bright for float32 adds inf, or NaN where the response is 0: 0 then
+        return dr.select(lit, finite(response * radiance), 0.0), traced
+
+    @dr.syntax
+    def shade_light_loop(self, scene, analysis, si, bsdf, hit, epsilon, scale) -> mi.Color3f:
+        """Every light of the light table, one per iteration of a symbolic loop:
+        the kernel holds one copy of the shading code however many lights there are."""
+        result = mi.Color3f(0.0)
+        shadow_rays = mi.UInt32(0)  # counted after the loop: no scatter into the counters inside it
+        index = mi.UInt32(0)
+        count = analysis.table.count_opaque  # a kernel input: any light count reuses the kernel
+        # (not "self" in the body: the loop would capture the integrator's counters, which
+        # have pending scatters that cannot be evaluated inside the mirror loop)
+        shade_one = self.table_light
+        while dr.hint(index < count, label="whitted_lights"):
+            contribution, traced = shade_one(scene, analysis, si, bsdf, hit, index, epsilon, scale)
+            result += contribution
+            shadow_rays += dr.select(traced, 1, 0)
+            index += 1
+        if self.stats and self.shadows:
+            dr.scatter_reduce(dr.ReduceOp.Add, self.counters, shadow_rays, mi.UInt32(self.SHADOW), hit)
+        return result
+
+    def table_light(self, scene, analysis, si, bsdf, hit, index, epsilon, scale) -> mi.Color3f:
+        """Light ``index`` of the table, as Mitsuba's ``point`` and ``directional`` emitters sample it."""
+        table = analysis.table
+        kind = dr.gather(mi.UInt32, table.kinds, index)
+        vector = dr.gather(mi.Vector3f, table.vectors, index)
+        value = dr.gather(mi.Color3f, table.values, index)
+        point = kind == POINT
+        # point: towards its position, intensity / distance^2
+        to_light = vector - si.p
+        squared = dr.squared_norm(to_light)
+        distance = dr.sqrt(squared)
+        # directional: a shadow ray to twice the scene's bounding sphere away, as Mitsuba's emitter
+        cx, cy, cz, radius = analysis.bsphere
+        far = 2.0 * dr.maximum(radius, dr.norm(si.p - mi.Point3f(cx, cy, cz)))
+        target = dr.select(point, mi.Point3f(vector), dr.fma(vector, far, si.p))
+        direction = dr.select(point, to_light / distance, vector)
+        distance = dr.select(point, distance, far)
+        radiance = dr.select(point, value / squared, value)
+        return self.lit_by(scene, si, bsdf, hit, target, direction, distance, True, radiance, epsilon, scale,
+                           count=False)
 
     def sample(self, scene: mi.Scene, sampler: mi.Sampler, ray: mi.RayDifferential3f,
                medium: mi.Medium = None, active: mi.Bool = True) -> tuple[mi.Color3f, mi.Bool, list[mi.Float]]:
@@ -215,26 +425,28 @@ class WhittedIntegrator(mi.SamplingIntegrator):
             active &= dr.full(mi.Bool, True, dr.width(ray.d.x))
         if self.stats and self.counters is None:
             self.reset_counts()
+        analysis = self.analyse(scene)
         self.count(self.CAMERA, active)
         si = scene.ray_intersect(ray, active)
-        aovs = self.first_hit_aovs(scene, si, active)
-        if self.recursion_enabled(scene):
-            result = self.trace_mirrors(scene, si, active)
+        aovs = self.first_hit_aovs(analysis, si, active)
+        if self.max_depth > 0 and analysis.mirrors:
+            result = self.trace_mirrors(scene, analysis, si, active)
         else:
-            result = self.shade(scene, si, active)
-        return result, si.is_valid(), aovs
+            result = self.shade(scene, analysis, si, active)
+        return finite(result), si.is_valid(), [finite(v) for v in aovs]
 
     @dr.syntax
-    def trace_mirrors(self, scene: mi.Scene, si: mi.SurfaceInteraction3f, active: mi.Bool) -> mi.Color3f:
+    def trace_mirrors(self, scene: mi.Scene, analysis: SceneAnalysis, si: mi.SurfaceInteraction3f,
+                      active: mi.Bool) -> mi.Color3f:
         """Shades ``si`` and follows the mirror lobe up to ``max_depth`` times."""
         mirror = mi.BSDFContext(mi.TransportMode.Radiance, +mi.BSDFFlags.DeltaReflection)
         result = mi.Color3f(0.0)
         throughput = mi.Color3f(1.0)
         depth = mi.UInt32(0)
         while dr.hint(active, label="whitted_mirror"):
-            result += throughput * self.shade(scene, si, active)
+            result += throughput * self.shade(scene, analysis, si, active)
             active &= si.is_valid() & (depth < self.max_depth)
-            weight, ray = self.mirror(mirror, si, active)
+            weight, ray = self.mirror(analysis, mirror, si, active)
             throughput *= weight
             active &= dr.max(throughput) > 0.0
             self.count(self.MIRROR + depth, active)
@@ -242,15 +454,18 @@ class WhittedIntegrator(mi.SamplingIntegrator):
             depth += 1
         return result
 
-    def mirror(self, ctx: mi.BSDFContext, si: mi.SurfaceInteraction3f,
+    def mirror(self, analysis: SceneAnalysis, ctx: mi.BSDFContext, si: mi.SurfaceInteraction3f,
                active: mi.Bool) -> tuple[mi.Color3f, mi.Ray3f]:
         """Weight and ray of the BSDF's mirror lobe at ``si``."""
         if not dr.is_jit_v(mi.Float) and not active:
             return mi.Color3f(0.0), dr.zeros(mi.Ray3f)  # scalar variants: no BSDF to call
         bs, weight = si.bsdf().sample(ctx, si, 0.0, mi.Point2f(0.0), active)
-        return weight, self.spawn(si, direction=si.to_world(bs.wo))
+        epsilon = self.per_shape(analysis, si, "epsilons")
+        scale = self.per_shape(analysis, si, "scales")
+        return weight, self.spawn(si, epsilon, scale, direction=si.to_world(bs.wo))
 
-    def first_hit_aovs(self, scene: mi.Scene, si: mi.SurfaceInteraction3f, active: mi.Bool) -> list[mi.Float]:
+    def first_hit_aovs(self, analysis: SceneAnalysis, si: mi.SurfaceInteraction3f,
+                       active: mi.Bool) -> list[mi.Float]:
         if not self.aovs:
             return []
         hit = active & si.is_valid()
@@ -270,21 +485,18 @@ class WhittedIntegrator(mi.SamplingIntegrator):
                     albedo = mi.Color3f(0.0)
                 values += [albedo.x, albedo.y, albedo.z]
             elif name == "id":
-                values.append(dr.select(hit, self.object_ids(scene, si), -1.0))
+                values.append(dr.select(hit, self.per_shape(analysis, si, "ids"), -1.0))
         return values
 
     def object_ids(self, scene: mi.Scene, si: mi.SurfaceInteraction3f) -> mi.Float:
-        ids = self.analyse(scene)[2]
-        if not dr.is_jit_v(mi.Float):
-            return mi.Float(-1.0 if si.shape is None else ids[si.shape.id()])
-        # JIT variants: shape pointers are registry indices; map them through a table
-        shapes = scene.shapes()
-        registry = [int(dr.reinterpret_array(mi.UInt32, mi.ShapePtr(s))[0]) for s in shapes]
-        table = np.full(max(registry) + 1, -1.0, np.float32)
-        for shape, index in zip(shapes, registry):
-            table[index] = ids[shape.id()]
-        return dr.gather(mi.Float, mi.Float(table), dr.reinterpret_array(mi.UInt32, si.shape))
+        """Object id of each hit (-1: none)."""
+        return self.per_shape(self.analyse(scene), si, "ids")
 
     def to_string(self):
         return (f"WhittedIntegrator[\n  max_depth = {self.max_depth},\n  shadows = {self.shadows},\n"
                 f"  ambient = {self.ambient},\n  aovs = {self.aovs}\n]")
+
+
+def finite(value):
+    """``value`` with NaN set to 0 and magnitudes clamped to :data:`MAX_RADIANCE`."""
+    return dr.select(dr.isnan(value), 0.0, dr.clip(value, -MAX_RADIANCE, MAX_RADIANCE))

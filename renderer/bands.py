@@ -69,7 +69,9 @@ def render_in_bands(description: dict, variant: str, workers: int | None = None)
                 image = np.zeros((height, width, band.shape[-1]), np.float32)
             image[y0:y0 + band.shape[0]] = band
             for key, value in band_counts.items():
-                counts[key] = (np.add(counts[key], value).tolist() if isinstance(value, list)
-                               else counts.get(key, 0) + value)
+                if isinstance(value, list):  # mirror rays by depth
+                    counts[key] = np.add(counts.get(key, [0] * len(value)), value).tolist()
+                else:
+                    counts[key] = counts.get(key, 0) + value
             bar.update(band.shape[0])
     return image, counts
