@@ -2,6 +2,10 @@
 """Renders course scenes; accepts the course binary's flags verbatim. See --help."""
 import sys
 
+if __name__ == "__main__":  # started by a Python without the project's packages: use ./.venv's
+    from core.launcher import use_project_python
+    use_project_python("render.py")
+
 from renderer.cli import main
 
 if __name__ == "__main__":
