@@ -20,6 +20,10 @@ import sys
 import time
 from pathlib import Path
 
+if __name__ == "__main__":  # started by a Python without the project's packages: use ./.venv's
+    from core.launcher import use_project_python
+    use_project_python("python -m notebooks.build", "notebooks.build")
+
 import nbformat
 from nbformat.v4 import new_code_cell, new_markdown_cell, new_notebook
 
