@@ -25,7 +25,7 @@ from pathlib import Path
 
 if __name__ == "__main__":  # started by a Python without the project's packages: use ./.venv's
     from core.launcher import use_project_python
-    use_project_python("python -m converters", "converters")
+    use_project_python("converters", "converters")
 
 from core.entry import run
 from core.errors import OutputError, UsageError
@@ -169,7 +169,7 @@ def _main(argv: list[str] | None) -> int:
     if mi.variant() is None:
         mi.set_variant("scalar_rgb")  # only for the transform type; no rendering here
     if settings.get("filter"):
-        print("python -m converters: note: -filter writes a film 3x the size; downsample the render with "
+        print("converters: note: -filter writes a film 3x the size; downsample the render with "
               "imaging.filters.downsample_3x to get render.py's image", file=sys.stderr)
     for source, target in pairs:
         for path in convert(source, target, root=Path.cwd(), settings=settings):
@@ -178,7 +178,7 @@ def _main(argv: list[str] | None) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    return run("python -m converters", lambda: _main(argv))
+    return run("converters", lambda: _main(argv))
 
 
 if __name__ == "__main__":

@@ -280,7 +280,7 @@ def test_converter_help_is_plain_text(capsys):
 def _one_error(capsys, code: int) -> str:
     assert code == 2
     err = capsys.readouterr().err
-    assert err.count("\n") == 1 and err.startswith("python -m converters: error: ")
+    assert err.count("\n") == 1 and err.startswith("converters: error: ")
     return err
 
 
