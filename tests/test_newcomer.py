@@ -48,8 +48,10 @@ def fresh_shell(tmp_path_factory):
 def test_the_system_python_really_lacks_the_packages(fresh_shell):
     """What makes the next test mean something: without the launcher lines at
     the top of render.py, the user's command fails on the first import."""
-    probe = fresh_shell("python", "-c", "import numpy")
-    assert probe.returncode != 0 and "No module named 'numpy'" in probe.stderr
+    probe = fresh_shell("python", "-c", "import numpy, drjit, mitsuba")
+    if probe.returncode == 0:
+        pytest.skip("this machine's system Python has the project's packages")
+    assert "ModuleNotFoundError" in probe.stderr
     script = (ROOT / "render.py").read_text()
     without_launcher = script.split('if __name__ == "__main__":  # started', 1)[0] + "from renderer.cli import main\n"
     failed = fresh_shell("python", "-c", without_launcher)
