@@ -250,7 +250,7 @@ def main(argv: list[str] | None = None) -> int:
         if not args.check and not found:
             nbformat.write(notebook, HERE / f"{name}.ipynb")
         print(f"notebooks/{name}.ipynb: {'full' if args.full else 'quick'} size, ran in {seconds:.0f} s"
-              + ("" if args.check or found else ", written"))
+              + ("" if args.check or found else ", written"), flush=True)
     return 1 if failed else 0
 
 
