@@ -1,7 +1,7 @@
 """Writes the notebooks and runs them, so that they are stored with their outputs.
 
     python -m notebooks.build            # quick size: what is committed (about 2 minutes)
-    python -m notebooks.build --full     # full size, same files (see FULL_RUNTIME)
+    python -m notebooks.build --full     # full size, same files (see FULL_RUNTIME: long)
     python -m notebooks.build --check    # run them without writing; fail on a missing figure
 
 The notebooks call library functions only (``benchmarks.crossval``,
@@ -29,8 +29,10 @@ from nbformat.v4 import new_code_cell, new_markdown_cell, new_notebook
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
-#: Full-size run time on this 2-core machine (measured; README "Layout")
-FULL_RUNTIME = {"crossval": "about 7 minutes", "error_vs_time": "about 15 minutes"}
+#: Full-size run time, measured with ``--full --check`` (README "Layout")
+FULL_RUNTIME = {"crossval": "45 minutes of wall time on a 2-core machine shared with other jobs "
+                            "(load average about 17; 13 minutes of CPU in the kernel)",
+                "error_vs_time": "longer than crossval (see the README)"}
 QUICK_SETTINGS = {"crossval": "4 materials × 3 angles; the last course scene and two of ours at 48² pixels",
                   "error_vs_time": "the last course scene and two of ours at 32² pixels"}
 
@@ -38,8 +40,7 @@ QUICK_SETTINGS = {"crossval": "4 materials × 3 angles; the last course scene an
 def _stored_note(name: str) -> str:
     return (f"*Stored with the outputs of `python -m notebooks.build` at the quick size "
             f"({QUICK_SETTINGS[name]}); CI re-runs it the same way. Run all cells in JupyterLab "
-            f"(`./dev notebooks`) for the full size: {FULL_RUNTIME[name]} on a 2-core machine, "
-            f"with a progress bar.*")
+            f"(`./dev notebooks`) for the full size, with a progress bar: {FULL_RUNTIME[name]}.*")
 
 
 SETUP = """%matplotlib inline
