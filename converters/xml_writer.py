@@ -134,13 +134,19 @@ class _Writer:
         return f"{self.mesh_dir.name}/{name}"
 
 
-def write_xml(description: dict, path: str | Path, source: str | None = None) -> list[Path]:
-    """Writes ``description`` to ``path`` (plus mesh files); returns every file written."""
+def write_xml(description: dict, path: str | Path, source: str | None = None, note: str | None = None) -> list[Path]:
+    """Writes ``description`` to ``path`` (plus mesh files); returns every file written.
+
+    ``note`` (e.g. the render flags) goes into the header comment. Mesh files
+    left in ``<stem>_meshes/`` by an earlier conversion are removed, so the
+    folder holds exactly what the XML refers to.
+    """
     path = Path(path)
     writer = _Writer(path)
     writer.emit(0, '<scene version="3.0.0">')
     if source:
-        writer.emit(1, f"<!-- Converted from {source} by converters/; load with optimize=False -->")
+        made = f" {note}" if note else ""
+        writer.emit(1, f"<!-- Converted from {source} by converters/{made}; load with optimize=False -->")
     for key, value in description.items():
         if key == "type":
             continue
@@ -148,4 +154,7 @@ def write_xml(description: dict, path: str | Path, source: str | None = None) ->
     writer.emit(0, "</scene>")
     with atomic_path(path, ".xml") as tmp:
         tmp.write_text("\n".join(writer.lines) + "\n")
+    if writer.mesh_dir.is_dir():
+        for stale in set(writer.mesh_dir.glob("*.ply")) - set(writer.files):
+            stale.unlink()
     return [path] + writer.files

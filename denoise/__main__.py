@@ -8,6 +8,10 @@ import argparse
 import sys
 from pathlib import Path
 
+if __name__ == "__main__":  # started by a Python without the project's packages: use ./.venv's
+    from core.launcher import use_project_python
+    use_project_python("python -m denoise", "denoise")
+
 from .filters import BilateralParams, TemporalParams
 from .pipeline import METHODS, DenoiseOptions, denoise_folder
 

@@ -32,6 +32,10 @@ import json
 import sys
 from pathlib import Path
 
+if __name__ == "__main__":  # started by a Python without the project's packages: use ./.venv's
+    from core.launcher import use_project_python
+    use_project_python("python -m denoise.export", "denoise.export")
+
 import numpy as np
 from tqdm import tqdm
 

@@ -63,7 +63,7 @@ def render_in_bands(description: dict, variant: str, workers: int | None = None)
     image, counts = None, {}
     context = multiprocessing.get_context("spawn")  # no fork after Dr.Jit started its threads
     with context.Pool(workers, initializer=_start, initargs=(description, variant)) as pool, \
-            tqdm(total=height, desc="Rendering", unit="row", delay=1.0, leave=False) as bar:
+            tqdm(total=height, desc="Rendering", unit="row", delay=1.0, leave=False, disable=None) as bar:
         for y0, band, band_counts in pool.imap_unordered(_render_band, list(zip(edges[:-1], edges[1:]))):
             if image is None:
                 image = np.zeros((height, width, band.shape[-1]), np.float32)

@@ -192,16 +192,17 @@ def jobs_from_args(args: argparse.Namespace) -> list:
 
     data = course_data_dir(args.data)
     scenes = [resolve_scene(name, data) for name in (args.scenes or [DEFAULT_SCENE])]
+    from .scene_flags import with_scene_flags  # a scene's "# render:" header, where no flag overrides it
     if len(scenes) == 1 and any(single_outputs.values()):
         if args.exr is True:
             raise UsageError("--exr without a FILE writes <out>/<scene>.exr beside <out>/<scene>.png; "
                              "with -output, -normals or -depth give it a FILE (--exr out.exr)")
-        return [RenderJob(scene=scenes[0], **base, **single_outputs)]
+        return [RenderJob(scene=scenes[0], **with_scene_flags(scenes[0], base), **single_outputs)]
     if any(single_outputs.values()):
         raise UsageError("-output, -normals and -depth name one file: use them with one scene")
     folder = Path(args.out)
-    return [with_outputs_in(RenderJob(scene=path, **base), folder, path.stem, exr=bool(args.exr))
-            for path in scenes]
+    return [with_outputs_in(RenderJob(scene=path, **with_scene_flags(path, base)), folder, path.stem,
+                            exr=bool(args.exr)) for path in scenes]
 
 
 def preview_of(job, wanted: bool) -> Preview | None:

@@ -1,8 +1,11 @@
 """Progress display: a bar over the jobs and a bar inside long renders.
 
-Bars appear only for work that takes more than a second (tqdm's ``delay``).
-The in-render bar is fed by Mitsuba's own progress reports (scalar variants
-report as blocks finish; a JIT render is one kernel and reports at its end).
+Bars go to stderr, and only when stderr is a terminal: piped or redirected
+output gets the result lines alone, one per scene, never interleaved with a
+bar's redraws. Bars appear only for work that takes more than a second
+(tqdm's ``delay``). The in-render bar is fed by Mitsuba's own progress reports
+(scalar variants report as blocks finish; a JIT render is one kernel and
+reports at its end).
 """
 from __future__ import annotations
 
@@ -29,12 +32,20 @@ class _TqdmAppender(mi.Appender):
         if not self.bars:
             return
         if self.bar is None:
-            self.bar = tqdm(total=100, desc=name, unit="%", delay=1.0, leave=False,
+            self.bar = tqdm(total=100, desc=name, unit="%", delay=1.0, leave=False, file=sys.stderr,
                             bar_format="{desc}: {percentage:3.0f}%|{bar}| {elapsed}<{remaining}")
         self.bar.update(round(100 * progress) - self.bar.n)
         if progress >= 1.0:
             self.bar.close()
             self.bar = None
+
+
+def bars_wanted(enabled: bool = True) -> bool:
+    """Whether to draw progress bars: asked for, and stderr is a terminal."""
+    try:
+        return enabled and sys.stderr.isatty()
+    except (AttributeError, ValueError):  # replaced or closed stderr
+        return False
 
 
 def format_stats(name: str, stats: dict) -> str:
@@ -57,6 +68,7 @@ class RenderProgress:
 
     def __init__(self, total: int, enabled: bool = True):
         self.total, self.enabled = total, enabled
+        self.bars = bars_wanted(enabled)
         self.jobs: tqdm | None = None
 
     def __enter__(self) -> RenderProgress:
@@ -65,21 +77,24 @@ class RenderProgress:
         self.level = self.logger.log_level()
         self.appenders = [self.logger.appender(i) for i in range(self.logger.appender_count())]
         self.logger.clear_appenders()
-        self.logger.add_appender(_TqdmAppender(bars=self.enabled))
-        if self.enabled:
+        self.logger.add_appender(_TqdmAppender(bars=self.bars))
+        if self.bars:
             self.logger.set_log_level(mi.LogLevel.Info)  # progress reports need Info
             if self.total > 1:
-                self.jobs = tqdm(total=self.total, desc="scenes", unit="scene", delay=1.0, leave=False)
+                self.jobs = tqdm(total=self.total, desc="scenes", unit="scene", delay=1.0, leave=False,
+                                 file=sys.stderr)
         return self
 
     def done(self, job, variant: str, seconds: dict[str, float], written, stats: dict | None = None) -> None:
         if stats:  # asked for explicitly: shown even with --quiet
-            tqdm.write(format_stats(job.scene.name, stats))
+            tqdm.write(format_stats(job.scene.name, stats), file=sys.stdout)
         if not self.enabled:
             return
         files = " ".join(str(p) for p in written)
+        # one line a scene, on stdout; tqdm.write lifts the bars (stderr) out of its way
         tqdm.write(f"{job.scene.name}: {job.width}x{job.height} {variant}, render {seconds['render']:.3f} s "
-                   f"(load {seconds['load']:.3f} s, write {seconds.get('write', 0.0):.3f} s) -> {files}")
+                   f"(load {seconds['load']:.3f} s, write {seconds.get('write', 0.0):.3f} s) -> {files}",
+                   file=sys.stdout)
         if self.jobs is not None:
             self.jobs.update(1)
 

@@ -13,6 +13,7 @@ from converters.__main__ import main as convert_main
 from converters.course_scene import load_scene
 from helpers import MAX_BAD_FRACTION, bad_fraction, encode, render_layers
 from imaging import image_io
+from renderer.scene_flags import read_scene_flags
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -42,7 +43,8 @@ def test_scenes_xml_is_fresh(variant_scalar_rgb, tmp_path, monkeypatch):
 def test_xml_renders_like_the_dict(variant_llvm_ad_rgb):
     for name in ("showcase", "transforms"):
         scene = load_scene(ROOT / "scenes" / f"{name}.txt")
-        ours = render_layers(scene, width=800, height=800)[""]
+        flags = read_scene_flags(ROOT / "scenes" / f"{name}.txt")  # the XML carries the scene's header flags
+        ours = render_layers(scene, width=800, height=800, **flags)[""]
         xml = np.array(mi.render(mi.load_file(str(ROOT / "scenes_xml" / f"{name}.xml"), optimize=False)))
         assert bad_fraction(encode(ours), encode(xml)) <= MAX_BAD_FRACTION
 

@@ -52,25 +52,3 @@ def test_error_vs_time_quick(variant_llvm_ad_rgb, tmp_path):
     assert all(s["slope"] == s["slope"] for s in results["slopes"])
     assert (tmp_path / "plots" / "error_vs_time.csv").exists()
     assert len(list((tmp_path / "plots").glob("*.png"))) == len({s for s, _ in methods})
-
-
-@pytest.mark.parametrize("path", NOTEBOOKS, ids=lambda p: p.stem)
-def test_notebook_is_stored_without_outputs(path):
-    notebook = nbformat.read(path, as_version=4)
-    for cell in notebook.cells:
-        if cell.cell_type == "code":
-            assert cell.outputs == [] and cell.execution_count is None
-
-
-@pytest.mark.slow
-@pytest.mark.parametrize("path", NOTEBOOKS, ids=lambda p: p.stem)
-def test_notebook_runs(path, monkeypatch):
-    from nbclient import NotebookClient
-
-    monkeypatch.setenv("NOTEBOOK_QUICK", "1")
-    monkeypatch.setenv("PYTHONPATH", os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]))
-    notebook = nbformat.read(path, as_version=4)
-    NotebookClient(notebook, timeout=600, kernel_name="python3",
-                   resources={"metadata": {"path": str(ROOT)}}).execute()
-    errors = [o for c in notebook.cells if c.cell_type == "code" for o in c.outputs if o.output_type == "error"]
-    assert not errors

@@ -1,0 +1,52 @@
+"""Runs a command with the project's own Python when another one started it.
+
+``python render.py ...`` or ``python -m converters ...`` typed in a shell
+where ``python`` is the system's (no virtual environment active) would fail
+on ``import numpy``. Each entry point calls :func:`use_project_python` first:
+when the project's packages are not importable here but ``./.venv`` (made by
+``./dev setup``) exists, the process replaces itself with the same command
+run by ``./.venv/bin/python``; when there is no ``./.venv`` either, it prints
+one line saying to run ``./dev setup`` and exits 2.
+
+Standard library only: it runs before anything else is importable.
+"""
+from __future__ import annotations
+
+import importlib.util
+import os
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+VENV = ROOT / ".venv"
+VENV_PYTHON = VENV / "bin" / "python"
+#: What every entry point imports first (found, not imported, by the check)
+REQUIRED = ("numpy", "drjit", "mitsuba")
+
+
+def missing_packages() -> list[str]:
+    return [name for name in REQUIRED if importlib.util.find_spec(name) is None]
+
+
+def in_project_venv() -> bool:
+    return Path(sys.prefix).resolve() == VENV.resolve()
+
+
+def use_project_python(prog: str, module: str | None = None) -> None:
+    """Re-executes this command under ``./.venv/bin/python`` where needed.
+
+    ``module`` is the ``-m`` name (``"converters"``); ``None`` re-runs the
+    script ``sys.argv[0]``. Arguments, working folder and environment stay.
+    """
+    missing = missing_packages()
+    if not missing:
+        return
+    if VENV_PYTHON.exists() and not in_project_venv():
+        command = [str(VENV_PYTHON)] + (["-m", module] if module else [sys.argv[0]]) + sys.argv[1:]
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os.execv(command[0], command)  # does not return
+    where = f"{VENV_PYTHON} lacks them" if VENV_PYTHON.exists() else f"there is no {VENV}"
+    print(f"{prog}: error: {sys.executable} cannot import {', '.join(missing)} and {where}; "
+          f"run ./dev setup in {ROOT}", file=sys.stderr)
+    raise SystemExit(2)

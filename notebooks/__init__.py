@@ -1,0 +1,1 @@
+"""The validation notebooks: ``python -m notebooks.build`` writes and runs them."""
