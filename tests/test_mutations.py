@@ -177,18 +177,18 @@ def test_filter_is_the_course_gaussian(variant_rgb, tmp_path, monkeypatch):
     assert filter_error(tmp_path) > 1e-2
 
 
-def jitter_sample_count(tmp_path: Path) -> float:
+def jitter_sample_count(tmp_path: Path, seed: int = 0) -> float:
     """Samples per pixel of ``-jitter``, estimated from its noise: its mean squared
-    error against an independent 256-spp render, minus that render's share, is
+    error against an independent render of M spp, minus that render's share, is
     sigma^2 / N; sigma^2 (one jittered sample's variance) comes from pairs of
     independent 1-spp renders, E[(a - b)^2] = 2 sigma^2."""
-    width, height = (24, 16) if SCALAR_FALLBACK else (96, 64)
-    reference_spp = 64 if SCALAR_FALLBACK else 256
+    width, height, reference_spp, pairs = (48, 32, 32, 8) if SCALAR_FALLBACK else (96, 64, 256, 8)
     jittered = render_cli(tmp_path, "jittered", width, height, "-jitter")
     scene = load_scene(TRANSFORMS)
     options = dict(width=width, height=height, jitter=True)
-    reference = render_layers(scene, spp=reference_spp, seed=11, **options)[""].astype(np.float64)
-    singles = [render_layers(scene, spp=1, seed=20 + k, **options)[""].astype(np.float64) for k in range(8)]
+    reference = render_layers(scene, spp=reference_spp, seed=11 + seed, **options)[""].astype(np.float64)
+    singles = [render_layers(scene, spp=1, seed=100 + 2 * pairs * seed + k, **options)[""].astype(np.float64)
+               for k in range(2 * pairs)]
     variance = np.mean([np.mean((a - b) ** 2) / 2 for a, b in zip(singles[::2], singles[1::2])])
     error = np.mean((jittered - reference) ** 2) - variance / reference_spp
     assert abs(jittered.mean() - reference.mean()) < 0.02 * reference.mean()  # the same image
@@ -196,12 +196,14 @@ def jitter_sample_count(tmp_path: Path) -> float:
 
 
 def test_jitter_takes_16_samples(variant_rgb, tmp_path, monkeypatch):
-    # estimates scatter by ~15 % (heavy-tailed edge pixels); 8 samples give ~8
-    assert 11.5 <= jitter_sample_count(tmp_path) <= 23
+    # measured (5 seeds each): 16 samples give 13.8-15.5 at 96x64 (10.1-14.4 at 48x32), 8 give
+    # 6.7-7.8 (4.7-7.0): the estimate runs low, its spread is +-15 %; the bound sits between
+    lowest = 8.5 if SCALAR_FALLBACK else 11.0
+    assert lowest <= jitter_sample_count(tmp_path) <= 24
     import renderer.job
 
     monkeypatch.setattr(renderer.job, "JITTER_SPP", 8)
-    assert jitter_sample_count(tmp_path) < 11.5
+    assert jitter_sample_count(tmp_path) < lowest
 
 
 # -- error against time ------------------------------------------------------------------
@@ -237,19 +239,22 @@ def test_quick_crossval_has_a_single_light_scene(course):
     assert "numLights 1" in " ".join((ROOT / "scenes" / f"{crossval.SINGLE_LIGHT_SCENE}.txt").read_text().split())
 
 
+# The power of the agreement check rests on whitted and path seeing the same pixel
+# samples (same seed): true of the vectorised sampler, not of scalar_rgb's, where one
+# stream per block is shared with the path tracer's later dimensions. These two tests
+# therefore need llvm_ad_rgb (without it they skip, visibly, as not required).
 @pytest.mark.parametrize("bias", [0.03, -0.03])
-def test_quick_crossval_fails_with_3_percent_bias(variant_rgb, course, bias):
-    size, spp = (16, 16) if SCALAR_FALLBACK else (48, 16)  # the quick run's size and lower spp
+def test_quick_crossval_fails_with_3_percent_bias(variant_vectorised_rgb, course, bias):
+    size, spp = 48, 16  # the quick run's size and lower spp
     failed = agreement_failures(bias, crossval.scene_paths(course, quick=True), size, spp)
     assert all(failed.values()), failed
 
 
-def test_every_scene_fails_with_1_percent_bias(variant_rgb, course):
+def test_every_scene_fails_with_1_percent_bias(variant_vectorised_rgb, course):
     """The full check (128x128, 64 and 1024 spp) has more samples per pixel than this
     48x48, 256 spp version, which already fails every scene with +-1 %."""
-    size, spp = (16, 64) if SCALAR_FALLBACK else (48, 256)
     paths = crossval.scene_paths(course)
-    assert not any(agreement_failures(0.0, paths, size, spp).values())
+    assert not any(agreement_failures(0.0, paths, 48, 256).values())
     for bias in (0.01, -0.01):
-        failed = agreement_failures(bias, paths, size, spp)
+        failed = agreement_failures(bias, paths, 48, 256)
         assert all(failed.values()), (bias, failed)
