@@ -62,8 +62,10 @@ QUICK_MATERIALS = [(0.5, 0.5, 1.0), (0.2, 0.8, 500.0), (0.1, 0.9, 100.0), (0.6, 
 QUICK_ANGLES = [10.0, 85.0, 60.0]
 #: chi-square sample counts (full, quick)
 CHI2_SAMPLES = (1_000_000, 200_000)
-#: furnace: standard errors allowed between the Monte Carlo and the integrated albedo
+#: furnace: standard errors allowed between the Monte Carlo and the integrated albedo,
+#: and the relative float32 rounding that widens a standard error of ~0
 FURNACE_SIGMAS = 4.0
+FLOAT32 = 1e-6
 #: agreement: tiles of this many pixels square, and the family-wise significance level
 TILE = 16
 SIGNIFICANCE = 0.01
@@ -151,10 +153,14 @@ def analytic_albedo(kd: float, ks: float, shininess: float, theta: float, nodes:
 def furnace_case(kd: float, ks: float, shininess: float, theta: float, samples: int = 1 << 20) -> dict:
     """Two-sided furnace: Monte Carlo albedo against :func:`analytic_albedo`."""
     mean, error = furnace_albedo(kd, ks, shininess, theta, samples)
-    expected = analytic_albedo(kd, ks, shininess, theta)
-    z = (mean - expected) / error if error > 0 else (0.0 if abs(mean - expected) < 1e-6 else math.inf)
+    expected = float(analytic_albedo(kd, ks, shininess, theta))
+    # where every sample weighs the same (a pure lobe sampled exactly) the standard error
+    # vanishes and float32 rounding (~1e-7 relative) is what is left
+    allowed = math.hypot(error, FLOAT32 * expected)
+    z = (mean - expected) / allowed if allowed > 0 else (0.0 if mean == expected else math.inf)
+    passed = abs(z) <= FURNACE_SIGMAS and mean <= 1.0 + FURNACE_SIGMAS * error
     return {"kd": kd, "ks": ks, "shininess": shininess, "theta_deg": theta, "albedo": mean, "stderr": error,
-            "expected": expected, "z": z, "passed": abs(z) <= FURNACE_SIGMAS and mean <= 1.0 + FURNACE_SIGMAS * error}
+            "expected": expected, "z": float(z), "passed": bool(passed)}
 
 
 @dataclass

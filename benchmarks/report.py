@@ -106,7 +106,7 @@ def results_section(images: dict | None, speed: dict | None) -> str:
                   "independent NumPy implementation of the course's semantics (`benchmarks/reference_tracer.py`).",
                   ""]
     if speed and "machine" in speed:
-        lines += [f"`{speed['command']}`: the course's seven command lines at their sizes, {speed['scenes'][0]['variant']}, "
+        lines += [f"`{speed['command']}`: the course's {len(speed['scenes'])} command lines at their sizes, {speed['scenes'][0]['variant']}, "
                   f"{speed['machine']}, {speed['date']}, medians of {speed['repeat']}. Process times are whole "
                   "processes from start to exit"
                   + (", ours and the peer binary's interleaved in the same run" if "peer" in speed else
