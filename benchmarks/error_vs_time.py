@@ -1,21 +1,35 @@
-"""Error against run time for each way of rendering a scene.
+"""Error against run time for two ways of rendering the same image.
 
     python -m benchmarks.error_vs_time [--quick] [--json PATH] [--out DIR]
 
-Per scene (the course's and ours), curves of error against wall time:
+Per scene (the course's and ours), the light transport of the course's ray
+tracer (``whitted``'s light paths: direct light from every point light with
+shadows, plus mirror recursion; ambient 0 and a background that emits
+nothing, as in :mod:`benchmarks.crossval`), computed two ways:
 
-- ``whitted``: our integrator with jittered supersampling, 1..256 spp, against
-  a converged whitted render (same light transport: the course's model);
-- ``path``: Mitsuba's path tracer with the full Phong model (all lobes
-  sampled, the background as an emitter), 1..4096 spp, against a converged
-  path render.
+- ``whitted``: our integrator, every light evaluated at every hit, with
+  jittered supersampling, 1..256 spp;
+- ``path``: Mitsuba's path tracer on the same light paths (``phong`` with
+  ``sampling="mirror"``): one light picked at random per hit, 1..4096 spp.
 
-Errors are relMSE and mean FLIP (``flip-evaluator``, LDR: the course displays
-linear values clamped to [0, 1]). Writes per scene a log-log plot
-``<out>/<scene>.png``, ``<out>/error_vs_time.csv`` and, with ``--json``,
+Both are compared with **one common reference**: ``whitted`` converged
+(4096 jittered spp, another seed), so "seconds to relMSE 1e-3" compares the
+two on the same image. Errors are relMSE and mean FLIP (``flip-evaluator``,
+LDR: the course displays linear values clamped to [0, 1]).
+
+Fitting rule (fixed before any data was taken, the same for every curve):
+``slope`` is the least-squares slope of log relMSE over log seconds, and
+``spp_slope`` that over log spp, both fitted over the upper half of the spp
+ladder (the points whose spp is at least the median spp of the curve; the
+first renders are dominated by fixed per-render costs). Monte Carlo gives
+``spp_slope`` = -1; ``slope`` approaches -1 as the fixed costs vanish.
+``seconds_to_relmse_1e-3`` is read off that fitted line (extrapolated where
+no render reached 1e-3).
+
+Writes per scene a log-log plot ``<out>/<scene>.png``,
+``<out>/error_vs_time.csv`` and, with ``--json``,
 ``{"points": [{scene, method, spp, seconds, relmse, flip}],
-"slopes": [{scene, method, slope, seconds_to_relmse_1e-3}]}``.
-The slope of log relMSE against log time is near -1 for Monte Carlo.
+"slopes": [{scene, method, slope, spp_slope, seconds_to_relmse_1e-3}]}``.
 """
 from __future__ import annotations
 
@@ -45,14 +59,14 @@ def flags_for(path: Path) -> dict:
 
 
 def method_options(method: str, path: Path) -> dict:
-    """RenderOptions fields (beyond size, spp, seed) of a method."""
-    flags = flags_for(path)
+    """RenderOptions fields (beyond size, spp, seed) of a method: both render
+    whitted's light paths (shadows on, so the two have the same visibility)."""
+    common = dict(jitter=True, ambient=False, background=False, bounces=flags_for(path)["bounces"], shadows=True)
     if method == "whitted":
-        return dict(jitter=True, **flags)
+        # the course's "skip hits within epsilon" is not the path tracer's visibility rule
+        return dict(ray_epsilon=False, **common)
     if method == "path":
-        # the full model: every lobe, background lights the scene, deeper paths
-        return dict(jitter=True, integrator="path", ambient=False, bounces=max(flags["bounces"], 6),
-                    shadows=True)
+        return dict(integrator="path", phong_sampling="mirror", **common)
     raise ValueError(method)
 
 
@@ -84,18 +98,19 @@ def render_timed(path: Path, size: int, spp: int, seed: int, options: dict) -> t
     return np.array(image, np.float32)[..., :3], seconds
 
 
-def fit_slope(points: list[dict]) -> tuple[float, float | None]:
-    """Slope of log relMSE over log time, and the (interpolated or
-    extrapolated) time at which relMSE reaches TARGET_RELMSE.
-
-    Only renders that take at least 3x the quickest one are fitted: below
-    that, fixed per-render costs (kernel launch, film) dominate the time and
-    the curve is steeper than the Monte Carlo rate. At least the last three
-    points are used."""
+def fitted_points(points: list[dict]) -> list[dict]:
+    """The fitting rule (module docstring): the points whose spp is at least the median spp."""
     usable = [p for p in points if p["relmse"] > 0 and p["seconds"] > 0]
-    quickest = min((p["seconds"] for p in usable), default=0.0)
-    sampled = [p for p in usable if p["seconds"] >= 3 * quickest]
-    usable = sampled if len(sampled) >= 3 else usable[-3:]
+    if not usable:
+        return []
+    median = float(np.median([p["spp"] for p in usable]))
+    return [p for p in usable if p["spp"] >= median]
+
+
+def fit_slope(points: list[dict]) -> tuple[float, float | None]:
+    """Slope of log relMSE over log seconds (by :func:`fitted_points`) and the
+    time at which the fitted line reaches TARGET_RELMSE (None: never)."""
+    usable = fitted_points(points)
     if len(usable) < 2:
         return float("nan"), None
     x = np.log([p["seconds"] for p in usable])
@@ -105,13 +120,22 @@ def fit_slope(points: list[dict]) -> tuple[float, float | None]:
     return float(slope), (math.exp(log_seconds) if log_seconds < 700 else None)
 
 
-def measure(paths: list[Path], size: int, spp_by_method: dict[str, list[int]], reference_spp: dict[str, int],
+def fit_spp_slope(points: list[dict]) -> float:
+    """Slope of log relMSE over log spp, over the same points (Monte Carlo: -1)."""
+    usable = fitted_points(points)
+    if len(usable) < 2:
+        return float("nan")
+    return float(np.polyfit(np.log([p["spp"] for p in usable]), np.log([p["relmse"] for p in usable]), 1)[0])
+
+
+def measure(paths: list[Path], size: int, spp_by_method: dict[str, list[int]], reference_spp: int,
             progress=print) -> dict:
+    """Curves per scene and method against one reference per scene (whitted, ``reference_spp``)."""
     points, slopes = [], []
     for path in paths:
+        reference, _ = render_timed(path, size, reference_spp, 99, method_options("whitted", path))
         for method, spps in spp_by_method.items():
             options = method_options(method, path)
-            reference, _ = render_timed(path, size, reference_spp[method], 99, options)
             curve = []
             for spp in spps:
                 image, seconds = render_timed(path, size, spp, 1, options)
@@ -119,9 +143,9 @@ def measure(paths: list[Path], size: int, spp_by_method: dict[str, list[int]], r
                               "relmse": relmse(image, reference), "flip": flip_error(image, reference)})
             points += curve
             slope, to_target = fit_slope(curve)
-            slopes.append({"scene": path.stem, "method": method, "slope": slope,
+            slopes.append({"scene": path.stem, "method": method, "slope": slope, "spp_slope": fit_spp_slope(curve),
                            "seconds_to_relmse_1e-3": to_target})
-            progress(f"{path.stem} {method}: slope {slope:.2f}, relMSE 1e-3 after "
+            progress(f"{path.stem} {method}: slope {slope:.2f} (per spp {slopes[-1]['spp_slope']:.2f}), relMSE 1e-3 after "
                      f"{'n/a' if to_target is None else f'{to_target:.3g} s'}")
     return {"points": points, "slopes": slopes,
             "settings": {"image_size": size, "spp": spp_by_method, "reference_spp": reference_spp}}
@@ -133,15 +157,12 @@ def refit(results: dict) -> dict:
     for s in results["slopes"]:
         curve = [p for p in results["points"] if p["scene"] == s["scene"] and p["method"] == s["method"]]
         slope, to_target = fit_slope(curve)
-        slopes.append(dict(s, slope=slope, **{"seconds_to_relmse_1e-3": to_target}))
+        slopes.append(dict(s, slope=slope, spp_slope=fit_spp_slope(curve), **{"seconds_to_relmse_1e-3": to_target}))
     return dict(results, slopes=slopes)
 
 
 def plot_scene(results: dict, scene: str):
     """Log-log relMSE and FLIP against seconds for one scene; returns the figure."""
-    import matplotlib
-
-    matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     fig, (ax_mse, ax_flip) = plt.subplots(1, 2, figsize=(10, 4))
@@ -157,7 +178,8 @@ def plot_scene(results: dict, scene: str):
         if fit["seconds_to_relmse_1e-3"]:
             ax_mse.axvline(fit["seconds_to_relmse_1e-3"], ls=":", color=ax_mse.lines[-1].get_color())
     ax_mse.axhline(TARGET_RELMSE, color="grey", lw=0.8)
-    ax_mse.set(xlabel="render time (s)", ylabel="relMSE", title=f"{scene}: relMSE (dotted: time to 1e-3)")
+    ax_mse.set(xlabel="render time (s)", ylabel="relMSE vs converged whitted",
+               title=f"{scene}: relMSE (dotted: time to 1e-3)")
     ax_flip.set(xlabel="render time (s)", ylabel="mean FLIP", title=f"{scene}: FLIP")
     for ax in (ax_mse, ax_flip):
         ax.grid(True, which="both", alpha=0.3)
@@ -188,19 +210,20 @@ def write_outputs(results: dict, out: Path) -> list[Path]:
     return written
 
 
-def settings(quick: bool) -> tuple[int, dict, dict]:
+def settings(quick: bool) -> tuple[int, dict, int]:
+    """Image size, spp per method, and the spp of the common (whitted) reference."""
     if quick:
-        return 32, {"whitted": [1, 4, 16, 64], "path": [4, 16, 64, 256]}, {"whitted": 1024, "path": 4096}
-    return (96, {"whitted": [1, 2, 4, 8, 16, 32, 64, 128, 256], "path": [1, 4, 16, 64, 256, 1024, 4096]},
-            {"whitted": 4096, "path": 32768})
+        return 32, {"whitted": [1, 4, 16, 64], "path": [4, 16, 64, 256]}, 2048
+    return 96, {"whitted": [1, 2, 4, 8, 16, 32, 64, 128, 256], "path": [1, 4, 16, 64, 256, 1024, 4096]}, 4096
 
 
 def slope_table(results: dict) -> str:
     """Markdown table: slope of log relMSE over log time, and time to relMSE 1e-3."""
-    lines = ["| scene | method | slope | seconds to relMSE 1e-3 |", "|---|---|---|---|"]
+    lines = ["| scene | method | slope per second | slope per spp | seconds to relMSE 1e-3 |", "|---|---|---|---|---|"]
     for s in results["slopes"]:
         to_target = "not reached" if s["seconds_to_relmse_1e-3"] is None else f"{s['seconds_to_relmse_1e-3']:.3g}"
-        lines.append(f"| {s['scene']} | {s['method']} | {s['slope']:.2f} | {to_target} |")
+        lines.append(f"| {s['scene']} | {s['method']} | {s['slope']:.2f} | {s.get('spp_slope', float('nan')):.2f} "
+                     f"| {to_target} |")
     return "\n".join(lines)
 
 
@@ -219,6 +242,11 @@ def main(argv: list[str] | None = None) -> int:
                       progress=lambda line: print(line, file=sys.stderr))
     for path in write_outputs(results, args.out):
         print(path)
+    import mitsuba as mi
+
+    from benchmarks.crossval import stamp
+
+    results.update(variant=mi.variant(), **stamp(["python -m benchmarks.error_vs_time", *(argv or sys.argv[1:])]))
     if args.json:
         write_json(args.json, results)
     return 0

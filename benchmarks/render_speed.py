@@ -1,26 +1,37 @@
-"""Render speed per course scene at 800x800, beside the course binary's times.
+"""Render speed per course scene at the course's sizes, as whole processes.
 
-    python -m benchmarks.render_speed [--json PATH] [--repeat N] [--variant V]
+    python -m benchmarks.render_speed [--json PATH] [--repeat N] [--variant V] [--peer PATH]
 
 For each of the course's seven grading command lines it measures, in one run
-on this machine:
+on this machine (medians of N):
 
-- ``render_s``: our render (mi.render on the loaded scene, with the AOVs the
-  command line's outputs need), median of N warm runs; ``first_render_s`` is
-  the first render in the process (tracing included, kernels from the cache);
-- ``process_s``: the whole ``python render.py <course flags>`` process, wall,
-  median of N (caches warm);
+- ``process_s``: the whole ``python render.py <the course's flags>`` process,
+  wall, from start to exit (interpreter start, import, scene load, render,
+  files written), run in the course folder as the course runs its binary;
+- ``peer_process_s`` (only with ``--peer PATH``): the course binary given,
+  run the same way with the same arguments, interleaved with ours; without
+  ``--peer`` there is no such column (no timings are copied from elsewhere);
+- ``render_s``: inside one process, ``mi.render`` on the loaded scene with
+  the AOVs the command line's outputs need, warm (kernels compiled);
+  ``first_render_s`` is the first render in the process (tracing included,
+  kernels from the cache). These are not comparable with a process time;
 - ``native_direct_s`` / ``whitted_direct_s``: Mitsuba's native ``direct``
-  integrator (emitter sampling only, one sample per light) against our
-  ``whitted`` with 0 bounces and shadows, same converted scene, 1 spp,
-  interleaved, medians;
+  integrator against our ``whitted`` with 0 bounces and shadows, same
+  converted scene, same spp, interleaved. ``direct`` is configured with
+  ``emitter_samples`` = the number of lights and ``bsdf_samples`` = 0: as
+  many shadow rays as whitted traces, but each of them goes to a light
+  picked **at random** (Mitsuba's ``direct`` cannot take one sample per
+  light), so it renders a noisy estimate of whitted's image at the same
+  ray count;
 
 and ``suite_wall_s``: all seven command lines in one ``render.py --batch``
-process. The course binary's times come from the course README.
+process (and ``peer_suite_s``: the peer binary's seven processes, summed).
+The JSON records the machine and the date.
 """
 from __future__ import annotations
 
 import argparse
+import datetime as dt
 import statistics
 import subprocess
 import sys
@@ -29,7 +40,7 @@ import time
 from pathlib import Path
 
 from benchmarks import write_json
-from benchmarks.course import DEFAULT_COURSE, ROOT, course_runs
+from benchmarks.course import DEFAULT_COURSE, ROOT, course_runs, machine, outputs_into
 
 
 def _timed(fn) -> float:
@@ -38,17 +49,8 @@ def _timed(fn) -> float:
     return time.perf_counter() - start
 
 
-def _rewrite_outputs(words: list[str], folder: Path) -> list[str]:
-    """The command line with its output files moved into ``folder``."""
-    out = list(words)
-    for flag, offset in (("-output", 1), ("-normals", 1), ("-depth", 3)):
-        if flag in out:
-            k = out.index(flag) + offset
-            out[k] = str(folder / Path(out[k]).name)
-    return out
-
-
-def measure(course: Path, repeat: int, variant: str | None) -> dict:
+def measure(course: Path, repeat: int, variant: str | None, peer: Path | None = None,
+            only: list[str] | None = None) -> dict:
     from renderer.variants import set_variant
 
     variant = set_variant(variant, quiet=True)
@@ -66,11 +68,11 @@ def measure(course: Path, repeat: int, variant: str | None) -> dict:
         return image
 
     rows = []
-    runs = course_runs(course)
+    runs = [r for r in course_runs(course) if not only or r.scene in only]
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         for run in runs:
-            args = _rewrite_outputs(run.arguments, tmp)
+            args = outputs_into(run.arguments, tmp)
             (job,) = jobs_from_args(build_parser().parse_args(["-input", str(course / args[args.index("-input") + 1]),
                                                                *[a for k, a in enumerate(args) if k not in
                                                                  (args.index("-input"), args.index("-input") + 1)]]))
@@ -92,38 +94,55 @@ def measure(course: Path, repeat: int, variant: str | None) -> dict:
                 ours_t.append(_timed(lambda: render(ours_scene)))
 
             command = [sys.executable, str(ROOT / "render.py"), *args, "--quiet", "--variant", variant]
-            subprocess.run(command, cwd=course, check=True)  # warm the caches
-            process = [_timed(lambda: subprocess.run(command, cwd=course, check=True)) for _ in range(repeat)]
-            rows.append({"scene": run.scene, "variant": variant,
-                         "render_s": statistics.median(warm), "first_render_s": first,
-                         "process_s": statistics.median(process),
-                         "native_direct_s": statistics.median(native_t),
-                         "whitted_direct_s": statistics.median(ours_t),
-                         "course_s": run.course_seconds})
-            print(f"{run.scene}: render {rows[-1]['render_s']:.3f} s, process {rows[-1]['process_s']:.2f} s",
-                  file=sys.stderr)
+            peer_command = [str(peer), *args] if peer else None
+            for c in filter(None, (command, peer_command)):
+                subprocess.run(c, cwd=course, check=True, stdout=subprocess.DEVNULL)  # warm the caches
+            process, peer_process = [], []
+            for _ in range(repeat):  # interleaved: both see the same machine load
+                process.append(_timed(lambda: subprocess.run(command, cwd=course, check=True)))
+                if peer_command:
+                    peer_process.append(_timed(lambda: subprocess.run(peer_command, cwd=course, check=True,
+                                                                      stdout=subprocess.DEVNULL)))
+            row = {"scene": run.scene, "variant": variant, "process_s": statistics.median(process),
+                   "render_s": statistics.median(warm), "first_render_s": first,
+                   "native_direct_s": statistics.median(native_t), "whitted_direct_s": statistics.median(ours_t)}
+            if peer_command:
+                row["peer_process_s"] = statistics.median(peer_process)
+            rows.append(row)
+            print(f"{run.scene}: process {row['process_s']:.2f} s"
+                  + (f", peer {row['peer_process_s']:.2f} s" if peer else ""), file=sys.stderr)
 
         batch = tmp / "grading.sh"
-        batch.write_text("\n".join(" ".join(["a2", *_rewrite_outputs(r.arguments, tmp)]) for r in runs) + "\n")
+        batch.write_text("\n".join(" ".join(["a2", *outputs_into(r.arguments, tmp)]) for r in runs) + "\n")
         command = [sys.executable, str(ROOT / "render.py"), "--batch", str(batch), "--quiet", "--variant", variant]
         subprocess.run(command, cwd=course, check=True)
         suite = [_timed(lambda: subprocess.run(command, cwd=course, check=True)) for _ in range(repeat)]
-    return {"scenes": rows, "suite_wall_s": statistics.median(suite),
-            "course_suite_s": sum(r.course_seconds for r in runs)}
+    results = {"scenes": rows, "suite_wall_s": statistics.median(suite), "repeat": repeat,
+               "command": "python -m benchmarks.render_speed" + (" --peer PATH" if peer else ""),
+               "machine": machine(), "date": dt.date.today().isoformat()}
+    if peer:
+        results["peer"] = str(peer)
+        results["peer_suite_s"] = sum(r["peer_process_s"] for r in rows)
+    return results
 
 
 def report(results: dict) -> str:
-    lines = ["| scene | course binary s | our render s | % of course | first render s | process s | "
-             "process speed-up | native direct s | whitted direct s | whitted/native |",
-             "|---|---|---|---|---|---|---|---|---|---|"]
+    """Markdown: whole processes side by side (the peer's only if it was measured), then
+    the in-process render times and direct vs whitted."""
+    peer = "peer_suite_s" in results
+    head = "| scene | render.py process s |" + (" peer process s | peer / ours |" if peer else "")
+    head += " in-process render s (warm) | first render s | native `direct` s | `whitted` 0 bounces s | ratio |"
+    lines = [head, "|---|---|" + ("---|---|" if peer else "") + "---|---|---|---|---|"]
     for r in results["scenes"]:
-        lines.append(f"| {r['scene']} | {r['course_s']:.2f} | {r['render_s']:.3f} | "
-                     f"{100 * r['render_s'] / r['course_s']:.1f}% | {r['first_render_s']:.3f} | "
-                     f"{r['process_s']:.2f} | {r['course_s'] / r['process_s']:.1f}x | "
-                     f"{r['native_direct_s']:.3f} | {r['whitted_direct_s']:.3f} | "
-                     f"{r['whitted_direct_s'] / r['native_direct_s']:.2f} |")
-    lines.append(f"\nAll seven in one process: {results['suite_wall_s']:.2f} s wall "
-                 f"(course binary: {results['course_suite_s']:.1f} s in seven processes)")
+        cells = [r["scene"], f"{r['process_s']:.2f}"]
+        if peer:
+            cells += [f"{r['peer_process_s']:.2f}", f"{r['peer_process_s'] / r['process_s']:.2f}"]
+        cells += [f"{r['render_s']:.3f}", f"{r['first_render_s']:.3f}", f"{r['native_direct_s']:.3f}",
+                  f"{r['whitted_direct_s']:.3f}", f"{r['whitted_direct_s'] / r['native_direct_s']:.2f}"]
+        lines.append("| " + " | ".join(cells) + " |")
+    n = len(results["scenes"])
+    lines.append(f"\nAll {n} command lines in one `render.py --batch` process: {results['suite_wall_s']:.2f} s wall"
+                 + (f"; the peer binary's {n} processes: {results['peer_suite_s']:.2f} s" if peer else "") + ".")
     return "\n".join(lines)
 
 
@@ -133,8 +152,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--repeat", type=int, default=5, help="timed runs per measurement (default 5)")
     parser.add_argument("--variant", help="variant (default: llvm_ad_rgb where usable)")
     parser.add_argument("--course", type=Path, default=DEFAULT_COURSE, help="course folder (default ../shared/course)")
+    parser.add_argument("--peer", type=Path, metavar="PATH",
+                        help="the course's binary: timed as a whole process beside ours, same arguments")
+    parser.add_argument("--only", metavar="SCENE", action="append", help="only these scenes (a quick check)")
     args = parser.parse_args(argv)
-    results = measure(args.course, args.repeat, args.variant)
+    results = measure(args.course, args.repeat, args.variant, args.peer, args.only)
     print(report(results))
     if args.json:
         write_json(args.json, results)

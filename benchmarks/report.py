@@ -1,11 +1,27 @@
-"""Regenerates the README's "Validation" section.
+"""Regenerates the README's "Results" and "Validation" sections from measurements.
 
-    python -m benchmarks.report            # runs crossval and error_vs_time (full), then writes
-    python -m benchmarks.report --no-run   # only rewrites the section from docs/validation/*.json
+    python -m benchmarks.report                     # runs the measurements below, then writes
+    python -m benchmarks.report --steps crossval    # runs only some of them (comma-separated)
+    python -m benchmarks.report --no-run            # only rewrites the sections from docs/
 
-Results, plots and the machine and date they came from live in
-``docs/validation/``; the README section between the ``validation`` markers
-is replaced.
+Steps, each writing a JSON (with the machine, the date and the command) that
+the sections are written from:
+
+- ``course_images``: ``python -m benchmarks.course --record`` ->
+  ``docs/validation/course_images.json``;
+- ``crossval``: ``python -m benchmarks.crossval`` -> ``docs/validation/crossval.json``;
+- ``crossval_power``: the same agreement check with whitted's shading biased by
+  +1 % and -1 % (``--bias +-0.01 --agreement-only``), which must fail on every
+  scene -> ``docs/validation/crossval_bias.json``;
+- ``error_vs_time``: ``python -m benchmarks.error_vs_time`` ->
+  ``docs/validation/error_vs_time.json`` and its plots;
+- ``scalar_suite``: the fast test suite with the LLVM backend made unusable
+  (``DRJIT_LIBLLVM_PATH`` at libLLVM 15), so image tests run on ``scalar_rgb``
+  -> ``docs/validation/scalar_suite.json`` (skips, required skips, time).
+
+Render speed is not a step (it needs a quiet machine): run
+``python -m benchmarks.render_speed --json docs/render_speed.json [--peer PATH]``,
+then ``--no-run``. Every number in the two sections comes from these files.
 """
 from __future__ import annotations
 
@@ -13,93 +29,205 @@ import argparse
 import datetime as dt
 import json
 import os
-import platform
 import re
+import subprocess
 import sys
+import time
 from pathlib import Path
 
-from benchmarks import crossval, error_vs_time, write_json
-from benchmarks.course import ROOT
+from benchmarks import crossval, error_vs_time, render_speed, write_json
+from benchmarks.course import MAX_BAD_FRACTION, ROOT, machine, record
 
 DOCS = ROOT / "docs" / "validation"
-START, END = "<!-- validation:start -->", "<!-- validation:end -->"
+SPEED = ROOT / "docs" / "render_speed.json"
+STEPS = ("course_images", "crossval", "crossval_power", "error_vs_time", "scalar_suite")
+MARKERS = {"validation": ("<!-- validation:start -->", "<!-- validation:end -->"),
+           "results": ("<!-- results:start -->", "<!-- results:end -->")}
+OLD_LLVM = "/usr/lib/x86_64-linux-gnu/libLLVM-15.so"
 
 
-def machine() -> str:
-    model = platform.processor() or platform.machine()
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                model = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    return f"{model}, {os.cpu_count()} cores, {platform.system()} {platform.release()}, Python {platform.python_version()}"
+def stamp(command: str) -> dict:
+    return {"command": command, "machine": machine(), "date": dt.date.today().isoformat()}
 
 
-def section(cv: dict, evt: dict, meta: dict) -> str:
+def _load(path: Path) -> dict | None:
+    return json.loads(path.read_text()) if path.exists() else None
+
+
+def run_scalar_suite(path: Path) -> dict:
+    """The fast suite with no usable LLVM; its conftest writes the skip counts."""
+    env = dict(os.environ, DRJIT_LIBLLVM_PATH=OLD_LLVM if Path(OLD_LLVM).exists() else "/nonexistent/libLLVM-15.so",
+               PYTEST_SKIP_REPORT=str(path))
+    start = time.perf_counter()
+    result = subprocess.run([sys.executable, "-m", "pytest", "-q", "-m", "not slow", "-p", "no:cacheprovider"],
+                            cwd=ROOT, env=env)
+    data = dict(json.loads(path.read_text()), exit_status=result.returncode,
+                wall_s=time.perf_counter() - start,
+                **stamp("DRJIT_LIBLLVM_PATH=libLLVM-15 python -m pytest -m 'not slow'"))
+    write_json(path, data)
+    return data
+
+
+def run_power(path: Path, biases=(0.01, -0.01)) -> dict:
+    """The full agreement check under an injected bias: which scenes fail."""
+    import tempfile
+
+    runs = {}
+    for bias in biases:
+        with tempfile.TemporaryDirectory() as tmp:
+            out = Path(tmp) / "cv.json"
+            crossval.main(["--bias", str(bias), "--agreement-only", "--json", str(out)])
+            results = json.loads(out.read_text())
+        scenes = list(dict.fromkeys(a["scene"] for a in results["agreement"]))
+        runs[str(bias)] = {"scenes": len(scenes), "failed_scenes": results["failed_scenes"],
+                           "failed_rows": sum(not a["passed"] for a in results["agreement"]),
+                           "rows": len(results["agreement"])}
+    data = {"runs": runs, **stamp("python -m benchmarks.crossval --bias +-0.01 --agreement-only")}
+    write_json(path, data)
+    return data
+
+
+# -- sections ---------------------------------------------------------------------
+def results_section(images: dict | None, speed: dict | None) -> str:
+    start, end = MARKERS["results"]
+    lines = [start, "## Results", ""]
+    if images:
+        counts = images["images"]
+        worst = sorted(counts.items(), key=lambda kv: -kv[1]["bad"])
+        rest = max(c["bad"] for _, c in worst[2:]) if len(worst) > 2 else 0
+        lines += [f"All {len(counts)} images of `sample_out`, rendered through `render.py` with the course's "
+                  f"command lines (`{images['command']}`, {images['variant']}, {images['machine']}, "
+                  f"{images['date']}): pixels more than {images['tolerance']}/255 off — "
+                  + ", ".join(f"`{name}` {c['bad']} ({100 * c['bad'] / c['pixels']:.3f} %)" for name, c in worst[:2])
+                  + f", the other {len(worst) - 2} at most {rest} each (the course's bar is "
+                  f"{100 * MAX_BAD_FRACTION:g} %). `tests/test_course_images.py` fails an image over that bar "
+                  "or over twice its count here (+10 pixels). The slow tests compare `scalar_rgb` with "
+                  "`llvm_ad_rgb` at 200×200 on all seven scenes; our scenes (`scenes/`) are compared with an "
+                  "independent NumPy implementation of the course's semantics (`benchmarks/reference_tracer.py`).",
+                  ""]
+    if speed and "machine" in speed:
+        lines += [f"`{speed['command']}`: the course's {len(speed['scenes'])} command lines at their sizes, {speed['scenes'][0]['variant']}, "
+                  f"{speed['machine']}, {speed['date']}, medians of {speed['repeat']}. Process times are whole "
+                  "processes from start to exit"
+                  + (", ours and the peer binary's interleaved in the same run" if "peer" in speed else
+                     " (no peer binary was given, so there is no course column)")
+                  + "; render times are `mi.render` inside a warm process and not comparable with them; "
+                  "`direct` takes as many emitter samples as the scene has lights, each to a light picked at "
+                  "random.", "", render_speed.report(speed), ""]
+    else:
+        lines += ["Render speed: not measured in this form yet (run `python -m benchmarks.render_speed --json "
+                  "docs/render_speed.json [--peer PATH]` on a quiet machine, then `python -m benchmarks.report "
+                  "--no-run`).", ""]
+    lines.append(end)
+    return "\n".join(lines)
+
+
+def validation_section(cv: dict, evt: dict | None, suite: dict | None) -> str:
     chi2, furnace, agreement = cv["chi2"], cv["furnace"], cv["agreement"]
+    settings = cv["settings"]
     materials = ", ".join(dict.fromkeys("{}/{}/{:g}".format(c["kd"], c["ks"], c["shininess"]) for c in chi2))
     angles = ", ".join("{:g}°".format(a) for a in sorted({c["theta_deg"] for c in chi2}))
-    lines = [START, "## Validation", "",
-             f"Regenerate with `python -m benchmarks.report` (numbers below: {meta['machine']}; {meta['date']}; "
-             f"variant {meta['variant']}). Raw numbers in `docs/validation/`; the notebooks "
-             "`notebooks/crossval.ipynb` and `notebooks/error_vs_time.ipynb` show the same with explanations.", "",
-             f"**phong BSDF.** Mitsuba's chi-square test (`mitsuba.chi2`, 10⁶ samples, 1 % significance): "
-             f"{sum(c['passed'] for c in chi2)}/{len(chi2)} cases pass (kd/ks/shininess {materials}; "
-             f"θi ∈ {{{angles}}}); lowest p-value {min(c['p_value'] for c in chi2):.3f}. White furnace: highest "
-             f"albedo {max(f['albedo'] for f in furnace):.4f} (all ≤ 1 within 4 standard errors: "
-             f"{'yes' if all(f['passed'] for f in furnace) else 'NO'}).", "",
+    start, end = MARKERS["validation"]
+    lines = [start, "## Validation", "",
+             f"Regenerate with `python -m benchmarks.report` (each paragraph names its command, machine and "
+             "date). Raw numbers in `docs/validation/`; the notebooks `notebooks/crossval.ipynb` and "
+             "`notebooks/error_vs_time.ipynb` show the same with explanations.", "",
+             f"`{cv['command']}` ({settings['variant']}, {cv['machine']}, {cv['date']}):", "",
+             f"**phong BSDF.** Mitsuba's chi-square test (`mitsuba.chi2`, {settings['chi2_samples']:,} samples, "
+             f"1 % significance): {sum(c['passed'] for c in chi2)}/{len(chi2)} cases pass (kd/ks/shininess "
+             f"{materials}; θi ∈ {{{angles}}}); lowest p-value {min(c['p_value'] for c in chi2):.3f}. "
+             f"Two-sided white furnace (albedo from the BSDF's own sampling against the model's formula "
+             f"integrated by quadrature, within {crossval.FURNACE_SIGMAS:g} standard errors): "
+             f"{sum(f['passed'] for f in furnace)}/{len(furnace)} pass, largest |z| "
+             f"{max(abs(f['z']) for f in furnace):.2f}.", "",
              f"**whitted vs Mitsuba's path tracer** restricted to Whitted's light paths (ambient 0, no "
-             f"background light, {cv['settings']['image_size']}² pixels, bounces "
-             f"{', '.join(map(str, cv['settings']['bounces']))}): criterion relMSE(whitted, path) ≤ 2 × "
-             f"relMSE(path, path′); {sum(a['passed'] for a in agreement)}/{len(agreement)} pass. "
-             "Largest ratio per scene:", "",
-             "| scene | " + " | ".join(f"ratio at {spp} spp" for spp in cv["settings"]["spp"]) + " | passed |",
-             "|---|" + "---|" * (len(cv["settings"]["spp"]) + 1)]
+             f"background light, {settings['image_size']}² pixels, bounces "
+             f"{', '.join(map(str, settings['bounces']))}, the same jittered pixel samples): a row passes when no "
+             f"{settings['tile']}×{settings['tile']} tile nor the whole image, in any channel, has a mean "
+             f"difference beyond its Bonferroni-corrected {100 * settings['significance']:g} % bound (|z|), and "
+             f"relMSE(whitted, path) ≤ 2 × relMSE(path, path′). {sum(a['passed'] for a in agreement)}/"
+             f"{len(agreement)} rows pass. Per scene, the largest |z| / its bound and the measured bias "
+             "mean(whitted)/mean(path) − 1:", "",
+             "| scene | " + " | ".join(f"max abs z / bound, {spp} spp" for spp in settings["spp"])
+             + f" | bias at {max(settings['spp'])} spp, 4 bounces | passed |",
+             "|---|" + "---|" * (len(settings["spp"]) + 2)]
     for scene in dict.fromkeys(a["scene"] for a in agreement):
         cells = []
-        for spp in cv["settings"]["spp"]:
+        for spp in settings["spp"]:
             rows = [a for a in agreement if a["scene"] == scene and a["spp"] == spp]
-            cells.append(f"{max(a['relmse_whitted_path'] / a['relmse_path_path'] for a in rows):.2f}")
+            cells.append(f"{max(a['max_abs_z'] / a['z_critical'] for a in rows):.2f}")
+        deepest = max((a for a in agreement if a["scene"] == scene and a["spp"] == max(settings["spp"])),
+                      key=lambda a: a["bounces"])
         ok = all(a["passed"] for a in agreement if a["scene"] == scene)
-        lines.append(f"| {scene} | " + " | ".join(cells) + f" | {'yes' if ok else 'NO'} |")
-    lines += ["", "Ratios near 0: one light, the two compute the same samples; near 0.5: several lights, "
-              "which the path tracer samples one at a time.", "",
-              f"**Error against time** ({evt['settings']['image_size']}² pixels; whitted 1–"
-              f"{max(evt['settings']['spp']['whitted'])} spp jittered, the full path tracer 1–"
-              f"{max(evt['settings']['spp']['path'])} spp; references at "
-              f"{evt['settings']['reference_spp']['whitted']} and {evt['settings']['reference_spp']['path']} spp). "
-              "Slope of log relMSE over log time (fitted over the renders that take at least 3× the quickest, where sampling, not fixed cost, dominates) and the time each needs to reach relMSE "
-              "1e-3:", "", error_vs_time.slope_table(evt), ""]
-    scenes = list(dict.fromkeys(p["scene"] for p in evt["points"]))
-    lines += [" ".join(f'<img src="docs/validation/{s}.png" width="49%" alt="{s}">' for s in scenes), "", END]
+        lines.append(f"| {scene} | " + " | ".join(cells) + f" | {100 * deepest['relative_bias']:+.3f} ± "
+                     f"{100 * deepest['relative_bias_stderr']:.3f} % | {'yes' if ok else 'NO'} |")
+    power = _load(DOCS / "crossval_bias.json")
+    if power:
+        lines += ["", f"Power: with whitted's shading scaled by 1 ± 1 % (`{power['command']}`, {power['date']}), "
+                  + "; ".join(f"{'+' if b > 0 else '−'}1 %: {len(r['failed_scenes'])}/{r['scenes']} scenes and "
+                              f"{r['failed_rows']}/{r['rows']} rows fail"
+                              for b, r in sorted(((float(k), v) for k, v in power["runs"].items()), reverse=True))
+                  + ". `tests/test_mutations.py` checks the same in CI (±3 % on the quick set, ±1 % on every "
+                  "scene at 48², 256 spp)."]
+    if evt:
+        lines += ["", f"**Error against time** (`{evt.get('command', 'python -m benchmarks.error_vs_time')}`, "
+                  f"{evt.get('variant', '')}, {evt.get('machine', '?')}, {evt.get('date', '?')}; "
+                  f"{evt['settings']['image_size']}² pixels): whitted 1–{max(evt['settings']['spp']['whitted'])} "
+                  f"spp and the path tracer on the same light paths 1–{max(evt['settings']['spp']['path'])} spp, "
+                  f"both against one reference (whitted, {evt['settings']['reference_spp']} spp, another seed). "
+                  "Slopes of log relMSE over log seconds and over log spp, fitted over the upper half of each "
+                  "spp ladder (a rule fixed before measuring), and the time to relMSE 1e-3:", "",
+                  error_vs_time.slope_table(evt), ""]
+        scenes = list(dict.fromkeys(p["scene"] for p in evt["points"]))
+        lines += [" ".join(f'<img src="docs/validation/{s}.png" width="49%" alt="{s}">' for s in scenes)]
+    if suite:
+        lines += ["", f"**Without a usable LLVM** (`{suite['command']}`, {suite['machine']}, {suite['date']}): "
+                  f"image tests run on {suite['variant']}; {suite['passed']} passed, {suite['failed']} failed, "
+                  f"{suite['skipped']} skipped, of them {suite['required_skipped']} required, in "
+                  f"{suite['wall_s']:.0f} s."]
+    lines += ["", end]
     return "\n".join(lines)
+
+
+def replace_section(text: str, name: str, new: str, before: str | None = None) -> str:
+    start, end = MARKERS[name]
+    if start in text:
+        return re.sub(re.escape(start) + ".*?" + re.escape(end), lambda _: new, text, flags=re.S)
+    if before and before in text:
+        return text.replace(before, new + "\n\n" + before, 1)
+    return text.rstrip() + "\n\n" + new + "\n"
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m benchmarks.report", description=__doc__.split("\n\n")[0])
-    parser.add_argument("--no-run", action="store_true", help="only rewrite the README from docs/validation")
+    parser.add_argument("--no-run", action="store_true", help="only rewrite the README from docs/")
+    parser.add_argument("--steps", default=",".join(STEPS), help=f"comma-separated, of {', '.join(STEPS)}")
     args = parser.parse_args(argv)
-    if not args.no_run:
+    steps = [] if args.no_run else [s for s in args.steps.split(",") if s]
+    unknown = set(steps) - set(STEPS)
+    if unknown:
+        parser.error(f"unknown steps: {', '.join(sorted(unknown))}")
+    if "course_images" in steps:
+        record(crossval.DEFAULT_COURSE, None)
+    if "crossval" in steps:
         if crossval.main(["--json", str(DOCS / "crossval.json")]) != 0:
             print("report: crossval criteria failed; the section shows which", file=sys.stderr)
+    if "crossval_power" in steps:
+        run_power(DOCS / "crossval_bias.json")
+    if "error_vs_time" in steps:
         error_vs_time.main(["--json", str(DOCS / "error_vs_time.json"), "--out", str(DOCS)])
-        import mitsuba as mi
+    if "scalar_suite" in steps:
+        run_scalar_suite(DOCS / "scalar_suite.json")
 
-        write_json(DOCS / "meta.json", {"machine": machine(), "date": dt.date.today().isoformat(),
-                                        "variant": mi.variant()})
-    cv = json.loads((DOCS / "crossval.json").read_text())
-    # slopes and plots follow the current fitting rule, also for stored points
-    evt = error_vs_time.refit(json.loads((DOCS / "error_vs_time.json").read_text()))
-    write_json(DOCS / "error_vs_time.json", evt)
-    error_vs_time.write_outputs(evt, DOCS)
-    meta = json.loads((DOCS / "meta.json").read_text())
+    cv, evt = _load(DOCS / "crossval.json"), _load(DOCS / "error_vs_time.json")
+    if evt and "spp_slope" not in evt["slopes"][0]:
+        evt = None  # measured against separate references by an older version: not shown
     readme = ROOT / "README.md"
     text = readme.read_text()
-    new = section(cv, evt, meta)
-    text = re.sub(re.escape(START) + ".*?" + re.escape(END), lambda _: new, text, flags=re.S) \
-        if START in text else text.rstrip() + "\n\n" + new + "\n"
+    text = replace_section(text, "results", results_section(_load(DOCS / "course_images.json"), _load(SPEED)),
+                           before="## Denoising animated sequences")
+    if cv and "machine" in cv:
+        text = replace_section(text, "validation", validation_section(cv, evt, _load(DOCS / "scalar_suite.json")))
     readme.write_text(text)
     print(readme)
     return 0

@@ -1,8 +1,17 @@
 """Fixtures in the style of Mitsuba's own test suite: one per variant.
 
-``variant_scalar_rgb`` / ``variant_llvm_ad_rgb`` set that variant (and register
-our plugins); ``variants_all_rgb`` runs a test once per variant. The LLVM
-variant is skipped, with the reason, where no usable libLLVM exists.
+``variant_scalar_rgb`` sets ``scalar_rgb``; ``variant_rgb`` (and its older
+name ``variant_llvm_ad_rgb``) sets the best usable variant: ``llvm_ad_rgb``
+where a libLLVM >= 17 exists, else ``scalar_rgb``, so that image tests run
+instead of skipping (:data:`SCALAR_FALLBACK` tells a test to render smaller);
+``variants_all_rgb`` runs a test once per variant, and ``variant_vectorised_rgb``
+sets ``llvm_ad_rgb`` for checks that need vectorised kernels (both skip the LLVM
+variant, with the reason, where no usable libLLVM exists). Every fixture
+registers our plugins.
+
+Tests that use ``variant_rgb``/``variant_llvm_ad_rgb``/``variant_scalar_rgb``
+are marked ``required``: if one of them is skipped, the session fails (and the
+summary names it), so a broken set-up cannot pass as green.
 """
 from __future__ import annotations
 
@@ -23,10 +32,26 @@ _LIBLLVM = variants.find_libllvm()
 if _LIBLLVM:
     os.environ["DRJIT_LIBLLVM_PATH"] = _LIBLLVM
 
+#: no usable LLVM: image tests run on scalar_rgb (Python plugins, one ray at a
+#: time), at the smaller sizes they choose with this flag
+SCALAR_FALLBACK = _LIBLLVM is None
 COURSE = Path(os.environ.get("COURSE_ROOT", ROOT.parent / "shared" / "course"))
+#: fixtures whose tests must not be skipped
+REQUIRED_FIXTURES = {"variant_rgb", "variant_llvm_ad_rgb", "variant_scalar_rgb"}
+#: tests of Dr.Jit kernels that have no scalar form (the denoiser): for these
+#: ``variant_llvm_ad_rgb`` means exactly that variant, as ``variant_vectorised_rgb``
+#: does (until they ask for it by that name)
+VECTORISED_TESTS = ("tests/test_denoise.py::", "tests/stress/test_stress.py::test_denoise_case")
+
+
+def best_variant() -> str:
+    """``llvm_ad_rgb`` where usable, else ``scalar_rgb``."""
+    return variants.FALLBACK_VARIANT if SCALAR_FALLBACK else variants.DEFAULT_JIT_VARIANT
 
 
 def _set(variant: str) -> str:
+    """Sets ``variant`` exactly (a test comparing two variants needs both): an
+    ``llvm_*`` one without a usable libLLVM skips, with the reason."""
     if variant.startswith("llvm_") and _LIBLLVM is None:
         pytest.skip(f"no libLLVM >= {variants.MIN_LLVM} for {variant}")
     variants.set_variant(variant, quiet=True)
@@ -39,7 +64,24 @@ def variant_scalar_rgb():
 
 
 @pytest.fixture
-def variant_llvm_ad_rgb():
+def variant_rgb():
+    """The best usable variant (see :func:`best_variant`); never skips."""
+    return _set(best_variant())
+
+
+@pytest.fixture
+def variant_llvm_ad_rgb(request):
+    """Older name of :func:`variant_rgb`: ``llvm_ad_rgb``, or ``scalar_rgb`` without a usable LLVM
+    (except for :data:`VECTORISED_TESTS`, which get ``llvm_ad_rgb`` or skip)."""
+    if request.node.get_closest_marker("vectorised"):
+        return _set("llvm_ad_rgb")
+    return _set(best_variant())
+
+
+@pytest.fixture
+def variant_vectorised_rgb():
+    """``llvm_ad_rgb`` exactly, for checks that need vectorised kernels (``mitsuba.chi2``);
+    skips, with the reason, without a usable LLVM (such a test is not required)."""
     return _set("llvm_ad_rgb")
 
 
@@ -58,3 +100,50 @@ def course() -> Path:
 
 def pytest_configure(config):
     config.addinivalue_line("markers", "slow: full-size or scalar-variant checks (deselect with -m 'not slow')")
+    config.addinivalue_line("markers", "required: must run; a skip fails the session")
+    config.addinivalue_line("markers", "vectorised: needs a vectorised (LLVM) variant; skips without one")
+
+
+def pytest_collection_modifyitems(config, items):
+    for item in items:
+        fixtures = set(getattr(item, "fixturenames", ()))
+        if "variant_vectorised_rgb" in fixtures or item.nodeid.startswith(VECTORISED_TESTS):
+            item.add_marker(pytest.mark.vectorised)
+        elif REQUIRED_FIXTURES & fixtures:
+            item.add_marker(pytest.mark.required)
+
+
+_skipped: dict[str, list[str]] = {"required": [], "other": []}
+_outcomes = {"passed": 0, "failed": 0}
+
+
+def pytest_runtest_logreport(report):
+    if report.failed:
+        _outcomes["failed"] += 1
+    elif report.passed and report.when == "call":
+        _outcomes["passed"] += 1
+    if report.skipped and not hasattr(report, "wasxfail"):
+        kind = "required" if "required" in report.keywords else "other"
+        reason = report.longrepr[2] if isinstance(report.longrepr, tuple) else str(report.longrepr)
+        _skipped[kind].append(f"{report.nodeid}: {reason}")
+
+
+def pytest_terminal_summary(terminalreporter, exitstatus, config):
+    required, other = _skipped["required"], _skipped["other"]
+    terminalreporter.write_line(f"skips: {len(required) + len(other)} ({len(required)} required), variant for "
+                                f"image tests: {best_variant()}")
+    for line in required:
+        terminalreporter.write_line(f"REQUIRED TEST SKIPPED {line}", red=True)
+
+
+def pytest_sessionfinish(session, exitstatus):
+    if _skipped["required"] and session.exitstatus == 0:
+        session.exitstatus = 1
+    report = os.environ.get("PYTEST_SKIP_REPORT")  # benchmarks.report's scalar_suite step
+    if report:
+        import json
+
+        Path(report).write_text(json.dumps(
+            {"variant": best_variant(), **_outcomes, "skipped": len(_skipped["required"]) + len(_skipped["other"]),
+             "required_skipped": len(_skipped["required"]), "skips": _skipped["other"] + _skipped["required"]},
+            indent=2) + "\n")

@@ -41,7 +41,11 @@ def test_phong_eval_is_the_course_formula(variants_all_rgb, s):
         assert np.allclose(got, kd * max(wo[2], 0) + ks * spec, rtol=1e-5, atol=1e-6)
 
 
-def test_phong_sampling_is_consistent_with_eval_and_pdf(variant_llvm_ad_rgb):
+def test_phong_sample_reports_its_pdf(variant_vectorised_rgb):
+    """``sample`` returns the density that ``pdf`` gives for the direction it drew, and
+    finite weights. (Whether that density is the one directions are drawn from is what
+    the chi-square test checks; whether weights integrate what ``eval`` integrates,
+    ``tests/test_mutations.py::test_sampling_matches_eval``.)"""
     bsdf = phong(s=30.0)
     n = 4096
     rng = np.random.default_rng(1)
@@ -49,12 +53,9 @@ def test_phong_sampling_is_consistent_with_eval_and_pdf(variant_llvm_ad_rgb):
     ctx = mi.BSDFContext()
     bs, weight = bsdf.sample(ctx, si, mi.Float(rng.random(n)), mi.Point2f(rng.random(n), rng.random(n)))
     pdf = bsdf.pdf(ctx, si, bs.wo)
-    f = bsdf.eval(ctx, si, bs.wo)
     ok = value(bs.pdf) > 0
     assert ok.mean() > 0.95
     assert np.allclose(value(bs.pdf)[ok], value(pdf)[ok], rtol=1e-4)
-    expected = np.array(f, np.float64).T[ok] / value(bs.pdf)[ok, None]
-    assert np.allclose(np.array(weight, np.float64).T[ok], expected, rtol=1e-4, atol=1e-6)
     assert np.all(np.isfinite(np.array(weight)))
 
 

@@ -9,22 +9,29 @@ import nbformat
 import pytest
 
 from benchmarks import crossval, error_vs_time
+from conftest import SCALAR_FALLBACK
 
 ROOT = Path(__file__).resolve().parent.parent
 NOTEBOOKS = sorted((ROOT / "notebooks").glob("*.ipynb"))
 
 
-def test_crossval_quick(variant_llvm_ad_rgb, tmp_path):
+def test_crossval_quick(variant_rgb, tmp_path):
+    if SCALAR_FALLBACK:  # Python plugins one sample at a time: the agreement only, small
+        results = crossval.run(crossval.DEFAULT_COURSE, quick=True, size=16, spps=[16], bounce_list=[4], bsdf=False)
+        assert not crossval.failures(results)
+        assert len(results["agreement"]) == len(crossval.scene_paths(crossval.DEFAULT_COURSE, quick=True))
+        return
     out = tmp_path / "cv.json"
     assert crossval.main(["--quick", "--json", str(out)]) == 0
     results = json.loads(out.read_text())
     assert len(results["chi2"]) >= 12 and all(c["passed"] for c in results["chi2"])
     assert {c["theta_deg"] for c in results["chi2"]} >= {85.0}
-    assert all(f["passed"] and f["albedo"] <= 1.0 + 4 * f["stderr"] for f in results["furnace"])
-    assert all(a["relmse_whitted_path"] <= 2 * a["relmse_path_path"] for a in results["agreement"])
+    assert all(f["passed"] and abs(f["albedo"] - f["expected"]) <= 4 * f["stderr"] for f in results["furnace"])
+    assert all(a["relmse_whitted_path"] <= 2 * a["relmse_path_path"] and a["max_abs_z"] <= a["z_critical"]
+               for a in results["agreement"])
 
 
-def test_chi2_detects_a_wrong_pdf(variant_llvm_ad_rgb, monkeypatch):
+def test_chi2_detects_a_wrong_pdf(variant_vectorised_rgb, monkeypatch):
     """The chi-square check can fail: a pdf off by a shininess of 10% is caught."""
     import mitsuba as mi
 
@@ -38,17 +45,26 @@ def test_chi2_detects_a_wrong_pdf(variant_llvm_ad_rgb, monkeypatch):
     assert not crossval.chi2_case(0.2, 0.8, 50.0, 30.0, sample_count=200_000)["passed"]
 
 
-def test_error_vs_time_quick(variant_llvm_ad_rgb, tmp_path):
+def test_error_vs_time_quick(variant_rgb, tmp_path):
     out = tmp_path / "evt.json"
-    assert error_vs_time.main(["--quick", "--json", str(out), "--out", str(tmp_path / "plots")]) == 0
-    results = json.loads(out.read_text())
+    if SCALAR_FALLBACK:  # the same steps, smaller
+        results = error_vs_time.measure([ROOT / "scenes" / "mirrors.txt"], 12,
+                                        {"whitted": [1, 4, 16], "path": [4, 16, 64]}, 256, progress=lambda _: None)
+        error_vs_time.write_outputs(results, tmp_path / "plots")
+    else:
+        assert error_vs_time.main(["--quick", "--json", str(out), "--out", str(tmp_path / "plots")]) == 0
+        results = json.loads(out.read_text())
     methods = {(p["scene"], p["method"]) for p in results["points"]}
     assert {m for _, m in methods} == {"whitted", "path"}
     for scene, method in methods:
         curve = [p for p in results["points"] if p["scene"] == scene and p["method"] == method]
         assert curve[-1]["relmse"] < curve[0]["relmse"]  # more samples, less error
         assert all(0 <= p["flip"] <= 1 for p in curve)
-    # (the slope itself depends on timings; at the quick size fixed costs dominate)
-    assert all(s["slope"] == s["slope"] for s in results["slopes"])
+    # relMSE per spp falls at the Monte Carlo rate (-1; four points: +-0.3); per second
+    # at least as t^-0.3 (at the quick size fixed costs take part of the time).
+    # tests/test_mutations.py shows a renderer that ignores spp failing this.
+    for s in results["slopes"]:
+        assert -1.3 <= s["spp_slope"] <= -0.7, s
+        assert s["slope"] <= -0.3, s
     assert (tmp_path / "plots" / "error_vs_time.csv").exists()
     assert len(list((tmp_path / "plots").glob("*.png"))) == len({s for s, _ in methods})
