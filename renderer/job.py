@@ -272,7 +272,7 @@ def _launch(scene, sensor, width: int, spp: int, jitter: bool, seed: int, first:
         y = pixel // dr.opaque(mi.UInt32, width)
         x = pixel - y * dr.opaque(mi.UInt32, width)
         if jitter:
-            bits_x, bits_y = mi.sample_tea_32(index, dr.opaque(mi.UInt32, seed))
+            bits_x, bits_y = mi.sample_tea_32(index, dr.opaque(mi.UInt32, seed), 16)
             offset = mi.Point2f(mi.Float(bits_x >> 8), mi.Float(bits_y >> 8)) * 2.0 ** -24
         else:
             offset = mi.Point2f(0.5)
