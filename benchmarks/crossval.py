@@ -260,8 +260,8 @@ def biased_whitted(fraction: float):
     cls = type(mi.load_dict({"type": "whitted"}))
     original = cls.shade
 
-    def shade(self, scene, si, active):
-        return original(self, scene, si, active) * (1.0 + fraction)
+    def shade(self, *args, **kwargs):
+        return original(self, *args, **kwargs) * (1.0 + fraction)
 
     cls.shade = shade
     try:
