@@ -38,7 +38,7 @@ from tqdm import tqdm
 from converters import transforms
 from converters.model import Scene, Sphere, Triangle, TriangleMesh
 
-from .frames import BUFFERS, FrameData, camera_matrices, write_frame
+from .frames import BUFFERS, FrameData, camera_matrices, depth_range, write_frame
 
 
 @dataclasses.dataclass(frozen=True)
@@ -130,7 +130,8 @@ def render_frame(scene: Scene, spec: Spec, index: int, whitted: bool = False) ->
         description = scene_dict(scene, RenderOptions(spp=spp, seed=seed, **noisy))
         return np.array(mi.render(load_scene_dict(description)), np.float32)[..., :3]
 
-    world_to_camera, world_to_screen = camera_matrices(scene.camera, width, height)
+    world_to_camera, world_to_screen = camera_matrices(scene.camera, width, height, *depth_range(
+        scene.camera, layers["position"][layers["id"] >= 0]))
     frame = FrameData(beauty(spec.spp, 1 + index), layers["normal"], layers["position"], layers["depth"],
                       layers["id"].astype(np.int32), [o.to_world for o in scene.objects], world_to_camera,
                       world_to_screen)

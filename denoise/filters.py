@@ -7,32 +7,109 @@ filter, one kernel per level for À-Trous).
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import drjit as dr
 import mitsuba as mi
 
+from core.errors import UsageError
+
 #: B3-spline taps of the À-Trous wavelet
 B3 = (1.0 / 16.0, 1.0 / 4.0, 3.0 / 8.0, 1.0 / 4.0, 1.0 / 16.0)
 
 
+def _positive(owner: str, **values: float) -> None:
+    for name, value in values.items():
+        if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+            raise UsageError(f"{owner}: {name} must be a finite number > 0, got {value!r}")
+
+
+def _whole(owner: str, name: str, value, low: int, high: int) -> None:
+    if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
+        raise UsageError(f"{owner}: {name} must be a whole number from {low} to {high}, got {value!r}")
+
+
 @dataclass(frozen=True)
-class BilateralParams:
-    """Joint bilateral weights ``exp(-Σ D²/(2σ²))`` over pixel distance, colour,
+class EdgeWeights:
+    """The assignment's edge-stopping weights ``exp(-D²/(2σ²))`` on colour,
     normal angle (``arccos`` of the normals' dot) and plane distance (the
     normal dotted with the unit vector between the two positions)."""
-    sigma_coord: float = 32.0
     sigma_color: float = 0.6
     sigma_normal: float = 0.1
     sigma_plane: float = 0.1
-    radius: int = 16  # window (2 radius + 1)^2, for the plain bilateral filter
+
+    def __post_init__(self):
+        _positive("edge weights", sigma_color=self.sigma_color, sigma_normal=self.sigma_normal,
+                  sigma_plane=self.sigma_plane)
+
+
+@dataclass(frozen=True)
+class BilateralWindow:
+    """The plain joint bilateral filter's window: (2 radius + 1)² pixels with a
+    spatial weight ``exp(-d²/(2 sigma_coord²))``."""
+    radius: int = 16
+    sigma_coord: float = 32.0
+
+    def __post_init__(self):
+        _whole("bilateral window", "radius", self.radius, 0, 64)
+        _positive("bilateral window", sigma_coord=self.sigma_coord)
+
+
+@dataclass(frozen=True)
+class AtrousLevels:
+    """À-Trous: ``levels`` passes of the 5x5 B3 kernel with holes 2^i; the
+    colour sigma halves from one level to the next."""
+    levels: int = 5
+
+    def __post_init__(self):
+        _whole("a-trous", "levels", self.levels, 1, 12)
 
 
 @dataclass(frozen=True)
 class TemporalParams:
+    """Clamped temporal accumulation ``α·C + (1-α)·clamp(history)``."""
     alpha: float = 0.2  # weight of the current frame; 1 where the history is invalid
     k: float = 1.0  # clamp the history to mean ± k·σ of the current 7x7 neighbourhood
     clamp_radius: int = 3
+
+    def __post_init__(self):
+        if not (isinstance(self.alpha, (int, float)) and 0.0 < self.alpha <= 1.0):
+            raise UsageError(f"temporal: alpha (the current frame's weight) must be in (0, 1], got {self.alpha!r}")
+        if not (isinstance(self.k, (int, float)) and math.isfinite(self.k) and self.k >= 0.0):
+            raise UsageError(f"temporal: k (the history clamp, mean ± k sigma) must be a finite number >= 0, "
+                             f"got {self.k!r}")
+        _whole("temporal", "clamp_radius", self.clamp_radius, 1, 16)
+
+
+@dataclass(frozen=True)
+class OutlierParams:
+    """Outlier removal before filtering: each pixel's luminance clamped to its
+    (2 radius + 1)² neighbourhood's mean ± k·σ, the colour scaled along."""
+    k: float = 2.0
+    radius: int = 3
+
+    def __post_init__(self):
+        _positive("outlier removal", k=self.k)
+        _whole("outlier removal", "radius", self.radius, 1, 16)
+
+
+#: for compatibility: the old all-in-one parameter set of the assignment's filters
+@dataclass(frozen=True)
+class BilateralParams:
+    sigma_coord: float = 32.0
+    sigma_color: float = 0.6
+    sigma_normal: float = 0.1
+    sigma_plane: float = 0.1
+    radius: int = 16
+
+    @property
+    def edges(self) -> EdgeWeights:
+        return EdgeWeights(self.sigma_color, self.sigma_normal, self.sigma_plane)
+
+    @property
+    def window(self) -> BilateralWindow:
+        return BilateralWindow(self.radius, self.sigma_coord)
 
 
 def _inv_two_sigma_sq(sigma: float) -> float:
@@ -64,7 +141,7 @@ def edge_log_weight(coefficients: tuple[float, float, float], color_i, normal_i,
     return d_color * k_color + d_normal * k_normal + d_plane * k_plane
 
 
-def _coefficients(p: BilateralParams, sigma_color: float) -> tuple[float, float, float]:
+def _coefficients(p: EdgeWeights, sigma_color: float) -> tuple[float, float, float]:
     return _inv_two_sigma_sq(sigma_color), _inv_two_sigma_sq(p.sigma_normal), _inv_two_sigma_sq(p.sigma_plane)
 
 
@@ -97,11 +174,14 @@ class Frame:
 
 
 @dr.syntax
-def joint_bilateral(frame: Frame, p: BilateralParams = BilateralParams()) -> mi.TensorXf:
+def joint_bilateral(frame: Frame, p: EdgeWeights = EdgeWeights(), window: BilateralWindow = BilateralWindow()
+                    ) -> mi.TensorXf:
     """The assignment's joint bilateral filter over a (2r+1)^2 window."""
-    r = p.radius
+    if isinstance(p, BilateralParams):
+        p, window = p.edges, p.window
+    r = window.radius
     side = 2 * r + 1
-    k_coord = _inv_two_sigma_sq(p.sigma_coord)  # plain floats: not loop state
+    k_coord = _inv_two_sigma_sq(window.sigma_coord)  # plain floats: not loop state
     coefficients = _coefficients(p, p.sigma_color)
     total = mi.Vector3f(frame.color)  # the centre pixel, weight exp(0) = 1
     color4 = pack(frame.color)
@@ -123,12 +203,15 @@ def joint_bilateral(frame: Frame, p: BilateralParams = BilateralParams()) -> mi.
     return frame.tensor(total / weights)
 
 
-def atrous(frame: Frame, p: BilateralParams = BilateralParams(), levels: int = 5) -> mi.TensorXf:
+def atrous(frame: Frame, p: EdgeWeights = EdgeWeights(), levels: AtrousLevels | int = AtrousLevels()) -> mi.TensorXf:
     """The À-Trous wavelet: ``levels`` passes of a 5x5 B3-spline kernel with
     holes (step 2^i), each with the bilateral edge-stopping weights; the
     colour sigma halves from one level to the next."""
+    if isinstance(p, BilateralParams):
+        p = p.edges
+    count = levels.levels if isinstance(levels, AtrousLevels) else AtrousLevels(levels).levels
     color = frame.color
-    for level in range(levels):
+    for level in range(count):
         step = 1 << level
         coefficients = _coefficients(p, p.sigma_color / step)
         color4 = pack(color)
@@ -230,3 +313,54 @@ def accumulate(current: mi.TensorXf, previous: mi.TensorXf | None, index: mi.UIn
     alpha = dr.select(valid & dr.all(dr.isfinite(history)), p.alpha, 1.0)
     out = alpha * c + (1.0 - alpha) * history
     return mi.TensorXf(dr.ravel(out), shape=current.shape)
+
+
+def luminance(c: mi.Vector3f) -> mi.Float:
+    """Rec. 709 luminance of linear RGB."""
+    return 0.2126 * c.x + 0.7152 * c.y + 0.0722 * c.z
+
+
+def remove_outliers(color: mi.TensorXf, p: OutlierParams = OutlierParams()) -> mi.TensorXf:
+    """Each pixel's luminance clamped to mean ± k·σ of its (2r+1)² neighbourhood
+    (inside the image, the pixel included), its colour scaled by the same
+    factor (a pixel of luminance <= 0 keeps its colour). Statistics are taken
+    around the centre value, as in :func:`clamp_box`."""
+    height, width = color.shape[0], color.shape[1]
+    c = dr.unravel(mi.Vector3f, color.array)
+    c = dr.select(dr.isfinite(c), c, 0.0)
+    lum = luminance(c)
+    dr.eval(lum)
+    index = dr.arange(mi.UInt32, width * height)
+    x0, y0 = mi.Int32(index % width), mi.Int32(index // width)
+    total, total_sq, count = mi.Float(0.0), mi.Float(0.0), mi.Float(0.0)
+    for dy in range(-p.radius, p.radius + 1):
+        for dx in range(-p.radius, p.radius + 1):
+            x, y = x0 + dx, y0 + dy
+            inside = (x >= 0) & (x < width) & (y >= 0) & (y < height)
+            d = dr.select(inside, dr.gather(mi.Float, lum, mi.UInt32(y * width + x), inside) - lum, 0.0)
+            total += d
+            total_sq += d * d
+            count += dr.select(inside, 1.0, 0.0)
+    mean_offset = total / count
+    sigma = dr.sqrt(dr.maximum(total_sq / count - mean_offset * mean_offset, 0.0))
+    mean = lum + mean_offset
+    clamped = dr.clip(lum, mean - p.k * sigma, mean + p.k * sigma)
+    scale = dr.select(lum > 0.0, clamped / dr.select(lum > 0.0, lum, 1.0), 1.0)
+    return mi.TensorXf(dr.ravel(c * scale), shape=color.shape)
+
+
+#: below this albedo (per channel) demodulation leaves the colour as it is
+ALBEDO_EPSILON = 1e-3
+
+
+def demodulate(color: mi.TensorXf, albedo: mi.TensorXf) -> mi.TensorXf:
+    """``colour / albedo`` per channel, 1 in place of an albedo below
+    :data:`ALBEDO_EPSILON` (background, black surfaces)."""
+    a = albedo.array
+    return mi.TensorXf(color.array / dr.select(a > ALBEDO_EPSILON, a, 1.0), shape=color.shape)
+
+
+def remodulate(color: mi.TensorXf, albedo: mi.TensorXf) -> mi.TensorXf:
+    """The inverse of :func:`demodulate`."""
+    a = albedo.array
+    return mi.TensorXf(color.array * dr.select(a > ALBEDO_EPSILON, a, 1.0), shape=color.shape)

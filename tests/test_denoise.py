@@ -160,17 +160,20 @@ def test_screen_matrix_and_static_reprojection(variant_llvm_ad_rgb, buffers):
     """The world-to-screen matrix sends each pixel's surface point to that pixel;
     so in a static scene every hit reprojects onto itself and the background is invalid."""
     from denoise.filters import reproject
-    from denoise.frames import camera_matrices
+    from denoise.frames import camera_matrices, depth_range
 
     _, _, x, ids = buffers
     h, w = ids.shape
     scene = load_scene(ROOT / "scenes" / "showcase.txt")
-    _, screen = camera_matrices(scene.camera, w, h)
     hit = ids >= 0
+    camera, screen = camera_matrices(scene.camera, w, h, *depth_range(scene.camera, x[hit]))
     p = np.concatenate([x[hit], np.ones((hit.sum(), 1))], 1) @ screen.T
     pixels = np.floor(p[:, :2] / p[:, 3:])
     rows, cols = np.nonzero(hit)
     assert np.mean((pixels[:, 0] == cols) & (pixels[:, 1] == rows)) > 0.999
+    # the course's convention: depth into (0, 1), w = the camera's depth
+    assert np.all((p[:, 2] / p[:, 3] > 0) & (p[:, 2] / p[:, 3] < 1))
+    assert np.allclose(screen[3], camera[2])
     objects = [np.eye(4)] * len(scene.objects)
     index, valid = reproject(*tensors(x, ids, ids), objects, objects, screen)
     index, valid = np.array(index), np.array(valid)
@@ -180,19 +183,55 @@ def test_screen_matrix_and_static_reprojection(variant_llvm_ad_rgb, buffers):
 
 
 def test_frame_folder_round_trip(tmp_path):
+    from core.errors import FrameError
     from denoise.frames import FrameData, read_frame, write_frame
 
     rng = np.random.default_rng(2)
     frame = FrameData(rng.random((4, 5, 3)), rng.random((4, 5, 3)), rng.random((4, 5, 3)), rng.random((4, 5)),
-                      rng.integers(-1, 3, (4, 5)), [np.eye(4), np.diag([2.0, 2, 2, 1])], np.eye(4) * 3, np.eye(4) * 4)
+                      rng.integers(-1, 2, (4, 5)), [np.eye(4), np.diag([2.0, 2, 2, 1])], np.eye(4) * 3, np.eye(4) * 4)
     write_frame(tmp_path, 0, frame)
     back = read_frame(tmp_path, 0)
     assert np.allclose(back.beauty, frame.beauty, atol=1e-6) and np.array_equal(back.ids, frame.ids)
     assert np.allclose(back.object_to_world[1], frame.object_to_world[1])
     assert np.allclose(back.world_to_screen, frame.world_to_screen)
     (tmp_path / "matrix_0.mat").write_bytes(b"\x02\x00\x00\x00")
-    with pytest.raises(ValueError, match="expected 260 bytes for 2 objects"):
+    with pytest.raises(FrameError, match="expected 260 bytes for 2 objects"):
         read_frame(tmp_path, 0)
+
+
+GAMES202_BOX = ROOT.parent / "shared" / "games202" / "box"
+
+
+def course_z_over_w(screen, points):
+    p = np.concatenate([points, np.ones((len(points), 1))], 1) @ screen.T
+    return p[:, 2] / p[:, 3]
+
+
+@pytest.mark.skipif(not GAMES202_BOX.is_dir(), reason="the course's example frames are not beside the checkout")
+def test_course_example_frames_read_and_reproject(variant_llvm_ad_rgb):
+    """The course framework's own frames (GAMES202 box): our reader takes them,
+    their world-to-screen follows the convention of denoise/frames.py (pixel
+    centres at i + 0.5, w = camera depth, z/w in (0, 1)), and our back
+    projection keeps >= 99 % of the visible pixels' history between
+    consecutive frames."""
+    from denoise.filters import reproject
+    from denoise.frames import read_frame
+
+    frames = [read_frame(GAMES202_BOX, i) for i in range(4)]
+    for f in frames:
+        hit = f.ids >= 0
+        z = course_z_over_w(f.world_to_screen, f.position[hit])
+        assert np.all((z > 0) & (z < 1))
+        p = np.concatenate([f.position[hit], np.ones((hit.sum(), 1))], 1) @ f.world_to_screen.T
+        rows, cols = np.nonzero(hit)
+        assert np.mean((np.floor(p[:, 0] / p[:, 3]) == cols) & (np.floor(p[:, 1] / p[:, 3]) == rows)) > 0.99
+        assert np.allclose(f.world_to_screen[3], f.world_to_camera[2], atol=1e-4)
+        assert np.allclose((p[:, 3]), f.depth[hit], rtol=1e-3)  # w is the depth buffer's value
+    for before, after in zip(frames, frames[1:]):
+        index, valid = reproject(*tensors(after.position, after.ids, before.ids), after.object_to_world,
+                                 before.object_to_world, before.world_to_screen)
+        hit = after.ids.ravel() >= 0
+        assert np.array(valid)[hit].mean() >= 0.99
 
 
 DIFFUSE_SCENE = """
@@ -232,10 +271,21 @@ def test_reprojection_of_the_ground_truth(variant_llvm_ad_rgb, tmp_path, motion)
     before, after = read_frame(target, 0), read_frame(target, 1)
     truth = [np.stack([read_exr(reference_folder(target) / f"beauty_{i}.exr")[c] for c in "RGB"], -1)
              for i in (0, 1)]
+    for f in (before, after):  # the course's matrix convention (see test_course_example_frames_...)
+        z = course_z_over_w(f.world_to_screen, f.position[f.ids >= 0])
+        assert np.all((z > 0) & (z < 1))
+        assert np.allclose(f.world_to_screen[3], f.world_to_camera[2], atol=1e-4)
+    # every point of the new frame that keeps its history lies in (0, 1) of the old one too
     index, valid = reproject(*tensors(after.position, after.ids, before.ids), after.object_to_world,
                              before.object_to_world, before.world_to_screen)
     index, valid = np.array(index), np.array(valid)
     assert valid.mean() > 0.5  # the rest is sky or newly visible
+    moved = [np.linalg.inv(after.object_to_world[k]) for k in range(len(after.object_to_world))]
+    kept = valid.reshape(after.ids.shape)
+    world_before = np.stack([(before.object_to_world[k] @ moved[k] @ np.append(p, 1))[:3]
+                             for p, k in zip(after.position[kept], after.ids[kept])])
+    z = course_z_over_w(before.world_to_screen, world_before)
+    assert np.all((z > 0) & (z < 1))
     warped = truth[0].reshape(-1, 3)[index][valid]
     assert relmse(warped, truth[1].reshape(-1, 3)[valid]) <= 1e-3
     assert relmse(truth[0].reshape(-1, 3)[valid], truth[1].reshape(-1, 3)[valid]) > 1e-3  # it did move
