@@ -263,7 +263,7 @@ def test_reprojection_of_the_ground_truth(variant_llvm_ad_rgb, tmp_path, motion)
     (tmp_path / "diffuse.txt").write_text(DIFFUSE_SCENE)
     moves = {"camera": dict(camera={"orbit": {"center": [0, 0.5, 0], "degrees": 4}, "pan": [0.2, 0, 0]}),
              "object": dict(objects={"2": {"translate": [-0.3, 0, 0.2]}})}[motion]
-    spec = Spec(scene=str(tmp_path / "diffuse.txt"), frames=2, size=(96, 64), spp=1, reference_spp=1,
+    spec = Spec(scene=str(tmp_path / "diffuse.txt"), frames=2, size=(96, 64), spp=1, reference_spp=2,
                 bounces=0, shadows=False, jitter=False, **moves)
     target = tmp_path / "seq"
     assert export(spec, target, whitted=True) == [0, 1]
