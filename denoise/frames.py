@@ -28,7 +28,11 @@ Every problem with a folder (a missing, damaged or inconsistent file) is a
 """
 from __future__ import annotations
 
+import os
 import re
+import sys
+import tempfile
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -95,10 +99,36 @@ def _rgb(channels: dict, path: Path) -> np.ndarray:
     return np.stack([channels["R"], channels["G"], channels["B"]], -1)
 
 
+@contextmanager
+def _quiet_stderr():
+    """OpenEXR's C++ core and its binding print their own lines about damaged
+    files on file descriptors 1 and 2; they are held back (the FrameError
+    says it in one line)."""
+    sys.stdout.flush()
+    sys.stderr.flush()
+    try:
+        saved = [os.dup(1), os.dup(2)]
+    except OSError:
+        yield
+        return
+    with tempfile.TemporaryFile() as sink:
+        os.dup2(sink.fileno(), 1)
+        os.dup2(sink.fileno(), 2)
+        try:
+            yield
+        finally:
+            sys.stdout.flush()
+            sys.stderr.flush()
+            for fd, copy in zip((1, 2), saved):
+                os.dup2(copy, fd)
+                os.close(copy)
+
+
 def _read_exr(path: Path) -> dict:
     """The EXR's channels; a damaged file is a FrameError naming it."""
     try:
-        channels = read_exr(path)
+        with _quiet_stderr():
+            channels = read_exr(path)
     except FileNotFoundError:
         raise
     except Exception as error:  # OpenEXR reports damage as RuntimeError/OSError without the name

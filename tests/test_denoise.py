@@ -292,8 +292,10 @@ def test_reprojection_of_the_ground_truth(variant_llvm_ad_rgb, tmp_path, motion)
 
 
 def test_denoise_command_and_benchmark_quick(variant_llvm_ad_rgb, tmp_path):
-    """The quick benchmark renders both sequences small, runs every method (OIDN
-    included) and writes finite numbers; `python -m denoise` writes one result per frame."""
+    """The quick benchmark renders the hard sequence small, runs every method
+    (OIDN included), times them, and writes finite numbers with the new
+    figures; `python -m denoise` writes one result per frame, PNG previews and
+    a video."""
     import json
 
     from benchmarks import denoise as bench
@@ -301,15 +303,94 @@ def test_denoise_command_and_benchmark_quick(variant_llvm_ad_rgb, tmp_path):
     from imaging.image_io import read_exr
 
     out = tmp_path / "dn.json"
-    assert bench.main(["--quick", "--json", str(out), "--work", str(tmp_path / "work")]) == 0
+    assert bench.main(["--quick", "--json", str(out), "--work", str(tmp_path / "work"),
+                       "--sequences", "glossy_shadow"]) == 0
     results = json.loads(out.read_text())
     assert {r["method"] for r in results["results"]} == set(bench.METHODS)
     assert all(np.isfinite([r["relmse"], r["flip"], r["ms"]]).all() for r in results["results"])
-    for sequence in {r["sequence"] for r in results["results"]}:
-        last = {r["method"]: r["relmse"] for r in results["results"] if r["sequence"] == sequence and r["frame"] == 3}
-        assert last["atrous+temporal"] < last["raw"] / 2  # it denoises
-    folder = next(p for p in sorted((tmp_path / "work").iterdir()) if not p.name.endswith("_reference"))
-    assert denoise_main([str(folder), str(tmp_path / "results"), "--method", "atrous"]) == 0
+    assert all((r["temporal"] is None) == (r["frame"] == 0) for r in results["results"])
+    sequence = results["sequences"][0]
+    assert np.isfinite(sequence["reference_noise"]) and sequence["reference_noise"] > 0
+    assert set(sequence["stability"]) == set(bench.METHODS)
+    assert set(results["timing"]["ms"]) == set(bench.METHODS) - {"raw"}
+    last = {r["method"]: r["relmse"] for r in results["results"] if r["frame"] == 3}
+    assert last["atrous+temporal"] < last["raw"] / 2  # it denoises
+    folder = tmp_path / "work" / "glossy_shadow_quick"
+    video = tmp_path / "den.mp4"
+    assert denoise_main([str(folder), str(tmp_path / "results"), "--method", "svgf", "--png", "--video", str(video),
+                         "--reference", str(folder.parent / "glossy_shadow_quick_reference")]) == 0
     results = sorted((tmp_path / "results").glob("result_*.exr"))
-    assert len(results) == 4
+    assert len(results) == 4 and len(list((tmp_path / "results").glob("result_*.png"))) == 4
     assert all(np.isfinite(np.stack(list(read_exr(p).values()))).all() for p in results)
+    import imageio.v2 as imageio
+
+    frames = imageio.mimread(video)
+    assert len(frames) == 4 and frames[0].shape[1] == 3 * 96  # input | output | reference
+
+
+@pytest.mark.parametrize("flags, message", [
+    (["--levels", "31"], "levels must be a whole number from 1 to 12"),
+    (["--radius", "-5"], "radius must be a whole number from 0 to 64"),
+    (["--alpha", "2"], "alpha (the current frame's weight) must be in (0, 1]"),
+    (["--alpha", "0"], "alpha"),
+    (["--k", "-1"], "k (the history clamp"),
+    (["--sigma-color", "0"], "sigma_color must be a finite number > 0"),
+    (["--sigma-plane", "-1"], "sigma_plane"),
+    (["--sigma-coord", "inf"], "sigma_coord"),
+    (["--outliers", "-1"], "outlier removal: k"),
+    (["--method", "svgf", "--sigma-luminance", "nan"], "sigma_luminance"),
+    (["--video", "out.gif"], "name it .mp4"),
+])
+def test_denoise_rejects_bad_parameters(tmp_path, capsys, flags, message):
+    """Each out-of-range parameter: one line, exit 2, before any frame is read."""
+    from denoise.__main__ import main
+
+    assert main([str(tmp_path / "none"), str(tmp_path / "out")] + flags) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("python -m denoise: error: ") and message in err
+
+
+def _small_folder(folder, count=2, size=(5, 4), objects=1):
+    from denoise.frames import FrameData, write_frame
+
+    rng = np.random.default_rng(4)
+    h, w = size[1], size[0]
+    for i in range(count):
+        write_frame(folder, i, FrameData(rng.random((h, w, 3)), rng.random((h, w, 3)), rng.random((h, w, 3)),
+                                         rng.random((h, w)), np.zeros((h, w), np.int32), [np.eye(4)] * objects,
+                                         np.eye(4), np.eye(4)))
+
+
+@pytest.mark.parametrize("damage, message", [
+    (lambda f: (f / "normal_1.exr").write_bytes(b"not an exr"), "normal_1.exr: not a readable EXR"),
+    (lambda f: (f / "beauty_1.exr").write_bytes((f / "beauty_1.exr").read_bytes()[:300]), "beauty_1.exr"),
+    (lambda f: _small_folder_one(f, 1, size=(6, 4)), "beauty_1.exr: 6x4 pixels, but frame 0 has 5x4"),
+    (lambda f: _write_ids(f, 1, 3), "ID_1.exr: object id 3, but matrix_1.mat has matrices for 1 objects"),
+    (lambda f: _write_ids(f, 0, 0.5), "ID_0.exr: object ids must be whole numbers"),
+    (lambda f: (f / "position_0.exr").unlink(), "frame 0 lacks position_0.exr"),
+    (lambda f: (f / "matrix_1.mat").write_bytes(b"\x01\x00"), "matrix_1.mat: expected an int32 object count"),
+])
+def test_denoise_rejects_bad_frames(variant_llvm_ad_rgb, tmp_path, capsys, damage, message):
+    """Damaged or inconsistent frame folders: one line naming the file, exit 2."""
+    from denoise.__main__ import main
+
+    folder = tmp_path / "frames"
+    _small_folder(folder)
+    damage(folder)
+    assert main([str(folder), str(tmp_path / "out"), "--radius", "1"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and message in err, err
+
+
+def _small_folder_one(folder, index, size):
+    from denoise.frames import FrameData, write_frame
+
+    h, w = size[1], size[0]
+    write_frame(folder, index, FrameData(np.ones((h, w, 3)), np.ones((h, w, 3)), np.ones((h, w, 3)), np.ones((h, w)),
+                                         np.zeros((h, w), np.int32), [np.eye(4)], np.eye(4), np.eye(4)))
+
+
+def _write_ids(folder, index, value):
+    from imaging.image_io import write_exr
+
+    write_exr(folder / f"ID_{index}.exr", {"": np.full((4, 5), value, np.float32)})
