@@ -136,9 +136,28 @@ def edge_log_weight(coefficients: tuple[float, float, float], color_i, normal_i,
     distance of 0, not 0/0."""
     k_color, k_normal, k_plane = coefficients
     d_color = dr.squared_norm(color_i - color_j)
-    d_normal = dr.square(dr.acos(dr.clip(dr.dot(normal_i, normal_j), -1.0, 1.0)))
-    d_plane = dr.square(dr.dot(normal_i, _safe_normalize(position_j - position_i)))
-    return d_color * k_color + d_normal * k_normal + d_plane * k_plane
+    d_normal = dr.square(fast_acos(dr.dot(normal_i, normal_j)))
+    return d_color * k_color + d_normal * k_normal + plane_distance_sq(normal_i, position_i, position_j) * k_plane
+
+
+def plane_distance_sq(normal_i: mi.Vector3f, position_i: mi.Vector3f, position_j: mi.Vector3f) -> mi.Float:
+    """``(n_i · (x_j - x_i) / |x_j - x_i|)²`` as one division, without the square
+    root of a normalisation; 0 for identical positions (not 0/0)."""
+    d = position_j - position_i
+    length_sq = dr.squared_norm(d)
+    return dr.select(length_sq > 0.0, dr.square(dr.dot(normal_i, d)) / dr.select(length_sq > 0.0, length_sq, 1.0), 0.0)
+
+
+def fast_acos(x: mi.Float) -> mi.Float:
+    """``arccos`` of ``x`` clipped to [-1, 1]: Abramowitz & Stegun 4.4.46
+    (``sqrt(1 - |x|)`` times a degree-7 polynomial, |error| <= 2e-8 rad, float32
+    rounding aside), about half the cost of ``dr.acos``."""
+    a = dr.minimum(dr.abs(x), 1.0)
+    p = mi.Float(-0.0012624911)
+    for c in (0.0066700901, -0.0170881256, 0.0308918810, -0.0501743046, 0.0889789874, -0.2145988016, 1.5707963050):
+        p = dr.fma(p, a, c)
+    r = dr.sqrt(1.0 - a) * p
+    return dr.select(x < 0.0, dr.pi - r, r)
 
 
 def _coefficients(p: EdgeWeights, sigma_color: float) -> tuple[float, float, float]:
@@ -279,22 +298,46 @@ def reproject(position: mi.TensorXf, ids: mi.TensorXf, prev_ids: mi.TensorXf, ob
 def clamp_box(color: mi.TensorXf, radius: int = 3) -> tuple[mi.Vector3f, mi.Vector3f]:
     """Mean and standard deviation of each pixel's (2r+1)^2 neighbourhood (inside
     the image), computed around the centre value so that HDR values with small
-    noise do not cancel (no negative variance)."""
+    noise do not cancel (no negative variance).
+
+    Separable: a horizontal pass sums ``c_q - c_r`` and ``(c_q - c_r)²`` along
+    each row around ``r``; the vertical pass moves those sums to the centre
+    ``p`` with ``Σ(c_q - c_p) = Σ(c_q - c_r) + n (c_r - c_p)`` and
+    ``Σ(c_q - c_p)² = Σ(c_q - c_r)² + 2 (c_r - c_p) Σ(c_q - c_r) + n (c_r - c_p)²``,
+    so every term stays a difference: 2 (2r+1) taps instead of (2r+1)²."""
     height, width = color.shape[0], color.shape[1]
     c = dr.unravel(mi.Vector3f, color.array)
     c4 = pack(c)
     index = dr.arange(mi.UInt32, width * height)
     x0, y0 = mi.Int32(index % width), mi.Int32(index // width)
+    row_sum, row_sq, row_count = mi.Vector3f(0.0), mi.Vector3f(0.0), mi.Float(0.0)
+    for dx in range(-radius, radius + 1):
+        x = x0 + dx
+        inside = (x >= 0) & (x < width)
+        v = dr.gather(mi.Vector4f, c4, mi.UInt32(y0 * width + x), inside)
+        d = dr.select(inside, mi.Vector3f(v.x, v.y, v.z) - c, 0.0)
+        row_sum += d
+        row_sq += d * d
+        row_count += dr.select(inside, 1.0, 0.0)
+    # one 12-float record per pixel: (c, row sum, row sum of squares, count)
+    rows = dr.ravel(mi.Vector4f(c.x, c.y, c.z, row_count))
+    sums = dr.ravel(mi.Vector4f(row_sum.x, row_sum.y, row_sum.z, 0.0))
+    squares = dr.ravel(mi.Vector4f(row_sq.x, row_sq.y, row_sq.z, 0.0))
+    dr.eval(rows, sums, squares)
     total, total_sq, count = mi.Vector3f(0.0), mi.Vector3f(0.0), mi.Float(0.0)
     for dy in range(-radius, radius + 1):
-        for dx in range(-radius, radius + 1):
-            x, y = x0 + dx, y0 + dy
-            inside = (x >= 0) & (x < width) & (y >= 0) & (y < height)
-            v = dr.gather(mi.Vector4f, c4, mi.UInt32(y * width + x), inside)
-            d = dr.select(inside, mi.Vector3f(v.x, v.y, v.z) - c, 0.0)
-            total += d
-            total_sq += d * d
-            count += dr.select(inside, 1.0, 0.0)
+        y = y0 + dy
+        inside = (y >= 0) & (y < height)
+        j = mi.UInt32(y * width + x0)
+        r = dr.gather(mi.Vector4f, rows, j, inside)
+        s_ = dr.gather(mi.Vector4f, sums, j, inside)
+        q = dr.gather(mi.Vector4f, squares, j, inside)
+        n = r.w
+        offset = mi.Vector3f(r.x, r.y, r.z) - c
+        row_s, row_q = mi.Vector3f(s_.x, s_.y, s_.z), mi.Vector3f(q.x, q.y, q.z)
+        total += dr.select(inside, row_s + n * offset, 0.0)
+        total_sq += dr.select(inside, row_q + 2.0 * offset * row_s + n * offset * offset, 0.0)
+        count += dr.select(inside, n, 0.0)
     mean_offset = total / count
     variance = dr.maximum(total_sq / count - mean_offset * mean_offset, 0.0)
     return c + mean_offset, dr.sqrt(variance)

@@ -28,7 +28,7 @@ from dataclasses import dataclass
 import drjit as dr
 import mitsuba as mi
 
-from .filters import B3, Frame, _inv_two_sigma_sq, _positive, _safe_normalize, _whole, luminance, pack
+from .filters import B3, Frame, _inv_two_sigma_sq, _positive, _whole, luminance, plane_distance_sq
 
 GAUSS3 = (0.25, 0.5, 0.25)
 EPSILON = 1e-10
@@ -84,7 +84,7 @@ def normal_power(cosine: mi.Float, exponent: float) -> mi.Float:
 
 def plane_log_weight(k_plane: float, normal_p: mi.Vector3f, position_p: mi.Vector3f,
                      position_q: mi.Vector3f) -> mi.Float:
-    return dr.square(dr.dot(normal_p, _safe_normalize(position_q - position_p))) * k_plane
+    return plane_distance_sq(normal_p, position_p, position_q) * k_plane
 
 
 def temporal_accumulation(color: mi.Vector3f, history: SVGFHistory | None, index: mi.UInt32 | None,
