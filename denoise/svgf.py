@@ -108,16 +108,23 @@ def temporal_accumulation(color: mi.Vector3f, history: SVGFHistory | None, index
 
 def estimate_variance(frame: Frame, moments: mi.Vector2f, length: mi.Float, p: SVGFParams) -> mi.Float:
     """Variance from the temporal moments, or from 7x7 spatial moments while
-    the history is short."""
+    the history is short. The spatial estimate runs only on the pixels that
+    need it (compressed to a list: after the first frames, disocclusions)."""
     temporal = dr.maximum(moments.y - moments.x * moments.x, 0.0)
     packed = dr.ravel(moments)
-    dr.eval(packed, length)
+    dr.eval(packed, length, temporal)
+    short = dr.compress(length < p.variance_frames)
+    if dr.width(short) == 0:
+        return temporal
+    cx, cy = dr.gather(mi.Int32, frame.x, short), dr.gather(mi.Int32, frame.y, short)
+    normal = dr.gather(mi.Vector3f, frame.normal, short)
+    position = dr.gather(mi.Vector3f, frame.position, short)
     k_plane = _inv_two_sigma_sq(p.sigma_plane)
     total, weights = mi.Vector2f(0.0), mi.Float(0.0)
     r = p.spatial_radius
     for dy in range(-r, r + 1):
         for dx in range(-r, r + 1):
-            x, y = frame.x + dx, frame.y + dy
+            x, y = cx + dx, cy + dy
             inside = (x >= 0) & (x < frame.width) & (y >= 0) & (y < frame.height)
             j = mi.UInt32(y * frame.width + x)
             m = dr.gather(mi.Vector2f, packed, j, inside)
@@ -126,15 +133,18 @@ def estimate_variance(frame: Frame, moments: mi.Vector2f, length: mi.Float, p: S
             else:
                 n_q = frame.gather(frame.normal4, x, y, inside)
                 x_q = frame.gather(frame.position4, x, y, inside)
-                w = normal_power(dr.dot(frame.normal, n_q), p.sigma_normal) * dr.exp(
-                    -plane_log_weight(k_plane, frame.normal, frame.position, x_q))
+                w = normal_power(dr.dot(normal, n_q), p.sigma_normal) * dr.exp(
+                    -plane_log_weight(k_plane, normal, position, x_q))
                 w = dr.select(inside, w, 0.0)
             total += w * m
             weights += w
     spatial_moments = total / weights
     spatial = dr.maximum(spatial_moments.y - spatial_moments.x * spatial_moments.x, 0.0) * (
-        p.variance_frames / length)
-    return dr.select(length < p.variance_frames, spatial, temporal)
+        p.variance_frames / dr.gather(mi.Float, length, short))
+    spread = dr.zeros(mi.Float, dr.width(temporal))
+    dr.scatter(spread, spatial, short)
+    dr.eval(spread)
+    return dr.select(length < p.variance_frames, spread, temporal)
 
 
 def atrous_level(frame: Frame, color: mi.Vector3f, variance: mi.Float, step: int, p: SVGFParams
