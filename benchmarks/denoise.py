@@ -4,9 +4,9 @@
                                  [--no-timing] [--timing-frames N]
 
 Quality: each sequence of ``scenes/sequences/*.json`` is rendered once into
-``--work`` at 320x180 (1-spp path-traced input; a ground truth of 1024 spp
-made of two independently seeded halves; a rerun finds the frames and renders
-nothing). Every method runs over all 8 frames: ``raw`` (the input), the
+``--work`` at 320x180 (1-spp path-traced input; a ground truth of 512 to 1024 spp, see
+``REFERENCE_SPP``, made of two independently seeded halves; a rerun finds the
+frames in ``WORK/NAME_320x180_<spp>spp`` and renders nothing). Every method runs over all 8 frames: ``raw`` (the input), the
 assignment's ``bilateral``, ``atrous``, ``bilateral+temporal``,
 ``atrous+temporal``, our additions ``demod+outliers+atrous+temporal``
 (albedo demodulation and outlier removal around the assignment's filter) and
@@ -51,7 +51,9 @@ METHODS = ("raw", "bilateral", "atrous", "bilateral+temporal", "atrous+temporal"
 #: the hard sequence: the README's still and video
 HARD = "glossy_shadow"
 STILL_METHODS = ("raw", "atrous+temporal", "svgf", "oidn")
-QUALITY = dict(size=(320, 180), frames=8, reference_spp=1024)
+QUALITY = dict(size=(320, 180), frames=8)
+#: ground-truth samples per pixel per sequence (two halves of half as many); --reference-spp overrides
+REFERENCE_SPP = {"dolly_lamps": 1024, "orbit_transforms": 512, "glossy_shadow": 512}
 QUICK = dict(size=(96, 54), frames=4, reference_spp=16)
 TIMING = dict(size=(1280, 720), frames=5, reference_spp=2)
 QUICK_TIMING = dict(size=(160, 90), frames=3, reference_spp=2)
@@ -341,6 +343,9 @@ def main(argv: list[str] | None = None) -> int:
                         help="write docs/denoise/ (JSON, still, video) and the README's denoising results")
     parser.add_argument("--no-timing", action="store_true", help="skip the 1280x720 speed run")
     parser.add_argument("--sequences", nargs="*", metavar="NAME", help="only these sequences")
+    parser.add_argument("--reference-spp", type=int, metavar="N",
+                        help="ground-truth spp for every sequence (default: " +
+                             ", ".join(f"{k} {v}" for k, v in REFERENCE_SPP.items()) + ")")
     args = parser.parse_args(argv)
     import datetime
 
@@ -359,8 +364,12 @@ def main(argv: list[str] | None = None) -> int:
     for spec_path in SEQUENCES:
         if args.sequences and spec_path.stem not in args.sequences:
             continue
-        spec = Spec.load(spec_path, **quality)
-        folder = args.work / (spec_path.stem + suffix)
+        settings = dict(quality)
+        if not args.quick:
+            settings["reference_spp"] = args.reference_spp or REFERENCE_SPP.get(spec_path.stem, 1024)
+        spec = Spec.load(spec_path, **settings)
+        # the folder names its settings: other settings render beside it, never into it
+        folder = args.work / f"{spec_path.stem}_{spec.size[0]}x{spec.size[1]}_{spec.reference_spp}spp{suffix}"
         export(spec, folder)
         outputs = {} if spec_path.stem == HARD else None
         rows, figures = run_sequence(folder, spec_path.stem, outputs=outputs)
@@ -373,7 +382,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{spec_path.stem}: reference noise {figures['reference_noise']:.2e}", file=sys.stderr)
     if not args.no_timing:
         spec_path = SEQUENCES[0]
-        timing_folder = args.work / f"timing_{spec_path.stem}{suffix}"
+        timing_folder = args.work / f"timing_{spec_path.stem}_{timing_size['size'][0]}x{timing_size['size'][1]}{suffix}"
         export(Spec.load(spec_path, **timing_size), timing_folder)
         results["timing"] = {"sequence": spec_path.stem, **run_timing(timing_folder)}
     print(summary(results))

@@ -29,6 +29,7 @@ examples:
 
 def _parser() -> argparse.ArgumentParser:
     from .filters import AtrousLevels, BilateralWindow, EdgeWeights, OutlierParams, TemporalParams
+    from .pipeline import DenoiseOptions
     from .svgf import SVGFParams
 
     edges, window, levels = EdgeWeights(), BilateralWindow(), AtrousLevels()
@@ -58,10 +59,13 @@ def _parser() -> argparse.ArgumentParser:
     group.add_argument("--levels", type=int, default=None,
                        help=f"passes, 1..12 (default {levels.levels} for atrous, {svgf.levels} for svgf)")
     group = parser.add_argument_group("temporal accumulation (bilateral, atrous, oidn)")
-    group.add_argument("--alpha", type=float, default=temporal.alpha,
-                       help=f"weight of the current frame, in (0, 1] (default {temporal.alpha})")
-    group.add_argument("--k", type=float, default=temporal.k,
-                       help=f"clamp the history to the 7x7 mean +- k sigma, k >= 0 (default {temporal.k})")
+    oidn_temporal = DenoiseOptions().oidn_temporal
+    group.add_argument("--alpha", type=float, default=None,
+                       help=f"weight of the current frame, in (0, 1] (default {temporal.alpha}; "
+                            f"{oidn_temporal.alpha} for oidn)")
+    group.add_argument("--k", type=float, default=None,
+                       help=f"clamp the history to the 7x7 mean +- k sigma, k >= 0 (default {temporal.k}; "
+                            f"{oidn_temporal.k} for oidn)")
     group = parser.add_argument_group("svgf")
     group.add_argument("--sigma-luminance", type=float, default=svgf.sigma_luminance,
                        help=f"luminance weight, in standard deviations (default {svgf.sigma_luminance})")
@@ -89,13 +93,16 @@ def options_from(args):
     edges = EdgeWeights(args.sigma_color, args.sigma_normal, args.sigma_plane)
     window = BilateralWindow(args.radius, args.sigma_coord)
     atrous = AtrousLevels(args.levels if args.levels is not None else AtrousLevels().levels)
-    temporal = TemporalParams(alpha=args.alpha, k=args.k)
+    defaults = DenoiseOptions()
+    base = defaults.oidn_temporal if args.method == "oidn" else defaults.temporal_params
+    temporal = TemporalParams(alpha=base.alpha if args.alpha is None else args.alpha,
+                              k=base.k if args.k is None else args.k)
     svgf = SVGFParams(sigma_luminance=args.sigma_luminance, sigma_normal=args.normal_exponent)
     if args.levels is not None:
         svgf = replace(svgf, levels=args.levels)
     return DenoiseOptions(
         method=args.method, temporal=not args.no_temporal, edges=edges, window=window, atrous=atrous,
-        temporal_params=temporal, svgf=svgf,
+        temporal_params=temporal, oidn_temporal=temporal, svgf=svgf,
         outliers=OutlierParams(k=args.outliers) if args.outliers is not None else None,
         demodulate=args.demodulate or args.method == "svgf")
 

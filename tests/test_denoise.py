@@ -315,10 +315,10 @@ def test_denoise_command_and_benchmark_quick(variant_llvm_ad_rgb, tmp_path):
     assert set(results["timing"]["ms"]) == set(bench.METHODS) - {"raw"}
     last = {r["method"]: r["relmse"] for r in results["results"] if r["frame"] == 3}
     assert last["atrous+temporal"] < last["raw"] / 2  # it denoises
-    folder = tmp_path / "work" / "glossy_shadow_quick"
+    folder = tmp_path / "work" / "glossy_shadow_96x54_16spp_quick"
     video = tmp_path / "den.mp4"
     assert denoise_main([str(folder), str(tmp_path / "results"), "--method", "svgf", "--png", "--video", str(video),
-                         "--reference", str(folder.parent / "glossy_shadow_quick_reference")]) == 0
+                         "--reference", str(folder.parent / "glossy_shadow_96x54_16spp_quick_reference")]) == 0
     results = sorted((tmp_path / "results").glob("result_*.exr"))
     assert len(results) == 4 and len(list((tmp_path / "results").glob("result_*.png"))) == 4
     assert all(np.isfinite(np.stack(list(read_exr(p).values()))).all() for p in results)
