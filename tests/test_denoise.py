@@ -234,6 +234,21 @@ def test_course_example_frames_read_and_reproject(variant_llvm_ad_rgb):
         assert np.array(valid)[hit].mean() >= 0.99
 
 
+def test_the_convention_check_fails_on_the_old_matrices(variant_llvm_ad_rgb, buffers):
+    """The z/w check above catches the old export, whose depth row copied the w
+    row (z/w = 1 everywhere, which the course's solutions reject)."""
+    from denoise.frames import camera_matrices, depth_range
+
+    _, _, x, ids = buffers
+    scene = load_scene(ROOT / "scenes" / "showcase.txt")
+    hit = ids >= 0
+    camera, screen = camera_matrices(scene.camera, ids.shape[1], ids.shape[0], *depth_range(scene.camera, x[hit]))
+    old = screen.copy()
+    old[2] = old[3]
+    z = course_z_over_w(old, x[hit])
+    assert not np.all((z > 0) & (z < 1))
+
+
 DIFFUSE_SCENE = """
 PerspectiveCamera { center 0 2 7 direction 0 -0.25 -1 up 0 1 0 angle 40 }
 Lights { numLights 1 DirectionalLight { direction -0.3 -1 -0.4 color 0.8 0.8 0.8 } }
