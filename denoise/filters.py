@@ -140,6 +140,11 @@ def edge_log_weight(coefficients: tuple[float, float, float], color_i, normal_i,
     return d_color * k_color + d_normal * k_normal + plane_distance_sq(normal_i, position_i, position_j) * k_plane
 
 
+def neg_exp(x: mi.Float) -> mi.Float:
+    """``exp(-x)`` as ``exp2(-x log2 e)``: Dr.Jit's exp2 is the cheaper kernel."""
+    return dr.exp2(x * -1.4426950408889634)
+
+
 def plane_distance_sq(normal_i: mi.Vector3f, position_i: mi.Vector3f, position_j: mi.Vector3f) -> mi.Float:
     """``(n_i · (x_j - x_i) / |x_j - x_i|)²`` as one division, without the square
     root of a normalisation; 0 for identical positions (not 0/0)."""
@@ -183,9 +188,13 @@ class Frame:
         self.x = mi.Int32(index % self.width)
         self.y = mi.Int32(index // self.width)
 
-    def gather(self, packed: mi.Float, x: mi.Int32, y: mi.Int32, active) -> mi.Vector3f:
-        """The value at (x, y) of an image packed by :func:`pack`."""
-        v = dr.gather(mi.Vector4f, packed, mi.UInt32(y * self.width + x), active)
+    def gather(self, packed: mi.Float, x: mi.Int32, y: mi.Int32, active=None) -> mi.Vector3f:
+        """The value at (x, y) of an image packed by :func:`pack`, (x, y)
+        clamped to the image: an unmasked gather is cheaper than a masked one,
+        and every caller gives taps outside the image the weight 0 anyway."""
+        x = dr.clip(x, 0, self.width - 1)
+        y = dr.clip(y, 0, self.height - 1)
+        v = dr.gather(mi.Vector4f, packed, mi.UInt32(y * self.width + x))
         return mi.Vector3f(v.x, v.y, v.z)
 
     def tensor(self, color: mi.Vector3f) -> mi.TensorXf:
@@ -215,7 +224,7 @@ def joint_bilateral(frame: Frame, p: EdgeWeights = EdgeWeights(), window: Bilate
                  + edge_log_weight(coefficients, frame.color, frame.normal, frame.position, color_j,
                                    frame.gather(frame.normal4, x, y, inside),
                                    frame.gather(frame.position4, x, y, inside)))
-        w = dr.select(inside, dr.exp(-log_w), 0.0)
+        w = dr.select(inside, neg_exp(log_w), 0.0)
         total += w * color_j
         weights += w
         k += 1
@@ -247,7 +256,7 @@ def atrous(frame: Frame, p: EdgeWeights = EdgeWeights(), levels: AtrousLevels | 
                     log_w = edge_log_weight(coefficients, color, frame.normal, frame.position, color_j,
                                             frame.gather(frame.normal4, x, y, inside),
                                             frame.gather(frame.position4, x, y, inside))
-                    w = dr.select(inside, hx * hy * dr.exp(-log_w), 0.0)
+                    w = dr.select(inside, hx * hy * neg_exp(log_w), 0.0)
                 total += w * color_j
                 weights += w
         color = total / weights
@@ -314,7 +323,7 @@ def clamp_box(color: mi.TensorXf, radius: int = 3) -> tuple[mi.Vector3f, mi.Vect
     for dx in range(-radius, radius + 1):
         x = x0 + dx
         inside = (x >= 0) & (x < width)
-        v = dr.gather(mi.Vector4f, c4, mi.UInt32(y0 * width + x), inside)
+        v = dr.gather(mi.Vector4f, c4, mi.UInt32(y0 * width + dr.clip(x, 0, width - 1)))
         d = dr.select(inside, mi.Vector3f(v.x, v.y, v.z) - c, 0.0)
         row_sum += d
         row_sq += d * d
@@ -328,10 +337,10 @@ def clamp_box(color: mi.TensorXf, radius: int = 3) -> tuple[mi.Vector3f, mi.Vect
     for dy in range(-radius, radius + 1):
         y = y0 + dy
         inside = (y >= 0) & (y < height)
-        j = mi.UInt32(y * width + x0)
-        r = dr.gather(mi.Vector4f, rows, j, inside)
-        s_ = dr.gather(mi.Vector4f, sums, j, inside)
-        q = dr.gather(mi.Vector4f, squares, j, inside)
+        j = mi.UInt32(dr.clip(y, 0, height - 1) * width + x0)  # clamped, unmasked; outside rows are selected away
+        r = dr.gather(mi.Vector4f, rows, j)
+        s_ = dr.gather(mi.Vector4f, sums, j)
+        q = dr.gather(mi.Vector4f, squares, j)
         n = r.w
         offset = mi.Vector3f(r.x, r.y, r.z) - c
         row_s, row_q = mi.Vector3f(s_.x, s_.y, s_.z), mi.Vector3f(q.x, q.y, q.z)

@@ -28,7 +28,7 @@ from dataclasses import dataclass
 import drjit as dr
 import mitsuba as mi
 
-from .filters import B3, Frame, _inv_two_sigma_sq, _positive, _whole, luminance, plane_distance_sq
+from .filters import B3, Frame, _inv_two_sigma_sq, _positive, _whole, luminance, neg_exp, plane_distance_sq
 
 GAUSS3 = (0.25, 0.5, 0.25)
 EPSILON = 1e-10
@@ -126,15 +126,15 @@ def estimate_variance(frame: Frame, moments: mi.Vector2f, length: mi.Float, p: S
         for dx in range(-r, r + 1):
             x, y = cx + dx, cy + dy
             inside = (x >= 0) & (x < frame.width) & (y >= 0) & (y < frame.height)
-            j = mi.UInt32(y * frame.width + x)
-            m = dr.gather(mi.Vector2f, packed, j, inside)
+            j = mi.UInt32(dr.clip(y, 0, frame.height - 1) * frame.width + dr.clip(x, 0, frame.width - 1))
+            m = dr.gather(mi.Vector2f, packed, j)  # clamped, unmasked: outside taps weigh 0
             if dx == 0 and dy == 0:
                 w = mi.Float(1.0)
             else:
                 n_q = frame.gather(frame.normal4, x, y, inside)
                 x_q = frame.gather(frame.position4, x, y, inside)
-                w = normal_power(dr.dot(normal, n_q), p.sigma_normal) * dr.exp(
-                    -plane_log_weight(k_plane, normal, position, x_q))
+                w = normal_power(dr.dot(normal, n_q), p.sigma_normal) * neg_exp(
+                    plane_log_weight(k_plane, normal, position, x_q))
                 w = dr.select(inside, w, 0.0)
             total += w * m
             weights += w
@@ -168,7 +168,8 @@ def atrous_level(frame: Frame, color: mi.Vector3f, variance: mi.Float, step: int
             dx, dy = (i - 2) * step, (j - 2) * step
             x, y = frame.x + dx, frame.y + dy
             inside = (x >= 0) & (x < frame.width) & (y >= 0) & (y < frame.height)
-            q = dr.gather(mi.Vector4f, packed, mi.UInt32(y * frame.width + x), inside)
+            q = dr.gather(mi.Vector4f, packed, mi.UInt32(dr.clip(y, 0, frame.height - 1) * frame.width
+                                                         + dr.clip(x, 0, frame.width - 1)))
             c_q = mi.Vector3f(q.x, q.y, q.z)
             if dx == 0 and dy == 0:
                 w = mi.Float(hx * hy)
@@ -177,7 +178,7 @@ def atrous_level(frame: Frame, color: mi.Vector3f, variance: mi.Float, step: int
                 x_q = frame.gather(frame.position4, x, y, inside)
                 log_w = dr.abs(lum_p - luminance(c_q)) * scale - plane_log_weight(
                     k_plane, frame.normal, frame.position, x_q)
-                w = hx * hy * normal_power(dr.dot(frame.normal, n_q), p.sigma_normal) * dr.exp(log_w)
+                w = hx * hy * normal_power(dr.dot(frame.normal, n_q), p.sigma_normal) * neg_exp(-log_w)
                 w = dr.select(inside, w, 0.0)
             total += w * c_q
             weights += w
