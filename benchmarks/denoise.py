@@ -61,6 +61,8 @@ QUICK_TIMING = dict(size=(160, 90), frames=3, reference_spp=2)
 REFERENCE_NOISE_BAR = 0.1
 #: per-frame time as a fraction of OIDN's execute time (issue 9's speed bars)
 SPEED_BARS = {"atrous+temporal": 0.2, "svgf": 0.3, "bilateral": 2.0}
+#: the methods timed at 1280x720 (the bars' methods and OIDN)
+TIMED = ("oidn", "atrous+temporal", "svgf", "bilateral")
 
 
 class RawMethod:
@@ -158,7 +160,7 @@ def run_sequence(folder: Path, name: str, methods=METHODS, outputs: dict | None 
     return rows, figures
 
 
-def run_timing(folder: Path, methods=METHODS) -> dict:
+def run_timing(folder: Path, methods=TIMED) -> dict:
     """Per-frame milliseconds (median after a warm-up frame) of every method
     on ``folder``'s frames, OIDN by its execute call alone."""
     import drjit as dr
