@@ -94,24 +94,6 @@ class OutlierParams:
         _whole("outlier removal", "radius", self.radius, 1, 16)
 
 
-#: for compatibility: the old all-in-one parameter set of the assignment's filters
-@dataclass(frozen=True)
-class BilateralParams:
-    sigma_coord: float = 32.0
-    sigma_color: float = 0.6
-    sigma_normal: float = 0.1
-    sigma_plane: float = 0.1
-    radius: int = 16
-
-    @property
-    def edges(self) -> EdgeWeights:
-        return EdgeWeights(self.sigma_color, self.sigma_normal, self.sigma_plane)
-
-    @property
-    def window(self) -> BilateralWindow:
-        return BilateralWindow(self.radius, self.sigma_coord)
-
-
 def _inv_two_sigma_sq(sigma: float) -> float:
     # sigma -> 0 means "only identical values": a huge but finite factor keeps exp() at 0, not NaN
     return 1.0 / max(2.0 * sigma * sigma, 1e-30)
@@ -205,8 +187,6 @@ class Frame:
 def joint_bilateral(frame: Frame, p: EdgeWeights = EdgeWeights(), window: BilateralWindow = BilateralWindow()
                     ) -> mi.TensorXf:
     """The assignment's joint bilateral filter over a (2r+1)^2 window."""
-    if isinstance(p, BilateralParams):
-        p, window = p.edges, p.window
     r = window.radius
     side = 2 * r + 1
     k_coord = _inv_two_sigma_sq(window.sigma_coord)  # plain floats: not loop state
@@ -235,8 +215,6 @@ def atrous(frame: Frame, p: EdgeWeights = EdgeWeights(), levels: AtrousLevels | 
     """The À-Trous wavelet: ``levels`` passes of a 5x5 B3-spline kernel with
     holes (step 2^i), each with the bilateral edge-stopping weights; the
     colour sigma halves from one level to the next."""
-    if isinstance(p, BilateralParams):
-        p = p.edges
     count = levels.levels if isinstance(levels, AtrousLevels) else AtrousLevels(levels).levels
     color = frame.color
     for level in range(count):

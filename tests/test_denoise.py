@@ -121,21 +121,21 @@ def close(ours, reference):
 
 # -- tests ---------------------------------------------------------------------------
 def test_joint_bilateral_matches_numpy(variant_llvm_ad_rgb, buffers):
-    from denoise.filters import BilateralParams, Frame, joint_bilateral
+    from denoise.filters import BilateralWindow, EdgeWeights, Frame, joint_bilateral
 
     c, n, x, _ = buffers
-    p = BilateralParams(sigma_coord=3.0, sigma_color=0.6, sigma_normal=0.3, sigma_plane=0.3, radius=4)
-    ours = np.array(joint_bilateral(Frame(*tensors(c, n, x)), p))
+    p = EdgeWeights(sigma_color=0.6, sigma_normal=0.3, sigma_plane=0.3)
+    ours = np.array(joint_bilateral(Frame(*tensors(c, n, x)), p, BilateralWindow(radius=4, sigma_coord=3.0)))
     reference = np_bilateral(c, n, x, 4, 3.0, 0.6, 0.3, 0.3)
     assert close(ours, reference) < 1e-4
     assert np.abs(np.diff(ours, axis=1)).mean() < np.abs(np.diff(c, axis=1)).mean()  # it smooths
 
 
 def test_atrous_matches_numpy(variant_llvm_ad_rgb, buffers):
-    from denoise.filters import BilateralParams, Frame, atrous
+    from denoise.filters import EdgeWeights, Frame, atrous
 
     c, n, x, _ = buffers
-    p = BilateralParams(sigma_color=0.6, sigma_normal=0.3, sigma_plane=0.3)
+    p = EdgeWeights(sigma_color=0.6, sigma_normal=0.3, sigma_plane=0.3)
     ours = np.array(atrous(Frame(*tensors(c, n, x)), p, levels=3))
     assert close(ours, np_atrous(c, n, x, 3, 0.6, 0.3, 0.3)) < 1e-4
 
