@@ -1,22 +1,39 @@
-"""Denoising quality and speed on our animated sequences, beside Intel Open Image Denoise.
+"""Denoising quality, temporal stability and speed on our animated sequences, beside Intel Open Image Denoise.
 
-    python -m benchmarks.denoise [--json PATH] [--quick] [--video PATH] [--work DIR]
+    python -m benchmarks.denoise [--json PATH] [--quick] [--readme] [--work DIR]
+                                 [--no-timing] [--timing-frames N]
 
-For each sequence of ``scenes/sequences/*.json`` (rendered once into
-``--work``, 1 spp path-traced input, converged ground truth), each method
-runs over all frames: ``raw`` (the input), ``bilateral``, ``atrous``,
-``bilateral+temporal``, ``atrous+temporal`` (ours, Dr.Jit) and ``oidn`` (Intel
-Open Image Denoise with albedo and normals, spatial only, through the ``oidn``
-package). Per frame: relMSE and FLIP against the ground truth and
-milliseconds (after one warm-up frame). JSON: ``{"sequences": [...],
-"results": [{"sequence", "method", "frame", "relmse", "flip", "ms"}]}``.
-``--video`` writes one sequence as input | atrous+temporal | ground truth.
+Quality: each sequence of ``scenes/sequences/*.json`` is rendered once into
+``--work`` at 320x180 (1-spp path-traced input; a ground truth of 512 to 1024 spp, see
+``REFERENCE_SPP``, made of two independently seeded halves; a rerun finds the
+frames in ``WORK/NAME_320x180_<spp>spp`` and renders nothing). Every method runs over all 8 frames: ``raw`` (the input), the
+assignment's ``bilateral``, ``atrous``, ``bilateral+temporal``,
+``atrous+temporal``, our additions ``demod+outliers+atrous+temporal``
+(albedo demodulation and outlier removal around the assignment's filter) and
+``svgf``, and Intel Open Image Denoise (HDR mode, albedo and normals as clean
+auxiliary images, one committed filter per sequence) alone (``oidn``) and
+after our temporal accumulation (``oidn+temporal``). Per frame: relMSE and
+FLIP against the ground truth, milliseconds, and ``temporal``: the relMSE
+between the output and the previous output back-projected onto it.
+
+The reference's own noise, relMSE(half_a, half_b) / 4 averaged over the
+frames, is printed per sequence and must be at most 10 % of the best method's
+mean relMSE, or the run fails (exit 1): a noisier ground truth cannot rank
+the methods. Temporal stability per method is the mean of ``temporal`` over
+the frames divided by the same figure for the ground truth (1 = as stable as
+the truth).
+
+Speed: one sequence rendered at 1280x720 (input only) and every method timed
+per frame in the same run (llvm_ad_rgb, median after a warm-up frame), OIDN
+by its execute call only; the ratios to OIDN are the speed bars.
+
+JSON: ``{"sequences": [{..., "reference_noise", "reference_temporal",
+"stability": {method: figure}}], "results": [{"sequence", "method", "frame",
+"relmse", "flip", "ms", "temporal"}], "timing": {...}}``.
 """
 from __future__ import annotations
 
 import argparse
-import ctypes
-import importlib.util
 import sys
 import time
 from pathlib import Path
@@ -29,199 +46,367 @@ from benchmarks.crossval import relmse
 from benchmarks.error_vs_time import flip_error
 
 SEQUENCES = sorted((ROOT / "scenes" / "sequences").glob("*.json"))
-METHODS = ("raw", "bilateral", "atrous", "bilateral+temporal", "atrous+temporal", "oidn")
-
-
-def load_oidn():
-    """The ``oidn`` module; its wheel ships libtbb.so.12.5 but not the libtbb.so.12
-    name its library asks for, so that file is loaded first."""
-    spec = importlib.util.find_spec("oidn")
-    if spec is None:
-        raise ImportError("the oidn package is not installed")
-    library = Path(spec.origin).parent / "lib.linux.x64" / "libtbb.so.12.5"
-    if library.exists():
-        ctypes.CDLL(str(library), mode=ctypes.RTLD_GLOBAL)
-    import oidn
-
-    return oidn
-
-
-class OIDNDenoiser:
-    def __init__(self):
-        self.oidn = load_oidn()
-        self.device = self.oidn.NewDevice()
-        self.oidn.CommitDevice(self.device)
-
-    def step(self, frame) -> np.ndarray:
-        oidn = self.oidn
-        height, width = frame.beauty.shape[:2]
-        images = {"color": frame.beauty, "albedo": frame.albedo, "normal": frame.normal}
-        images = {k: np.ascontiguousarray(v, np.float32) for k, v in images.items() if v is not None}
-        output = np.zeros_like(images["color"])
-        flt = oidn.NewFilter(self.device, "RT")
-        for name, image in images.items():
-            oidn.SetSharedFilterImage(flt, name, image, oidn.FORMAT_FLOAT3, width, height)
-        oidn.SetSharedFilterImage(flt, "output", output, oidn.FORMAT_FLOAT3, width, height)
-        oidn.SetFilter1b(flt, "hdr", True) if hasattr(oidn, "SetFilter1b") else None
-        oidn.CommitFilter(flt)
-        oidn.ExecuteFilter(flt)
-        oidn.ReleaseFilter(flt)
-        return output
+METHODS = ("raw", "bilateral", "atrous", "bilateral+temporal", "atrous+temporal", "demod+outliers+atrous+temporal",
+           "svgf", "oidn", "oidn+temporal")
+#: the hard sequence: the README's still and video
+HARD = "glossy_shadow"
+STILL_METHODS = ("raw", "atrous+temporal", "svgf", "oidn")
+QUALITY = dict(size=(320, 180), frames=8)
+#: ground-truth samples per pixel per sequence (two halves of half as many); --reference-spp overrides
+REFERENCE_SPP = {"dolly_lamps": 1024, "orbit_transforms": 512, "glossy_shadow": 512}
+QUICK = dict(size=(96, 54), frames=4, reference_spp=16)
+TIMING = dict(size=(1280, 720), frames=5, reference_spp=2)
+QUICK_TIMING = dict(size=(160, 90), frames=3, reference_spp=2)
+#: the reference's own noise must be at most this fraction of the best method's relMSE
+REFERENCE_NOISE_BAR = 0.1
+#: per-frame time as a fraction of OIDN's execute time (issue 9's speed bars)
+SPEED_BARS = {"atrous+temporal": 0.2, "svgf": 0.3, "bilateral": 2.0}
+#: the methods timed at 1280x720 (the bars' methods and OIDN)
+TIMED = ("oidn", "atrous+temporal", "svgf", "bilateral")
 
 
 class RawMethod:
+    last_execute_s = None
+
     def step(self, frame) -> np.ndarray:
         return frame.beauty
 
 
 def make_method(name: str):
-    from denoise.pipeline import DenoiseOptions, Denoiser
+    from denoise.pipeline import Denoiser, parse_method
 
-    if name == "raw":
-        return RawMethod()
-    if name == "oidn":
-        return OIDNDenoiser()
-    spatial, _, temporal = name.partition("+")
-    return Denoiser(DenoiseOptions(method=spatial, temporal=bool(temporal)))
+    return RawMethod() if name == "raw" else Denoiser(parse_method(name))
 
 
-def run_sequence(folder: Path, name: str, methods=METHODS, outputs: dict | None = None) -> list[dict]:
+def read_rgb(path: Path) -> np.ndarray:
+    from imaging.image_io import read_exr
+
+    channels = read_exr(path)
+    return np.stack([channels[c] for c in "RGB"], -1)
+
+
+def back_projected(frames, images) -> list[tuple[np.ndarray, np.ndarray]]:
+    """For frames 1.., (image t at the pixels that keep history, image t-1 at
+    the pixels they came from), through our back projection."""
+    import mitsuba as mi
+
+    from denoise.filters import reproject
+
+    def tensor(a):
+        return mi.TensorXf(np.ascontiguousarray(a, np.float32))
+
+    pairs = []
+    for before, after, previous, current in zip(frames, frames[1:], images, images[1:]):
+        index, valid = reproject(tensor(after.position), tensor(after.ids), tensor(before.ids),
+                                 after.object_to_world, before.object_to_world, before.world_to_screen)
+        index, valid = np.array(index), np.array(valid, bool)
+        pairs.append((current.reshape(-1, 3)[valid], previous.reshape(-1, 3)[index[valid]]))
+    return pairs
+
+
+def temporal_relmse(frames, images) -> list[float]:
+    """Per frame from 1: relMSE between an image and the previous one back-projected onto it."""
+    return [relmse(current, previous) if len(current) else 0.0 for current, previous in back_projected(frames, images)]
+
+
+def reference_noise(reference: Path, indices) -> list[float]:
+    """Per frame: relMSE(half_a, half_b) / 4, the full reference's own relMSE."""
+    return [relmse(read_rgb(reference / f"half_a_{i}.exr"), read_rgb(reference / f"half_b_{i}.exr")) / 4
+            for i in indices]
+
+
+def warm_up(method: str, frames) -> None:
+    """Runs ``method`` on two frames, so that the kernels of a first frame and
+    of one with history are compiled and cached before anything is timed."""
+    runner = make_method(method)
+    for frame in frames[:2]:
+        runner.step(frame)
+
+
+def run_sequence(folder: Path, name: str, methods=METHODS, outputs: dict | None = None) -> tuple[list[dict], dict]:
+    """(per-frame rows, the sequence's reference figures and stability per method)."""
     import drjit as dr
 
     from denoise.export import reference_folder
     from denoise.frames import frame_indices, read_frame
-    from imaging.image_io import read_exr
 
-    frames = [read_frame(folder, i) for i in frame_indices(folder)]
-    truth = [np.stack([read_exr(reference_folder(folder) / f"beauty_{i}.exr")[c] for c in "RGB"], -1)
-             for i in frame_indices(folder)]
+    indices = frame_indices(folder)
+    frames = [read_frame(folder, i) for i in indices]
+    truth = [read_rgb(reference_folder(folder) / f"beauty_{i}.exr") for i in indices]
+    reference_temporal = temporal_relmse(frames, truth)
+    figures = {"reference_noise": float(np.mean(reference_noise(reference_folder(folder), indices))),
+               "reference_temporal": float(np.mean(reference_temporal)), "stability": {}}
     rows = []
     for method in methods:
-        make_method(method).step(frames[0])  # warm-up: kernels compiled and cached
+        warm_up(method, frames)
         runner = make_method(method)
+        results = []
         for index, (frame, reference) in enumerate(zip(frames, truth)):
             start = time.perf_counter()
             result = runner.step(frame)
             dr.sync_thread()
             ms = 1000 * (time.perf_counter() - start)
+            results.append(result)
             rows.append({"sequence": name, "method": method, "frame": index, "relmse": relmse(result, reference),
-                         "flip": flip_error(result, reference), "ms": ms})
-            if outputs is not None:
-                outputs.setdefault(method, []).append(result)
-    return rows
+                         "flip": flip_error(result, reference), "ms": ms, "temporal": None})
+        flicker = temporal_relmse(frames, results)
+        for row, value in zip(rows[-len(frames) + 1:], flicker):
+            row["temporal"] = value
+        figures["stability"][method] = float(np.mean(flicker) / max(figures["reference_temporal"], 1e-12))
+        if outputs is not None:
+            outputs[method] = results
+    if outputs is not None:
+        outputs["reference"] = truth
+    return rows, figures
 
 
-def write_video(path: Path, panels: list[list[np.ndarray]], fps: int = 2, shrink: int = 2) -> None:
-    """Side-by-side panels per frame, sRGB, each panel shrunk ``shrink`` times (box filter)."""
-    import imageio.v2 as imageio
+def run_timing(folder: Path, methods=TIMED) -> dict:
+    """Per-frame milliseconds (median after a warm-up frame) of every method
+    on ``folder``'s frames, OIDN by its execute call alone."""
+    import drjit as dr
 
+    from denoise.frames import frame_indices, read_frame
+
+    frames = [read_frame(folder, i) for i in frame_indices(folder)]
+    timing = {"size": [frames[0].beauty.shape[1], frames[0].beauty.shape[0]], "frames": len(frames), "ms": {}}
+    for method in methods:
+        if method == "raw":
+            continue
+        warm_up(method, frames)
+        runner = make_method(method)
+        runner.step(frames[0])  # its filter committed (OIDN); its history started
+        times = []
+        for frame in frames[1:]:
+            start = time.perf_counter()
+            runner.step(frame)
+            dr.sync_thread()
+            elapsed = time.perf_counter() - start
+            times.append(runner.last_execute_s if method.startswith("oidn") else elapsed)
+        timing["ms"][method] = 1000 * float(np.median(times))
+    oidn = timing["ms"]["oidn"]
+    timing["ratio_to_oidn"] = {m: ms / oidn for m, ms in timing["ms"].items()}
+    timing["bars"] = {m: {"ratio": timing["ratio_to_oidn"][m], "bar": bar, "met": timing["ratio_to_oidn"][m] <= bar}
+                      for m, bar in SPEED_BARS.items() if m in timing["ms"]}
+    return timing
+
+
+def tone_map(image: np.ndarray) -> np.ndarray:
+    """HDR to 8-bit sRGB: Reinhard's extended operator (white 4) per channel, then
+    the sRGB transfer function (colour-science)."""
     from imaging.colour import to_srgb_8bit
-    from imaging.image_io import atomic_path
 
+    x = np.maximum(np.nan_to_num(np.asarray(image, np.float64)), 0.0)
+    return to_srgb_8bit(x * (1.0 + x / 16.0) / (1.0 + x))
+
+
+def side_by_side(images: list[np.ndarray], shrink: int = 1) -> np.ndarray:
     def small(image: np.ndarray) -> np.ndarray:
+        if shrink == 1:
+            return image
         h, w = image.shape[0] // shrink, image.shape[1] // shrink
         return image[: h * shrink, : w * shrink].reshape(h, shrink, w, shrink, -1).mean(axis=(1, 3))
 
+    return np.concatenate([tone_map(small(i)) for i in images], axis=1)
+
+
+def write_video(path: Path, panels: list[list[np.ndarray]], fps: int = 2, shrink: int = 1) -> None:
+    """Side-by-side panels per frame, tone-mapped sRGB (H.264 through imageio)."""
+    import imageio.v2 as imageio
+
+    from imaging.image_io import atomic_path
+
     with atomic_path(path, path.suffix) as tmp:
-        with imageio.get_writer(tmp, fps=fps, codec="libx264", quality=6, format="FFMPEG",
-                                macro_block_size=8) as writer:
+        with imageio.get_writer(tmp, fps=fps, codec="libx264", quality=8, format="FFMPEG",
+                                macro_block_size=2) as writer:
             for images in zip(*panels):
-                writer.append_data(np.concatenate([to_srgb_8bit(small(i)) for i in images], axis=1))
+                writer.append_data(side_by_side(list(images), shrink))
+
+
+def write_png(path: Path, image: np.ndarray) -> None:
+    import imageio.v2 as imageio
+
+    from imaging.image_io import atomic_path
+
+    with atomic_path(path, ".png") as tmp:
+        imageio.imwrite(tmp, image, format="PNG")
+
+
+def _mean(rows, sequence, method, key):
+    values = [r[key] for r in rows if r["sequence"] == sequence and r["method"] == method and r[key] is not None]
+    return float(np.mean(values)) if values else float("nan")
+
+
+def best_method(results: dict, sequence: str) -> tuple[str, float]:
+    rows = results["results"]
+    scores = {m: _mean(rows, sequence, m, "relmse") for m in METHODS if m != "raw"}
+    scores = {m: v for m, v in scores.items() if np.isfinite(v)}
+    best = min(scores, key=scores.get)
+    return best, scores[best]
+
+
+def reference_checks(results: dict) -> list[str]:
+    """One line per sequence; the ones that fail start with 'FAIL'."""
+    lines = []
+    for s in results["sequences"]:
+        best, value = best_method(results, s["name"])
+        ratio = s["reference_noise"] / value
+        s["reference_noise_ratio"] = ratio
+        verdict = "ok" if ratio <= REFERENCE_NOISE_BAR else "FAIL"
+        lines.append(f"{verdict}: {s['name']}: reference noise {s['reference_noise']:.2e} = {100 * ratio:.1f} % of "
+                     f"the best method's relMSE ({best}, {value:.2e}); bar {100 * REFERENCE_NOISE_BAR:.0f} %")
+    return lines
 
 
 def summary(results: dict) -> str:
     rows = results["results"]
-    lines = ["| sequence | method | mean relMSE | relMSE last frame | mean FLIP | ms per frame |",
-             "|---|---|---|---|---|---|"]
+    stability = {s["name"]: s["stability"] for s in results["sequences"]}
+    lines = ["| sequence | method | mean relMSE | relMSE last frame | mean FLIP | temporal stability | ms per frame |",
+             "|---|---|---|---|---|---|---|"]
     for sequence in dict.fromkeys(r["sequence"] for r in rows):
         for method in METHODS:
             pts = [r for r in rows if r["sequence"] == sequence and r["method"] == method]
             if pts:
                 lines.append(f"| {sequence} | {method} | {np.mean([p['relmse'] for p in pts]):.4f} | "
                              f"{pts[-1]['relmse']:.4f} | {np.mean([p['flip'] for p in pts]):.4f} | "
-                             f"{np.median([p['ms'] for p in pts]):.0f} |")
+                             f"{stability[sequence][method]:.2f} | {np.median([p['ms'] for p in pts]):.0f} |")
     return "\n".join(lines)
 
 
-def readme_section(results: dict, video: str | None) -> str:
-    """The README's denoising results: the table, the 10x check and the speed targets."""
-    rows = results["results"]
-    described = "; ".join("{}: {}x{}, {} frames, {} spp, ground truth {} spp".format(
+def bar_lines(results: dict) -> list[str]:
+    """Issue 9's "done when" bars, measured in this run."""
+    rows, lines = results["results"], []
+    for s in results["sequences"]:
+        name = s["name"]
+        last = max(r["frame"] for r in rows if r["sequence"] == name)
+        value = {r["method"]: r["relmse"] for r in rows if r["sequence"] == name and r["frame"] == last}
+        ours = {m: v for m, v in value.items() if m not in ("raw", "oidn")}
+        best = min(ours, key=ours.get)
+        lines.append(
+            f"{name}, frame {last + 1}: svgf relMSE {value['svgf']:.4f} is {value['atrous+temporal'] / value['svgf']:.1f}x "
+            f"lower than atrous+temporal (bar 2x) and {value['raw'] / value['svgf']:.0f}x lower than raw (bar 10x); "
+            f"our best ({best}) {ours[best]:.4f} vs oidn {value['oidn']:.4f} "
+            f"({'lower' if ours[best] < value['oidn'] else 'not lower'}); stability svgf "
+            f"{s['stability']['svgf']:.2f} vs atrous {s['stability']['atrous']:.2f} "
+            f"({'lower' if s['stability']['svgf'] < s['stability']['atrous'] else 'not lower'})")
+    timing = results.get("timing")
+    if timing:
+        size = "x".join(map(str, timing["size"]))
+        parts = [f"{m} {timing['ms'][m]:.0f} ms = {b['ratio']:.2f}x (bar {b['bar']}x: {'met' if b['met'] else 'not met'})"
+                 for m, b in timing["bars"].items()]
+        lines.append(f"speed at {size} (oidn execute {timing['ms']['oidn']:.0f} ms): " + "; ".join(parts))
+    return lines
+
+
+def readme_section(results: dict, still: str | None, video: str | None, command: str) -> str:
+    """The README's denoising results: every number from ``results``."""
+    described = "; ".join("{}: {}x{}, {} frames, {} spp, ground truth {} spp as two halves".format(
         s["name"], s["size"][0], s["size"][1], s["frames"], s["spp"], s["reference_spp"])
         for s in results["sequences"])
-    lines = ["<!-- denoise:start -->", f"Results of `python -m benchmarks.denoise --readme` ({described}; "
-             "times on this 2-core machine, llvm_ad_rgb, median over frames after a warm-up):", "",
-             summary(results), ""]
-    for sequence in dict.fromkeys(r["sequence"] for r in rows):
-        last = max(r["frame"] for r in rows if r["sequence"] == sequence)
-        value = {r["method"]: r["relmse"] for r in rows if r["sequence"] == sequence and r["frame"] == last}
-        lines.append(f"- {sequence}, frame {last + 1}: raw relMSE / atrous+temporal relMSE = "
-                     f"{value['raw'] / value['atrous+temporal']:.1f}x (OIDN: {value['raw'] / value['oidn']:.1f}x)")
+    lines = ["<!-- denoise:start -->",
+             f"Results of `{command}` on {results.get('date', 'this machine')} ({described}; OIDN "
+             f"{results.get('oidn', '')}; times on this 2-core machine, llvm_ad_rgb, median over frames after a "
+             "warm-up; temporal stability: mean relMSE between consecutive back-projected outputs divided by the "
+             "ground truth's, 1 = as stable as the truth):", "", summary(results), ""]
+    lines += [f"- {line}" for line in reference_checks(results)]
+    lines += [f"- {line}" for line in bar_lines(results)]
+    if still:
+        lines += ["", f"{HARD}, last frame: " + " | ".join(STILL_METHODS + ("reference",)) + ":", "",
+                  f"![{HARD}, last frame]({still})"]
     if video:
-        lines.append(f"- video (input | atrous+temporal | ground truth): [{video}]({video})")
-    atrous_ms = max(np.median([r["ms"] for r in rows if r["sequence"] == s and r["method"] == "atrous+temporal"])
-                    for s in dict.fromkeys(r["sequence"] for r in rows))
-    bilateral_ms = max(np.median([r["ms"] for r in rows if r["sequence"] == s and r["method"] == "bilateral"])
-                       for s in dict.fromkeys(r["sequence"] for r in rows))
-    lines.append(f"- speed targets: atrous+temporal {atrous_ms:.0f} ms per frame (target ≤ 100 ms: "
-                 f"{'met' if atrous_ms <= 100 else 'not met'}); bilateral 33×33 {bilateral_ms / 1000:.1f} s "
-                 f"(target ≤ 2 s: {'met' if bilateral_ms <= 2000 else 'not met'})")
+        lines.append(f"\nVideo of {HARD} (the same panels, every frame): [{video}]({video})")
     lines.append("<!-- denoise:end -->")
     return "\n".join(lines)
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m benchmarks.denoise", description=__doc__.split("\n\n")[0])
-    parser.add_argument("--json", type=Path, metavar="PATH")
-    parser.add_argument("--quick", action="store_true", help="small frames (CI)")
-    parser.add_argument("--video", type=Path, metavar="PATH", help="input | ours | ground truth of the first sequence")
-    parser.add_argument("--work", type=Path, default=Path("out/denoise"), help="where the sequences are rendered")
-    parser.add_argument("--readme", action="store_true",
-                        help="write docs/denoise/ (JSON, video) and the README's denoising results")
-    args = parser.parse_args(argv)
-    if args.readme:
-        args.json = args.json or ROOT / "docs" / "denoise" / "denoise.json"
-        args.video = args.video or ROOT / "docs" / "denoise" / "dolly_lamps.mp4"
-    from denoise.export import Spec, export
-    from renderer.variants import set_variant
-
-    set_variant(None, quiet=True)
-    overrides = dict(size=(160, 90), frames=4, reference_spp=64) if args.quick else {}
-    results = {"sequences": [], "results": []}
-    for number, spec_path in enumerate(SEQUENCES):
-        spec = Spec.load(spec_path, **overrides)
-        folder = args.work / (spec_path.stem + ("_quick" if args.quick else ""))
-        export(spec, folder)
-        results["sequences"].append({"name": spec_path.stem, "spec": str(spec_path.relative_to(ROOT)),
-                                     "size": list(spec.size), "frames": spec.frames, "spp": spec.spp,
-                                     "reference_spp": spec.reference_spp})
-        outputs = {} if (args.video and number == 0) else None
-        results["results"] += run_sequence(folder, spec_path.stem, outputs=outputs)
-        print(f"{spec_path.stem}: done", file=sys.stderr)
-        if outputs is not None:
-            from denoise.export import reference_folder
-            from imaging.image_io import read_exr
-
-            truth = [np.stack([read_exr(p)[c] for c in "RGB"], -1)
-                     for p in sorted(reference_folder(folder).glob("beauty_*.exr"),
-                                     key=lambda p: int(p.stem.split("_")[1]))]
-            write_video(args.video, [outputs["raw"], outputs["atrous+temporal"], truth])
-    print(summary(results))
-    if args.json:
-        write_json(args.json, results)
-    if args.readme:
-        write_readme(results, args.video)
-    return 0
-
-
-def write_readme(results: dict, video: Path | None) -> None:
+def write_readme(results: dict, still: Path | None, video: Path | None, command: str) -> None:
     import re
 
     readme = ROOT / "README.md"
-    link = str(Path(video).resolve().relative_to(ROOT)) if video else None
-    text = re.sub(r"<!-- denoise:start -->.*?<!-- denoise:end -->", lambda _: readme_section(results, link),
+
+    def link(p):
+        return str(Path(p).resolve().relative_to(ROOT)) if p else None
+
+    text = re.sub(r"<!-- denoise:start -->.*?<!-- denoise:end -->",
+                  lambda _: readme_section(results, link(still), link(video), command),
                   readme.read_text(), flags=re.S)
     readme.write_text(text)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m benchmarks.denoise", description=__doc__.split("\n\n")[0],
+                                     formatter_class=argparse.RawDescriptionHelpFormatter,
+                                     epilog="example: python -m benchmarks.denoise --json out/denoise.json")
+    parser.add_argument("--json", type=Path, metavar="PATH", help="write every number as JSON")
+    parser.add_argument("--quick", action="store_true", help="small frames and a noisy reference (CI; the "
+                        "reference check is reported, not enforced)")
+    parser.add_argument("--work", type=Path, default=Path("out/denoise"),
+                        help="where the sequences are rendered and cached (default out/denoise)")
+    parser.add_argument("--readme", action="store_true",
+                        help="write docs/denoise/ (JSON, still, video) and the README's denoising results")
+    parser.add_argument("--no-timing", action="store_true", help="skip the 1280x720 speed run")
+    parser.add_argument("--sequences", nargs="*", metavar="NAME", help="only these sequences")
+    parser.add_argument("--reference-spp", type=int, metavar="N",
+                        help="ground-truth spp for every sequence (default: " +
+                             ", ".join(f"{k} {v}" for k, v in REFERENCE_SPP.items()) + ")")
+    args = parser.parse_args(argv)
+    import datetime
+
+    from denoise.export import Spec, export, reference_folder
+    from renderer.variants import set_variant
+
+    set_variant(None, quiet=True)
+    docs = ROOT / "docs" / "denoise"
+    if args.readme:
+        args.json = args.json or docs / "denoise.json"
+    quality, timing_size = (QUICK, QUICK_TIMING) if args.quick else (QUALITY, TIMING)
+    suffix = "_quick" if args.quick else ""
+    results = {"date": datetime.date.today().isoformat(), "oidn": "1.4.3 through its C API: hdr on, albedo and "
+               "normal with cleanAux, filter committed once per size", "sequences": [], "results": []}
+    outputs_hard = None
+    for spec_path in SEQUENCES:
+        if args.sequences and spec_path.stem not in args.sequences:
+            continue
+        settings = dict(quality)
+        if not args.quick:
+            settings["reference_spp"] = args.reference_spp or REFERENCE_SPP.get(spec_path.stem, 1024)
+        spec = Spec.load(spec_path, **settings)
+        # the folder names its settings: other settings render beside it, never into it
+        folder = args.work / f"{spec_path.stem}_{spec.size[0]}x{spec.size[1]}_{spec.reference_spp}spp{suffix}"
+        export(spec, folder)
+        outputs = {} if spec_path.stem == HARD else None
+        rows, figures = run_sequence(folder, spec_path.stem, outputs=outputs)
+        if outputs is not None:
+            outputs_hard = outputs
+        results["sequences"].append({"name": spec_path.stem, "spec": str(spec_path.relative_to(ROOT)),
+                                     "size": list(spec.size), "frames": spec.frames, "spp": spec.spp,
+                                     "reference_spp": spec.reference_spp, **figures})
+        results["results"] += rows
+        print(f"{spec_path.stem}: reference noise {figures['reference_noise']:.2e}", file=sys.stderr)
+    if not args.no_timing:
+        spec_path = SEQUENCES[0]
+        timing_folder = args.work / f"timing_{spec_path.stem}_{timing_size['size'][0]}x{timing_size['size'][1]}{suffix}"
+        export(Spec.load(spec_path, **timing_size), timing_folder)
+        results["timing"] = {"sequence": spec_path.stem, **run_timing(timing_folder)}
+    print(summary(results))
+    checks = reference_checks(results)
+    for line in checks + bar_lines(results):
+        print(line)
+    if args.json:
+        write_json(args.json, results)
+    if args.readme:
+        still = video = None
+        if outputs_hard is not None:
+            panels = [outputs_hard[m] for m in STILL_METHODS] + [outputs_hard["reference"]]
+            still, video = docs / f"{HARD}_last.png", docs / f"{HARD}.mp4"
+            write_png(still, side_by_side([p[-1] for p in panels]))
+            write_video(video, panels)
+        write_readme(results, still, video, "python -m benchmarks.denoise --readme")
+    failed = [line for line in checks if line.startswith("FAIL")]
+    if failed and not args.quick:
+        print("benchmarks.denoise: error: the ground truth is too noisy to rank the methods (see FAIL above)",
+              file=sys.stderr)
+        return 1
+    return 0
 
 
 if __name__ == "__main__":

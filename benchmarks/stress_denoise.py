@@ -13,6 +13,8 @@ from typing import Callable
 
 import numpy as np
 
+from core.errors import FrameError, UsageError
+
 H, W = 12, 16
 
 
@@ -40,12 +42,14 @@ def _frame(seed: int = 0, beauty=None, normal=None, position=None, ids=None, obj
 
 
 def _run(frames, **options) -> list[np.ndarray]:
-    from denoise.filters import BilateralParams, TemporalParams
+    from denoise.filters import BilateralWindow, EdgeWeights, TemporalParams
     from denoise.pipeline import DenoiseOptions, Denoiser
 
-    bilateral = BilateralParams(**options.pop("bilateral", {"radius": 3}))
+    bilateral = dict(options.pop("bilateral", {"radius": 3}))
+    window = BilateralWindow(radius=bilateral.pop("radius", 3), sigma_coord=bilateral.pop("sigma_coord", 32.0))
+    edges = EdgeWeights(**bilateral)
     temporal = TemporalParams(**options.pop("temporal_params", {}))
-    denoiser = Denoiser(DenoiseOptions(bilateral=bilateral, temporal_params=temporal, **options))
+    denoiser = Denoiser(DenoiseOptions(edges=edges, window=window, temporal_params=temporal, **options))
     return [denoiser.step(f) for f in frames]
 
 
@@ -129,7 +133,7 @@ def matrix_file_error(content: bytes, expect: str):
             path.write_bytes(content)
             try:
                 read_matrices(path)
-            except ValueError as error:
+            except FrameError as error:
                 return expect in str(error) and "\n" not in str(error), str(error)
         return False, "no error"
     return check
@@ -141,7 +145,7 @@ def different_sizes():
                   position=np.zeros((H + 1, W, 3)), ids=np.zeros((H + 1, W), np.int32))
     try:
         _run([small, big], method="atrous")
-    except ValueError as error:
+    except FrameError as error:
         return "frame size changed" in str(error), str(error)
     return False, "no error"
 
@@ -157,7 +161,7 @@ def missing_file():
         (folder / "normal_1.exr").unlink()
         try:
             denoise_folder(folder, folder / "out")
-        except FileNotFoundError as error:
+        except FrameError as error:
             return "frame 1 lacks normal_1.exr" in str(error), str(error)
         (folder / "beauty_1.exr").unlink()
     return False, "no error"
@@ -199,6 +203,110 @@ def static_drift(count: int):
     return check
 
 
+def bad_parameter(argv: list[str], expect: str):
+    """``python -m denoise`` with an out-of-range parameter: one line, exit 2."""
+    def check():
+        import contextlib
+        import io
+
+        from denoise.__main__ import main
+
+        err = io.StringIO()
+        with tempfile.TemporaryDirectory() as tmp, contextlib.redirect_stderr(err):
+            code = main([tmp, str(Path(tmp) / "out")] + argv)
+        text = err.getvalue()
+        return code == 2 and text.count("\n") == 1 and expect in text, f"exit {code}: {text.strip()}"
+    return check
+
+
+def parameter_type_checks():
+    """Each parameter type refuses nonsense when built from Python too (UsageError)."""
+    from denoise.filters import AtrousLevels, BilateralWindow, EdgeWeights, OutlierParams, TemporalParams
+    from denoise.svgf import SVGFParams
+
+    attempts = [lambda: AtrousLevels(0), lambda: AtrousLevels(2.5), lambda: BilateralWindow(radius=65),
+                lambda: EdgeWeights(sigma_normal=float("nan")), lambda: TemporalParams(clamp_radius=0),
+                lambda: OutlierParams(k=0), lambda: SVGFParams(alpha_moments=0),
+                lambda: SVGFParams(levels=2, feedback_level=2)]
+    refused = 0
+    for attempt in attempts:
+        try:
+            attempt()
+        except UsageError:
+            refused += 1
+    return refused == len(attempts), f"{refused} of {len(attempts)} refused"
+
+
+def damaged_folder(damage, expect: str):
+    """A frame folder damaged by ``damage(folder)``: a FrameError naming the file."""
+    def check():
+        from denoise.frames import write_frame
+        from denoise.pipeline import denoise_folder
+
+        with tempfile.TemporaryDirectory() as tmp:
+            folder = Path(tmp)
+            for i in (0, 1):
+                write_frame(folder, i, _frame(i))
+            damage(folder)
+            try:
+                denoise_folder(folder, folder / "out")
+            except FrameError as error:
+                return expect in str(error) and "\n" not in str(error), str(error)
+        return False, "no error"
+    return check
+
+
+def _truncate(name: str):
+    def damage(folder: Path):
+        path = folder / name
+        path.write_bytes(path.read_bytes()[: len(path.read_bytes()) // 3])
+    return damage
+
+
+def _ids(value):
+    def damage(folder: Path):
+        from imaging.image_io import write_exr
+
+        write_exr(folder / "ID_1.exr", {"": np.full((H, W), value, np.float32)})
+    return damage
+
+
+def _resized(folder: Path):
+    from denoise.frames import write_frame
+
+    big = _frame(3)
+    big = replace(big, beauty=np.zeros((H + 2, W, 3)), normal=np.zeros((H + 2, W, 3)),
+                  position=np.zeros((H + 2, W, 3)), depth=np.ones((H + 2, W)), ids=np.zeros((H + 2, W), np.int32))
+    write_frame(folder, 1, big)
+
+
+def _one_buffer_resized(folder: Path):
+    from imaging.image_io import write_exr
+
+    write_exr(folder / "depth_0.exr", {"": np.ones((H, W + 1), np.float32)})
+
+
+def method_finite(method: str, **options):
+    """A method on frames with NaN, inf, negative values and zero normals: finite output."""
+    def check():
+        beauty = _frame(20).beauty.copy()
+        beauty[1, 1], beauty[2, 2], beauty[3, 3] = np.nan, np.inf, -5.0
+        frames = [_frame(20, beauty=beauty, normal=np.zeros((H, W, 3))), _frame(21, beauty=beauty)]
+        out = _run(frames, method=method, **options)
+        return _finite(out)
+    return check
+
+
+def svgf_static():
+    """SVGF on a static noisy scene: the history grows and the output settles."""
+    rng = np.random.default_rng(22)
+    frames = [_frame(23, beauty=0.5 + 0.2 * rng.random((H, W, 3))) for _ in range(12)]
+    out = _run(frames, method="svgf")
+    ok, detail = _finite(out)
+    change = float(np.max(np.abs(out[-1] - out[-2])))
+    return ok and change < 0.05, f"{detail}; last change {change:.3f}"
+
+
 def denoise_cases() -> list[DenoiseCase]:
     return [
         DenoiseCase("bilateral sigma -> 0", sigma_to_zero("bilateral")),
@@ -223,4 +331,29 @@ def denoise_cases() -> list[DenoiseCase]:
         DenoiseCase("alpha = 1", alpha(1.0)),
         DenoiseCase("100 frames of a static scene", static_drift(100)),
         DenoiseCase("1000 frames of a static scene", static_drift(1000), fast=False),
+        DenoiseCase("--levels 31", bad_parameter(["--levels", "31"], "levels must be a whole number")),
+        DenoiseCase("--radius -5", bad_parameter(["--radius", "-5"], "radius must be a whole number")),
+        DenoiseCase("--alpha 2", bad_parameter(["--alpha", "2"], "alpha")),
+        DenoiseCase("--k -1", bad_parameter(["--k", "-1"], "k (the history clamp")),
+        DenoiseCase("--sigma-normal 0", bad_parameter(["--sigma-normal", "0"], "sigma_normal")),
+        DenoiseCase("--outliers nan", bad_parameter(["--outliers", "nan"], "outlier removal")),
+        DenoiseCase("parameter types refuse nonsense", parameter_type_checks),
+        DenoiseCase("truncated beauty EXR", damaged_folder(_truncate("beauty_1.exr"), "beauty_1.exr")),
+        DenoiseCase("garbage in a normal EXR", damaged_folder(
+            lambda f: (f / "normal_0.exr").write_bytes(b"\x76\x2f\x31\x01garbage"), "normal_0.exr")),
+        DenoiseCase("object id beyond the matrices", damaged_folder(_ids(5), "object id 5, but matrix_1.mat")),
+        DenoiseCase("fractional (averaged) object ids", damaged_folder(_ids(-0.875), "whole numbers")),
+        DenoiseCase("frames of different sizes in a folder", damaged_folder(_resized, "but frame 0 has")),
+        DenoiseCase("buffers of different sizes in a frame", damaged_folder(_one_buffer_resized, "depth_0.exr")),
+        DenoiseCase("svgf on NaN/inf/negative input", method_finite("svgf")),
+        DenoiseCase("oidn+temporal on NaN/inf/negative input", method_finite("oidn")),
+        DenoiseCase("outliers+demod on NaN/inf input", method_finite("atrous", demodulate=True,
+                                                                     outliers=_outliers())),
+        DenoiseCase("svgf on a static scene settles", svgf_static),
     ]
+
+
+def _outliers():
+    from denoise.filters import OutlierParams
+
+    return OutlierParams(k=1.0)

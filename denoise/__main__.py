@@ -1,6 +1,8 @@
-"""``python -m denoise IN_DIR OUT_DIR [--method bilateral|atrous] [--no-temporal] ...``
+"""python -m denoise: denoise a folder of 1-spp frames with G-buffers.
 
-Denoises a frame folder (see :mod:`denoise.frames`) into ``OUT_DIR/result_i.exr``.
+Reads IN_DIR (the course framework's frame layout: beauty_i.exr, normal_i.exr,
+position_i.exr, depth_i.exr, ID_i.exr, matrix_i.mat, optional albedo_i.exr)
+and writes OUT_DIR/result_i.exr per frame.
 """
 from __future__ import annotations
 
@@ -10,43 +12,157 @@ from pathlib import Path
 
 if __name__ == "__main__":  # started by a Python without the project's packages: use ./.venv's
     from core.launcher import use_project_python
-    use_project_python("python -m denoise", "denoise")
 
-from .filters import BilateralParams, TemporalParams
-from .pipeline import METHODS, DenoiseOptions, denoise_folder
+
+from .pipeline import METHODS
+
+EXAMPLE = """methods:
+  bilateral  the assignment's joint bilateral filter ((2 radius + 1)^2 window)
+  atrous     the assignment's A-Trous wavelet filter (--levels passes)
+  svgf       spatiotemporal variance-guided filtering (Schied et al. 2017)
+  oidn       Intel Open Image Denoise (HDR, albedo and normals); with temporal
+             accumulation first unless --no-temporal
+bilateral and atrous blend each filtered frame with the back-projected,
+clamped previous result unless --no-temporal.
+
+examples:
+  python -m denoise out/seq/lamps out/seq/lamps_denoised --method svgf --png
+  python -m denoise out/seq/lamps out/den --method atrous --video out/den.mp4 --reference out/seq/lamps_reference
+"""
+
+
+def _parser() -> argparse.ArgumentParser:
+    from .filters import AtrousLevels, BilateralWindow, EdgeWeights, OutlierParams, TemporalParams
+    from .pipeline import DenoiseOptions
+    from .svgf import SVGFParams
+
+    edges, window, levels = EdgeWeights(), BilateralWindow(), AtrousLevels()
+    temporal, outliers, svgf = TemporalParams(), OutlierParams(), SVGFParams()
+    parser = argparse.ArgumentParser(prog="python -m denoise", description=__doc__.split("\n", 1)[0].split(": ", 1)[1],
+                                     formatter_class=argparse.RawDescriptionHelpFormatter, epilog=EXAMPLE)
+    parser.add_argument("source", type=Path, metavar="IN_DIR", help="the frame folder")
+    parser.add_argument("target", type=Path, metavar="OUT_DIR", help="where result_i.exr are written")
+    parser.add_argument("--method", choices=METHODS, default="atrous", help="the filter (default: atrous)")
+    parser.add_argument("--no-temporal", action="store_true", help="each frame on its own (no history)")
+    parser.add_argument("--demodulate", action="store_true",
+                        help="filter beauty / albedo and multiply back (needs albedo_i.exr; svgf always does)")
+    parser.add_argument("--outliers", type=float, metavar="K", default=None,
+                        help=f"first clamp each pixel's luminance to its 7x7 mean +- K sigma (off by default; "
+                             f"{outliers.k:g} is a usual K)")
+    group = parser.add_argument_group("edge-stopping weights (bilateral, atrous)")
+    group.add_argument("--sigma-color", type=float, default=edges.sigma_color, help=f"default {edges.sigma_color}")
+    group.add_argument("--sigma-normal", type=float, default=edges.sigma_normal,
+                       help=f"on the normals' angle in radians (default {edges.sigma_normal})")
+    group.add_argument("--sigma-plane", type=float, default=edges.sigma_plane, help=f"default {edges.sigma_plane}")
+    group = parser.add_argument_group("bilateral window")
+    group.add_argument("--radius", type=int, default=window.radius,
+                       help=f"window (2 radius + 1)^2, 0..64 (default {window.radius})")
+    group.add_argument("--sigma-coord", type=float, default=window.sigma_coord,
+                       help=f"pixels (default {window.sigma_coord})")
+    group = parser.add_argument_group("a-trous and svgf")
+    group.add_argument("--levels", type=int, default=None,
+                       help=f"passes, 1..12 (default {levels.levels} for atrous, {svgf.levels} for svgf)")
+    group = parser.add_argument_group("temporal accumulation (bilateral, atrous, oidn)")
+    oidn_temporal = DenoiseOptions().oidn_temporal
+    group.add_argument("--alpha", type=float, default=None,
+                       help=f"weight of the current frame, in (0, 1] (default {temporal.alpha}; "
+                            f"{oidn_temporal.alpha} for oidn)")
+    group.add_argument("--k", type=float, default=None,
+                       help=f"clamp the history to the 7x7 mean +- k sigma, k >= 0 (default {temporal.k}; "
+                            f"{oidn_temporal.k} for oidn)")
+    group = parser.add_argument_group("svgf")
+    group.add_argument("--sigma-luminance", type=float, default=svgf.sigma_luminance,
+                       help=f"luminance weight, in standard deviations (default {svgf.sigma_luminance})")
+    group.add_argument("--normal-exponent", type=float, default=svgf.sigma_normal,
+                       help=f"normal weight max(0, n.n')^exponent (default {svgf.sigma_normal:g})")
+    group = parser.add_argument_group("previews")
+    group.add_argument("--png", action="store_true", help="also write result_i.png (tone-mapped sRGB) beside the EXRs")
+    group.add_argument("--video", type=Path, metavar="OUT.mp4",
+                       help="input | output (| reference) per frame, tone-mapped sRGB, H.264")
+    group.add_argument("--reference", type=Path, metavar="REF_DIR",
+                       help="ground truth folder (beauty_i.exr) for the video's third panel")
+    group.add_argument("--fps", type=int, default=4, help="video frames per second (default 4)")
+    parser.add_argument("--variant", help="Mitsuba variant (default: llvm_ad_rgb where usable)")
+    return parser
+
+
+def options_from(args):
+    """The validated options (a parameter out of range is a UsageError)."""
+    from dataclasses import replace
+
+    from .filters import AtrousLevels, BilateralWindow, EdgeWeights, OutlierParams, TemporalParams
+    from .pipeline import DenoiseOptions
+    from .svgf import SVGFParams
+
+    edges = EdgeWeights(args.sigma_color, args.sigma_normal, args.sigma_plane)
+    window = BilateralWindow(args.radius, args.sigma_coord)
+    atrous = AtrousLevels(args.levels if args.levels is not None else AtrousLevels().levels)
+    defaults = DenoiseOptions()
+    base = defaults.oidn_temporal if args.method == "oidn" else defaults.temporal_params
+    temporal = TemporalParams(alpha=base.alpha if args.alpha is None else args.alpha,
+                              k=base.k if args.k is None else args.k)
+    svgf = SVGFParams(sigma_luminance=args.sigma_luminance, sigma_normal=args.normal_exponent)
+    if args.levels is not None:
+        svgf = replace(svgf, levels=args.levels)
+    return DenoiseOptions(
+        method=args.method, temporal=not args.no_temporal, edges=edges, window=window, atrous=atrous,
+        temporal_params=temporal, oidn_temporal=temporal, svgf=svgf,
+        outliers=OutlierParams(k=args.outliers) if args.outliers is not None else None,
+        demodulate=args.demodulate or args.method == "svgf")
+
+
+def _main(argv: list[str] | None) -> int:
+    from core.errors import FrameError, UsageError
+
+    args = _parser().parse_args(argv)
+    options = options_from(args)  # every parameter checked before any work
+    if args.fps < 1 or args.fps > 240:
+        raise UsageError(f"--fps must be from 1 to 240, got {args.fps}")
+    if args.reference is not None and args.video is None:
+        raise UsageError("--reference is used by --video only")
+    if args.video is not None and args.video.suffix.lower() != ".mp4":
+        raise UsageError(f"--video writes H.264 MP4: name it .mp4, got {args.video}")
+    if args.reference is not None and not args.reference.is_dir():
+        raise FrameError(f"{args.reference}: not a folder")
+    from renderer.variants import set_variant
+
+    from .pipeline import denoise_folder
+
+    set_variant(args.variant, quiet=True)
+    panels: list[list] = []
+
+    def on_frame(index, frame, result):
+        from benchmarks.denoise import read_rgb, tone_map, write_png
+
+        if args.png:
+            write_png(args.target / f"result_{index}.png", tone_map(result))
+        if args.video is not None:
+            row = [frame.beauty, result]
+            if args.reference is not None:
+                path = args.reference / f"beauty_{index}.exr"
+                if not path.exists():
+                    raise FrameError(f"{path}: missing (the reference folder lacks frame {index})")
+                truth = read_rgb(path)
+                if truth.shape != result.shape:
+                    raise FrameError(f"{path}: {truth.shape[1]}x{truth.shape[0]} pixels, the frames have "
+                                     f"{result.shape[1]}x{result.shape[0]}")
+                row.append(truth)
+            panels.append(row)
+
+    written = denoise_folder(args.source, args.target, options, on_frame)
+    if args.video is not None:
+        from benchmarks.denoise import write_video
+
+        write_video(args.video, [list(column) for column in zip(*panels)], fps=args.fps)
+    extra = (" with PNG previews" if args.png else "") + (f", video {args.video}" if args.video else "")
+    print(f"{len(written)} frames -> {args.target}{extra}")
+    return 0
 
 
 def main(argv: list[str] | None = None) -> int:
-    defaults, temporal = BilateralParams(), TemporalParams()
-    parser = argparse.ArgumentParser(prog="python -m denoise", description=__doc__.split("\n\n")[0])
-    parser.add_argument("source", type=Path, metavar="IN_DIR")
-    parser.add_argument("target", type=Path, metavar="OUT_DIR")
-    parser.add_argument("--method", choices=METHODS, default="atrous")
-    parser.add_argument("--no-temporal", action="store_true", help="spatial filtering only")
-    parser.add_argument("--sigma-coord", type=float, default=defaults.sigma_coord)
-    parser.add_argument("--sigma-color", type=float, default=defaults.sigma_color)
-    parser.add_argument("--sigma-normal", type=float, default=defaults.sigma_normal)
-    parser.add_argument("--sigma-plane", type=float, default=defaults.sigma_plane)
-    parser.add_argument("--radius", type=int, default=defaults.radius, help="bilateral window radius")
-    parser.add_argument("--levels", type=int, default=5, help="À-Trous levels")
-    parser.add_argument("--alpha", type=float, default=temporal.alpha, help="weight of the current frame")
-    parser.add_argument("--k", type=float, default=temporal.k, help="history clamp: mean ± k sigma")
-    parser.add_argument("--variant", help="Mitsuba variant (default: llvm_ad_rgb where usable)")
-    args = parser.parse_args(argv)
-    from renderer.variants import set_variant
+    from core.entry import run
 
-    set_variant(args.variant, quiet=True)
-    options = DenoiseOptions(
-        method=args.method, temporal=not args.no_temporal, levels=args.levels,
-        bilateral=BilateralParams(args.sigma_coord, args.sigma_color, args.sigma_normal, args.sigma_plane, args.radius),
-        temporal_params=TemporalParams(alpha=args.alpha, k=args.k))
-    try:
-        written = denoise_folder(args.source, args.target, options)
-    except (OSError, ValueError) as error:
-        print(f"denoise: error: {error}", file=sys.stderr)
-        return 2
-    print(f"{len(written)} frames -> {args.target}")
-    return 0
+    return run("python -m denoise", lambda: _main(argv))
 
 
 if __name__ == "__main__":

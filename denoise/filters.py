@@ -7,32 +7,91 @@ filter, one kernel per level for À-Trous).
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import drjit as dr
 import mitsuba as mi
 
+from core.errors import UsageError
+
 #: B3-spline taps of the À-Trous wavelet
 B3 = (1.0 / 16.0, 1.0 / 4.0, 3.0 / 8.0, 1.0 / 4.0, 1.0 / 16.0)
 
 
+def _positive(owner: str, **values: float) -> None:
+    for name, value in values.items():
+        if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+            raise UsageError(f"{owner}: {name} must be a finite number > 0, got {value!r}")
+
+
+def _whole(owner: str, name: str, value, low: int, high: int) -> None:
+    if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
+        raise UsageError(f"{owner}: {name} must be a whole number from {low} to {high}, got {value!r}")
+
+
 @dataclass(frozen=True)
-class BilateralParams:
-    """Joint bilateral weights ``exp(-Σ D²/(2σ²))`` over pixel distance, colour,
+class EdgeWeights:
+    """The assignment's edge-stopping weights ``exp(-D²/(2σ²))`` on colour,
     normal angle (``arccos`` of the normals' dot) and plane distance (the
     normal dotted with the unit vector between the two positions)."""
-    sigma_coord: float = 32.0
     sigma_color: float = 0.6
     sigma_normal: float = 0.1
     sigma_plane: float = 0.1
-    radius: int = 16  # window (2 radius + 1)^2, for the plain bilateral filter
+
+    def __post_init__(self):
+        _positive("edge weights", sigma_color=self.sigma_color, sigma_normal=self.sigma_normal,
+                  sigma_plane=self.sigma_plane)
+
+
+@dataclass(frozen=True)
+class BilateralWindow:
+    """The plain joint bilateral filter's window: (2 radius + 1)² pixels with a
+    spatial weight ``exp(-d²/(2 sigma_coord²))``."""
+    radius: int = 16
+    sigma_coord: float = 32.0
+
+    def __post_init__(self):
+        _whole("bilateral window", "radius", self.radius, 0, 64)
+        _positive("bilateral window", sigma_coord=self.sigma_coord)
+
+
+@dataclass(frozen=True)
+class AtrousLevels:
+    """À-Trous: ``levels`` passes of the 5x5 B3 kernel with holes 2^i; the
+    colour sigma halves from one level to the next."""
+    levels: int = 5
+
+    def __post_init__(self):
+        _whole("a-trous", "levels", self.levels, 1, 12)
 
 
 @dataclass(frozen=True)
 class TemporalParams:
+    """Clamped temporal accumulation ``α·C + (1-α)·clamp(history)``."""
     alpha: float = 0.2  # weight of the current frame; 1 where the history is invalid
     k: float = 1.0  # clamp the history to mean ± k·σ of the current 7x7 neighbourhood
     clamp_radius: int = 3
+
+    def __post_init__(self):
+        if not (isinstance(self.alpha, (int, float)) and 0.0 < self.alpha <= 1.0):
+            raise UsageError(f"temporal: alpha (the current frame's weight) must be in (0, 1], got {self.alpha!r}")
+        if not (isinstance(self.k, (int, float)) and math.isfinite(self.k) and self.k >= 0.0):
+            raise UsageError(f"temporal: k (the history clamp, mean ± k sigma) must be a finite number >= 0, "
+                             f"got {self.k!r}")
+        _whole("temporal", "clamp_radius", self.clamp_radius, 1, 16)
+
+
+@dataclass(frozen=True)
+class OutlierParams:
+    """Outlier removal before filtering: each pixel's luminance clamped to its
+    (2 radius + 1)² neighbourhood's mean ± k·σ, the colour scaled along."""
+    k: float = 2.0
+    radius: int = 3
+
+    def __post_init__(self):
+        _positive("outlier removal", k=self.k)
+        _whole("outlier removal", "radius", self.radius, 1, 16)
 
 
 def _inv_two_sigma_sq(sigma: float) -> float:
@@ -59,12 +118,36 @@ def edge_log_weight(coefficients: tuple[float, float, float], color_i, normal_i,
     distance of 0, not 0/0."""
     k_color, k_normal, k_plane = coefficients
     d_color = dr.squared_norm(color_i - color_j)
-    d_normal = dr.square(dr.acos(dr.clip(dr.dot(normal_i, normal_j), -1.0, 1.0)))
-    d_plane = dr.square(dr.dot(normal_i, _safe_normalize(position_j - position_i)))
-    return d_color * k_color + d_normal * k_normal + d_plane * k_plane
+    d_normal = dr.square(fast_acos(dr.dot(normal_i, normal_j)))
+    return d_color * k_color + d_normal * k_normal + plane_distance_sq(normal_i, position_i, position_j) * k_plane
 
 
-def _coefficients(p: BilateralParams, sigma_color: float) -> tuple[float, float, float]:
+def neg_exp(x: mi.Float) -> mi.Float:
+    """``exp(-x)`` as ``exp2(-x log2 e)``: Dr.Jit's exp2 is the cheaper kernel."""
+    return dr.exp2(x * -1.4426950408889634)
+
+
+def plane_distance_sq(normal_i: mi.Vector3f, position_i: mi.Vector3f, position_j: mi.Vector3f) -> mi.Float:
+    """``(n_i · (x_j - x_i) / |x_j - x_i|)²`` as one division, without the square
+    root of a normalisation; 0 for identical positions (not 0/0)."""
+    d = position_j - position_i
+    length_sq = dr.squared_norm(d)
+    return dr.select(length_sq > 0.0, dr.square(dr.dot(normal_i, d)) / dr.select(length_sq > 0.0, length_sq, 1.0), 0.0)
+
+
+def fast_acos(x: mi.Float) -> mi.Float:
+    """``arccos`` of ``x`` clipped to [-1, 1]: Abramowitz & Stegun 4.4.46
+    (``sqrt(1 - |x|)`` times a degree-7 polynomial, |error| <= 2e-8 rad, float32
+    rounding aside), about half the cost of ``dr.acos``."""
+    a = dr.minimum(dr.abs(x), 1.0)
+    p = mi.Float(-0.0012624911)
+    for c in (0.0066700901, -0.0170881256, 0.0308918810, -0.0501743046, 0.0889789874, -0.2145988016, 1.5707963050):
+        p = dr.fma(p, a, c)
+    r = dr.sqrt(1.0 - a) * p
+    return dr.select(x < 0.0, dr.pi - r, r)
+
+
+def _coefficients(p: EdgeWeights, sigma_color: float) -> tuple[float, float, float]:
     return _inv_two_sigma_sq(sigma_color), _inv_two_sigma_sq(p.sigma_normal), _inv_two_sigma_sq(p.sigma_plane)
 
 
@@ -87,9 +170,13 @@ class Frame:
         self.x = mi.Int32(index % self.width)
         self.y = mi.Int32(index // self.width)
 
-    def gather(self, packed: mi.Float, x: mi.Int32, y: mi.Int32, active) -> mi.Vector3f:
-        """The value at (x, y) of an image packed by :func:`pack`."""
-        v = dr.gather(mi.Vector4f, packed, mi.UInt32(y * self.width + x), active)
+    def gather(self, packed: mi.Float, x: mi.Int32, y: mi.Int32, active=None) -> mi.Vector3f:
+        """The value at (x, y) of an image packed by :func:`pack`, (x, y)
+        clamped to the image: an unmasked gather is cheaper than a masked one,
+        and every caller gives taps outside the image the weight 0 anyway."""
+        x = dr.clip(x, 0, self.width - 1)
+        y = dr.clip(y, 0, self.height - 1)
+        v = dr.gather(mi.Vector4f, packed, mi.UInt32(y * self.width + x))
         return mi.Vector3f(v.x, v.y, v.z)
 
     def tensor(self, color: mi.Vector3f) -> mi.TensorXf:
@@ -97,11 +184,12 @@ class Frame:
 
 
 @dr.syntax
-def joint_bilateral(frame: Frame, p: BilateralParams = BilateralParams()) -> mi.TensorXf:
+def joint_bilateral(frame: Frame, p: EdgeWeights = EdgeWeights(), window: BilateralWindow = BilateralWindow()
+                    ) -> mi.TensorXf:
     """The assignment's joint bilateral filter over a (2r+1)^2 window."""
-    r = p.radius
+    r = window.radius
     side = 2 * r + 1
-    k_coord = _inv_two_sigma_sq(p.sigma_coord)  # plain floats: not loop state
+    k_coord = _inv_two_sigma_sq(window.sigma_coord)  # plain floats: not loop state
     coefficients = _coefficients(p, p.sigma_color)
     total = mi.Vector3f(frame.color)  # the centre pixel, weight exp(0) = 1
     color4 = pack(frame.color)
@@ -116,19 +204,20 @@ def joint_bilateral(frame: Frame, p: BilateralParams = BilateralParams()) -> mi.
                  + edge_log_weight(coefficients, frame.color, frame.normal, frame.position, color_j,
                                    frame.gather(frame.normal4, x, y, inside),
                                    frame.gather(frame.position4, x, y, inside)))
-        w = dr.select(inside, dr.exp(-log_w), 0.0)
+        w = dr.select(inside, neg_exp(log_w), 0.0)
         total += w * color_j
         weights += w
         k += 1
     return frame.tensor(total / weights)
 
 
-def atrous(frame: Frame, p: BilateralParams = BilateralParams(), levels: int = 5) -> mi.TensorXf:
+def atrous(frame: Frame, p: EdgeWeights = EdgeWeights(), levels: AtrousLevels | int = AtrousLevels()) -> mi.TensorXf:
     """The À-Trous wavelet: ``levels`` passes of a 5x5 B3-spline kernel with
     holes (step 2^i), each with the bilateral edge-stopping weights; the
     colour sigma halves from one level to the next."""
+    count = levels.levels if isinstance(levels, AtrousLevels) else AtrousLevels(levels).levels
     color = frame.color
-    for level in range(levels):
+    for level in range(count):
         step = 1 << level
         coefficients = _coefficients(p, p.sigma_color / step)
         color4 = pack(color)
@@ -145,7 +234,7 @@ def atrous(frame: Frame, p: BilateralParams = BilateralParams(), levels: int = 5
                     log_w = edge_log_weight(coefficients, color, frame.normal, frame.position, color_j,
                                             frame.gather(frame.normal4, x, y, inside),
                                             frame.gather(frame.position4, x, y, inside))
-                    w = dr.select(inside, hx * hy * dr.exp(-log_w), 0.0)
+                    w = dr.select(inside, hx * hy * neg_exp(log_w), 0.0)
                 total += w * color_j
                 weights += w
         color = total / weights
@@ -196,22 +285,46 @@ def reproject(position: mi.TensorXf, ids: mi.TensorXf, prev_ids: mi.TensorXf, ob
 def clamp_box(color: mi.TensorXf, radius: int = 3) -> tuple[mi.Vector3f, mi.Vector3f]:
     """Mean and standard deviation of each pixel's (2r+1)^2 neighbourhood (inside
     the image), computed around the centre value so that HDR values with small
-    noise do not cancel (no negative variance)."""
+    noise do not cancel (no negative variance).
+
+    Separable: a horizontal pass sums ``c_q - c_r`` and ``(c_q - c_r)²`` along
+    each row around ``r``; the vertical pass moves those sums to the centre
+    ``p`` with ``Σ(c_q - c_p) = Σ(c_q - c_r) + n (c_r - c_p)`` and
+    ``Σ(c_q - c_p)² = Σ(c_q - c_r)² + 2 (c_r - c_p) Σ(c_q - c_r) + n (c_r - c_p)²``,
+    so every term stays a difference: 2 (2r+1) taps instead of (2r+1)²."""
     height, width = color.shape[0], color.shape[1]
     c = dr.unravel(mi.Vector3f, color.array)
     c4 = pack(c)
     index = dr.arange(mi.UInt32, width * height)
     x0, y0 = mi.Int32(index % width), mi.Int32(index // width)
+    row_sum, row_sq, row_count = mi.Vector3f(0.0), mi.Vector3f(0.0), mi.Float(0.0)
+    for dx in range(-radius, radius + 1):
+        x = x0 + dx
+        inside = (x >= 0) & (x < width)
+        v = dr.gather(mi.Vector4f, c4, mi.UInt32(y0 * width + dr.clip(x, 0, width - 1)))
+        d = dr.select(inside, mi.Vector3f(v.x, v.y, v.z) - c, 0.0)
+        row_sum += d
+        row_sq += d * d
+        row_count += dr.select(inside, 1.0, 0.0)
+    # one 12-float record per pixel: (c, row sum, row sum of squares, count)
+    rows = dr.ravel(mi.Vector4f(c.x, c.y, c.z, row_count))
+    sums = dr.ravel(mi.Vector4f(row_sum.x, row_sum.y, row_sum.z, 0.0))
+    squares = dr.ravel(mi.Vector4f(row_sq.x, row_sq.y, row_sq.z, 0.0))
+    dr.eval(rows, sums, squares)
     total, total_sq, count = mi.Vector3f(0.0), mi.Vector3f(0.0), mi.Float(0.0)
     for dy in range(-radius, radius + 1):
-        for dx in range(-radius, radius + 1):
-            x, y = x0 + dx, y0 + dy
-            inside = (x >= 0) & (x < width) & (y >= 0) & (y < height)
-            v = dr.gather(mi.Vector4f, c4, mi.UInt32(y * width + x), inside)
-            d = dr.select(inside, mi.Vector3f(v.x, v.y, v.z) - c, 0.0)
-            total += d
-            total_sq += d * d
-            count += dr.select(inside, 1.0, 0.0)
+        y = y0 + dy
+        inside = (y >= 0) & (y < height)
+        j = mi.UInt32(dr.clip(y, 0, height - 1) * width + x0)  # clamped, unmasked; outside rows are selected away
+        r = dr.gather(mi.Vector4f, rows, j)
+        s_ = dr.gather(mi.Vector4f, sums, j)
+        q = dr.gather(mi.Vector4f, squares, j)
+        n = r.w
+        offset = mi.Vector3f(r.x, r.y, r.z) - c
+        row_s, row_q = mi.Vector3f(s_.x, s_.y, s_.z), mi.Vector3f(q.x, q.y, q.z)
+        total += dr.select(inside, row_s + n * offset, 0.0)
+        total_sq += dr.select(inside, row_q + 2.0 * offset * row_s + n * offset * offset, 0.0)
+        count += dr.select(inside, n, 0.0)
     mean_offset = total / count
     variance = dr.maximum(total_sq / count - mean_offset * mean_offset, 0.0)
     return c + mean_offset, dr.sqrt(variance)
@@ -230,3 +343,54 @@ def accumulate(current: mi.TensorXf, previous: mi.TensorXf | None, index: mi.UIn
     alpha = dr.select(valid & dr.all(dr.isfinite(history)), p.alpha, 1.0)
     out = alpha * c + (1.0 - alpha) * history
     return mi.TensorXf(dr.ravel(out), shape=current.shape)
+
+
+def luminance(c: mi.Vector3f) -> mi.Float:
+    """Rec. 709 luminance of linear RGB."""
+    return 0.2126 * c.x + 0.7152 * c.y + 0.0722 * c.z
+
+
+def remove_outliers(color: mi.TensorXf, p: OutlierParams = OutlierParams()) -> mi.TensorXf:
+    """Each pixel's luminance clamped to mean ± k·σ of its (2r+1)² neighbourhood
+    (inside the image, the pixel included), its colour scaled by the same
+    factor (a pixel of luminance <= 0 keeps its colour). Statistics are taken
+    around the centre value, as in :func:`clamp_box`."""
+    height, width = color.shape[0], color.shape[1]
+    c = dr.unravel(mi.Vector3f, color.array)
+    c = dr.select(dr.isfinite(c), c, 0.0)
+    lum = luminance(c)
+    dr.eval(lum)
+    index = dr.arange(mi.UInt32, width * height)
+    x0, y0 = mi.Int32(index % width), mi.Int32(index // width)
+    total, total_sq, count = mi.Float(0.0), mi.Float(0.0), mi.Float(0.0)
+    for dy in range(-p.radius, p.radius + 1):
+        for dx in range(-p.radius, p.radius + 1):
+            x, y = x0 + dx, y0 + dy
+            inside = (x >= 0) & (x < width) & (y >= 0) & (y < height)
+            d = dr.select(inside, dr.gather(mi.Float, lum, mi.UInt32(y * width + x), inside) - lum, 0.0)
+            total += d
+            total_sq += d * d
+            count += dr.select(inside, 1.0, 0.0)
+    mean_offset = total / count
+    sigma = dr.sqrt(dr.maximum(total_sq / count - mean_offset * mean_offset, 0.0))
+    mean = lum + mean_offset
+    clamped = dr.clip(lum, mean - p.k * sigma, mean + p.k * sigma)
+    scale = dr.select(lum > 0.0, clamped / dr.select(lum > 0.0, lum, 1.0), 1.0)
+    return mi.TensorXf(dr.ravel(c * scale), shape=color.shape)
+
+
+#: below this albedo (per channel) demodulation leaves the colour as it is
+ALBEDO_EPSILON = 1e-3
+
+
+def demodulate(color: mi.TensorXf, albedo: mi.TensorXf) -> mi.TensorXf:
+    """``colour / albedo`` per channel, 1 in place of an albedo below
+    :data:`ALBEDO_EPSILON` (background, black surfaces)."""
+    a = albedo.array
+    return mi.TensorXf(color.array / dr.select(a > ALBEDO_EPSILON, a, 1.0), shape=color.shape)
+
+
+def remodulate(color: mi.TensorXf, albedo: mi.TensorXf) -> mi.TensorXf:
+    """The inverse of :func:`demodulate`."""
+    a = albedo.array
+    return mi.TensorXf(color.array * dr.select(a > ALBEDO_EPSILON, a, 1.0), shape=color.shape)

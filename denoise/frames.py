@@ -5,18 +5,40 @@ normal), ``position_i.exr`` (RGB, world position), ``depth_i.exr`` and
 ``ID_i.exr`` (one channel ``Y``; ID is the object index, -1 for background),
 and ``matrix_i.mat``: little-endian int32 N, then N + 2 float32 4x4 matrices,
 row-major, for column vectors: object-to-world of objects 0..N-1, then
-world-to-camera, then world-to-screen (pixel coordinates, row 0 at the top).
-EXRs are float32 with channels stored B, G, R (OpenEXR's order), which the
-course's tinyexr reader takes. Results are ``result_i.exr``.
+world-to-camera, then world-to-screen. EXRs are float32 with channels stored
+B, G, R (OpenEXR's order), which the course's tinyexr reader takes. Results
+are ``result_i.exr``. An optional ``albedo_i.exr`` (RGB) is an extra beside
+the course's layout (OIDN and albedo demodulation use it).
+
+The matrix convention is the course framework's (as in its example frames,
+``../shared/games202/box/``):
+
+- world-to-camera maps a world point to camera coordinates whose ``z`` is the
+  depth along the view direction (positive in front of the camera);
+- world-to-screen is a perspective projection of those: for a visible point,
+  ``x/w, y/w`` are its pixel coordinates (pixel ``(i, j)``'s centre at
+  ``(i + 0.5, j + 0.5)``, row 0 at the top), ``w`` is its camera depth, and
+  ``z/w`` lies in (0, 1): ``z/w = f (d - n) / ((f - n) d)`` for depth ``d``
+  with near and far planes ``n < f`` (:func:`depth_range` takes them from the
+  points the frame sees). The course's reference solutions reject reprojected
+  points whose ``z/w`` is outside (0, 1).
+
+Every problem with a folder (a missing, damaged or inconsistent file) is a
+:class:`core.errors.FrameError` that names the file.
 """
 from __future__ import annotations
 
+import os
 import re
+import sys
+import tempfile
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from core.errors import FrameError
 from imaging.image_io import atomic_path, read_exr, write_exr
 
 BUFFERS = ("beauty", "normal", "position", "depth", "ID")
@@ -44,14 +66,14 @@ def frame_indices(folder: Path) -> list[int]:
 def read_matrices(path: Path) -> tuple[list[np.ndarray], np.ndarray, np.ndarray]:
     data = path.read_bytes()
     if len(data) < 4:
-        raise ValueError(f"{path}: expected an int32 object count, found {len(data)} bytes")
+        raise FrameError(f"{path}: expected an int32 object count, found {len(data)} bytes")
     count = int(np.frombuffer(data[:4], "<i4")[0])
     expected = 4 + (count + 2) * 64
     if count < 0 or len(data) != expected:
-        raise ValueError(f"{path}: expected {expected} bytes for {count} objects, found {len(data)}")
+        raise FrameError(f"{path}: expected {expected} bytes for {count} objects, found {len(data)}")
     matrices = np.frombuffer(data[4:], "<f4").reshape(count + 2, 4, 4).astype(np.float64)
     if not np.all(np.isfinite(matrices)):
-        raise ValueError(f"{path}: expected finite matrices, found NaN or inf")
+        raise FrameError(f"{path}: expected finite matrices, found NaN or inf")
     return list(matrices[:count]), matrices[count], matrices[count + 1]
 
 
@@ -68,30 +90,87 @@ def _single(channels: dict, path: Path) -> np.ndarray:
         return next(iter(channels.values()))
     if "R" in channels:
         return channels["R"]
-    raise ValueError(f"{path}: expected one channel Y, found {', '.join(channels)}")
+    raise FrameError(f"{path}: expected one channel Y, found {', '.join(channels)}")
 
 
 def _rgb(channels: dict, path: Path) -> np.ndarray:
     if not {"R", "G", "B"} <= set(channels):
-        raise ValueError(f"{path}: expected channels R, G, B, found {', '.join(channels)}")
+        raise FrameError(f"{path}: expected channels R, G, B, found {', '.join(channels)}")
     return np.stack([channels["R"], channels["G"], channels["B"]], -1)
 
 
+@contextmanager
+def _quiet_stderr():
+    """OpenEXR's C++ core and its binding print their own lines about damaged
+    files on file descriptors 1 and 2; they are held back (the FrameError
+    says it in one line)."""
+    sys.stdout.flush()
+    sys.stderr.flush()
+    try:
+        saved = [os.dup(1), os.dup(2)]
+    except OSError:
+        yield
+        return
+    with tempfile.TemporaryFile() as sink:
+        os.dup2(sink.fileno(), 1)
+        os.dup2(sink.fileno(), 2)
+        try:
+            yield
+        finally:
+            sys.stdout.flush()
+            sys.stderr.flush()
+            for fd, copy in zip((1, 2), saved):
+                os.dup2(copy, fd)
+                os.close(copy)
+
+
+def _read_exr(path: Path) -> dict:
+    """The EXR's channels; a damaged file is a FrameError naming it."""
+    try:
+        with _quiet_stderr():
+            channels = read_exr(path)
+    except FileNotFoundError:
+        raise
+    except Exception as error:  # OpenEXR reports damage as RuntimeError/OSError without the name
+        raise FrameError(f"{path}: not a readable EXR ({' '.join(str(error).split()) or type(error).__name__})") from None
+    if not channels:
+        raise FrameError(f"{path}: the EXR has no channels")
+    return channels
+
+
 def read_frame(folder: Path, index: int) -> FrameData:
+    """Frame ``index`` of ``folder``, checked: every buffer the same size, ids
+    that are whole numbers naming an object of ``matrix_i.mat`` (or -1)."""
     paths = {name: folder / f"{name}_{index}.exr" for name in BUFFERS}
     missing = [str(p.name) for p in list(paths.values()) + [folder / f"matrix_{index}.mat"] if not p.exists()]
     if missing:
-        raise FileNotFoundError(f"{folder}: frame {index} lacks {', '.join(missing)}")
-    rgb = {n: _rgb(read_exr(paths[n]), paths[n]) for n in ("beauty", "normal", "position")}
-    single = {n: _single(read_exr(paths[n]), paths[n]) for n in ("depth", "ID")}
-    shapes = {a.shape[:2] for a in list(rgb.values()) + list(single.values())}
-    if len(shapes) != 1:
-        raise ValueError(f"{folder}: frame {index}'s buffers differ in size: {sorted(shapes)}")
-    objects, camera, screen = read_matrices(folder / f"matrix_{index}.mat")
+        raise FrameError(f"{folder}: frame {index} lacks {', '.join(missing)}")
+    rgb = {n: _rgb(_read_exr(paths[n]), paths[n]) for n in ("beauty", "normal", "position")}
+    single = {n: _single(_read_exr(paths[n]), paths[n]) for n in ("depth", "ID")}
     albedo_path = folder / f"albedo_{index}.exr"
-    albedo = _rgb(read_exr(albedo_path), albedo_path) if albedo_path.exists() else None
+    albedo = _rgb(_read_exr(albedo_path), albedo_path) if albedo_path.exists() else None
+    sizes = {paths.get(n, albedo_path): a.shape[:2] for n, a in [*rgb.items(), *single.items(), ("albedo", albedo)]
+             if a is not None}
+    expected = sizes[paths["beauty"]]
+    for path, shape in sizes.items():
+        if shape != expected:
+            raise FrameError(f"{path}: {shape[1]}x{shape[0]} pixels, but {paths['beauty'].name} has "
+                             f"{expected[1]}x{expected[0]}")
+    matrix_path = folder / f"matrix_{index}.mat"
+    objects, camera, screen = read_matrices(matrix_path)
+    raw_ids = single["ID"]
+    finite = np.isfinite(raw_ids)
+    ids = np.rint(np.where(finite, raw_ids, -1)).astype(np.int64)
+    if not finite.all():
+        raise FrameError(f"{paths['ID']}: NaN or inf object ids")
+    if np.any(np.abs(raw_ids - ids) > 1e-3):
+        raise FrameError(f"{paths['ID']}: object ids must be whole numbers, found {raw_ids[np.abs(raw_ids - ids) > 1e-3][0]:g}")
+    if ids.size and (ids.min() < -1 or ids.max() >= len(objects)):
+        bad = int(ids.max()) if ids.max() >= len(objects) else int(ids.min())
+        raise FrameError(f"{paths['ID']}: object id {bad}, but {matrix_path.name} has matrices for "
+                         f"{len(objects)} objects (ids -1 to {len(objects) - 1})")
     return FrameData(rgb["beauty"], rgb["normal"], rgb["position"], single["depth"],
-                     np.rint(single["ID"]).astype(np.int32), objects, camera, screen, albedo)
+                     ids.astype(np.int32), objects, camera, screen, albedo)
 
 
 def write_frame(folder: Path, index: int, frame: FrameData) -> None:
@@ -105,24 +184,47 @@ def write_frame(folder: Path, index: int, frame: FrameData) -> None:
                    frame.world_to_screen)
 
 
-def camera_matrices(camera, width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
-    """(world-to-camera, world-to-screen) of the course camera.
+def depth_range(camera, points: np.ndarray) -> tuple[float, float]:
+    """Near and far planes for a frame whose visible world points are ``points``
+    ((N, 3), e.g. the position buffer where an object was hit): half the
+    smallest and twice the largest depth along the view direction, so that the
+    frame's points and points that moved moderately map to z/w in (0, 1)."""
+    direction = np.asarray(camera.direction, np.float64)
+    direction = direction / np.linalg.norm(direction)
+    points = np.asarray(points, np.float64).reshape(-1, 3)
+    depth = (points - np.asarray(camera.center, np.float64)) @ direction
+    depth = depth[np.isfinite(depth) & (depth > 0)]
+    if depth.size == 0:
+        return 1e-2, 1e3  # nothing visible: the course framework's own planes
+    far = 2.0 * float(depth.max())
+    return max(0.5 * float(depth.min()), 1e-6 * far), far
 
-    Camera coordinates are (β, γ, α) with ``p - center = α F + β H + γ U``
-    (F = unit direction / tan(angle/2), H = normalize(F × up), U = up as
-    given, as the course's camera shoots rays), so NDC are (β/α, γ/α); the
-    screen maps pixel (i, j)'s centre to (i + 0.5, j + 0.5), row 0 at the top.
+
+def camera_matrices(camera, width: int, height: int, near: float, far: float) -> tuple[np.ndarray, np.ndarray]:
+    """(world-to-camera, world-to-screen) of the course camera, in the course
+    framework's convention (see the module docstring).
+
+    The course's camera shoots rays ``α F + β H + γ U`` with F = unit direction
+    / tan(angle/2), H = normalize(F × up), U = up as given; camera coordinates
+    are ``(β, γ, α) / tan(angle/2)``, so ``z`` is the depth along the view
+    direction (when ``up`` is perpendicular to it, as in our scenes) and
+    ``(x/z, y/z)`` are NDC. The screen maps pixel (i, j)'s centre to
+    (i + 0.5, j + 0.5), row 0 at the top, and depth ``near``..``far`` to z/w
+    in 0..1.
     """
+    if not 0.0 < near < far:
+        raise ValueError(f"camera_matrices: expected 0 < near < far, found near {near}, far {far}")
     direction = np.asarray(camera.direction, np.float64)
     direction /= np.linalg.norm(direction)
     up = np.asarray(camera.up, np.float64)
     horizontal = np.cross(direction, up)
     horizontal /= np.linalg.norm(horizontal)
-    forward = direction / np.tan(np.radians(camera.angle) / 2)
-    basis = np.column_stack([horizontal, up, forward])
+    tan_half = np.tan(np.radians(camera.angle) / 2)
+    basis = np.column_stack([horizontal, up, direction / tan_half])
     world_to_camera = np.eye(4)
-    world_to_camera[:3, :3] = np.linalg.inv(basis)
+    world_to_camera[:3, :3] = np.linalg.inv(basis) / tan_half
     world_to_camera[:3, 3] = -world_to_camera[:3, :3] @ np.asarray(camera.center, np.float64)
     sx, sy = (width - 1) / 2.0, (height - 1) / 2.0
-    projection = np.array([[sx, 0, sx + 0.5, 0], [0, -sy, sy + 0.5, 0], [0, 0, 1, 0], [0, 0, 1, 0]], np.float64)
+    a, b = far / (far - near), -far * near / (far - near)  # z/w = a + b / depth
+    projection = np.array([[sx, 0, sx + 0.5, 0], [0, -sy, sy + 0.5, 0], [0, 0, a, b], [0, 0, 1, 0]], np.float64)
     return world_to_camera, projection @ world_to_camera

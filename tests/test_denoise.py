@@ -121,21 +121,21 @@ def close(ours, reference):
 
 # -- tests ---------------------------------------------------------------------------
 def test_joint_bilateral_matches_numpy(variant_llvm_ad_rgb, buffers):
-    from denoise.filters import BilateralParams, Frame, joint_bilateral
+    from denoise.filters import BilateralWindow, EdgeWeights, Frame, joint_bilateral
 
     c, n, x, _ = buffers
-    p = BilateralParams(sigma_coord=3.0, sigma_color=0.6, sigma_normal=0.3, sigma_plane=0.3, radius=4)
-    ours = np.array(joint_bilateral(Frame(*tensors(c, n, x)), p))
+    p = EdgeWeights(sigma_color=0.6, sigma_normal=0.3, sigma_plane=0.3)
+    ours = np.array(joint_bilateral(Frame(*tensors(c, n, x)), p, BilateralWindow(radius=4, sigma_coord=3.0)))
     reference = np_bilateral(c, n, x, 4, 3.0, 0.6, 0.3, 0.3)
     assert close(ours, reference) < 1e-4
     assert np.abs(np.diff(ours, axis=1)).mean() < np.abs(np.diff(c, axis=1)).mean()  # it smooths
 
 
 def test_atrous_matches_numpy(variant_llvm_ad_rgb, buffers):
-    from denoise.filters import BilateralParams, Frame, atrous
+    from denoise.filters import EdgeWeights, Frame, atrous
 
     c, n, x, _ = buffers
-    p = BilateralParams(sigma_color=0.6, sigma_normal=0.3, sigma_plane=0.3)
+    p = EdgeWeights(sigma_color=0.6, sigma_normal=0.3, sigma_plane=0.3)
     ours = np.array(atrous(Frame(*tensors(c, n, x)), p, levels=3))
     assert close(ours, np_atrous(c, n, x, 3, 0.6, 0.3, 0.3)) < 1e-4
 
@@ -160,17 +160,20 @@ def test_screen_matrix_and_static_reprojection(variant_llvm_ad_rgb, buffers):
     """The world-to-screen matrix sends each pixel's surface point to that pixel;
     so in a static scene every hit reprojects onto itself and the background is invalid."""
     from denoise.filters import reproject
-    from denoise.frames import camera_matrices
+    from denoise.frames import camera_matrices, depth_range
 
     _, _, x, ids = buffers
     h, w = ids.shape
     scene = load_scene(ROOT / "scenes" / "showcase.txt")
-    _, screen = camera_matrices(scene.camera, w, h)
     hit = ids >= 0
+    camera, screen = camera_matrices(scene.camera, w, h, *depth_range(scene.camera, x[hit]))
     p = np.concatenate([x[hit], np.ones((hit.sum(), 1))], 1) @ screen.T
     pixels = np.floor(p[:, :2] / p[:, 3:])
     rows, cols = np.nonzero(hit)
     assert np.mean((pixels[:, 0] == cols) & (pixels[:, 1] == rows)) > 0.999
+    # the course's convention: depth into (0, 1), w = the camera's depth
+    assert np.all((p[:, 2] / p[:, 3] > 0) & (p[:, 2] / p[:, 3] < 1))
+    assert np.allclose(screen[3], camera[2])
     objects = [np.eye(4)] * len(scene.objects)
     index, valid = reproject(*tensors(x, ids, ids), objects, objects, screen)
     index, valid = np.array(index), np.array(valid)
@@ -180,19 +183,70 @@ def test_screen_matrix_and_static_reprojection(variant_llvm_ad_rgb, buffers):
 
 
 def test_frame_folder_round_trip(tmp_path):
+    from core.errors import FrameError
     from denoise.frames import FrameData, read_frame, write_frame
 
     rng = np.random.default_rng(2)
     frame = FrameData(rng.random((4, 5, 3)), rng.random((4, 5, 3)), rng.random((4, 5, 3)), rng.random((4, 5)),
-                      rng.integers(-1, 3, (4, 5)), [np.eye(4), np.diag([2.0, 2, 2, 1])], np.eye(4) * 3, np.eye(4) * 4)
+                      rng.integers(-1, 2, (4, 5)), [np.eye(4), np.diag([2.0, 2, 2, 1])], np.eye(4) * 3, np.eye(4) * 4)
     write_frame(tmp_path, 0, frame)
     back = read_frame(tmp_path, 0)
     assert np.allclose(back.beauty, frame.beauty, atol=1e-6) and np.array_equal(back.ids, frame.ids)
     assert np.allclose(back.object_to_world[1], frame.object_to_world[1])
     assert np.allclose(back.world_to_screen, frame.world_to_screen)
     (tmp_path / "matrix_0.mat").write_bytes(b"\x02\x00\x00\x00")
-    with pytest.raises(ValueError, match="expected 260 bytes for 2 objects"):
+    with pytest.raises(FrameError, match="expected 260 bytes for 2 objects"):
         read_frame(tmp_path, 0)
+
+
+GAMES202_BOX = ROOT.parent / "shared" / "games202" / "box"
+
+
+def course_z_over_w(screen, points):
+    p = np.concatenate([points, np.ones((len(points), 1))], 1) @ screen.T
+    return p[:, 2] / p[:, 3]
+
+
+@pytest.mark.skipif(not GAMES202_BOX.is_dir(), reason="the course's example frames are not beside the checkout")
+def test_course_example_frames_read_and_reproject(variant_llvm_ad_rgb):
+    """The course framework's own frames (GAMES202 box): our reader takes them,
+    their world-to-screen follows the convention of denoise/frames.py (pixel
+    centres at i + 0.5, w = camera depth, z/w in (0, 1)), and our back
+    projection keeps >= 99 % of the visible pixels' history between
+    consecutive frames."""
+    from denoise.filters import reproject
+    from denoise.frames import read_frame
+
+    frames = [read_frame(GAMES202_BOX, i) for i in range(4)]
+    for f in frames:
+        hit = f.ids >= 0
+        z = course_z_over_w(f.world_to_screen, f.position[hit])
+        assert np.all((z > 0) & (z < 1))
+        p = np.concatenate([f.position[hit], np.ones((hit.sum(), 1))], 1) @ f.world_to_screen.T
+        rows, cols = np.nonzero(hit)
+        assert np.mean((np.floor(p[:, 0] / p[:, 3]) == cols) & (np.floor(p[:, 1] / p[:, 3]) == rows)) > 0.99
+        assert np.allclose(f.world_to_screen[3], f.world_to_camera[2], atol=1e-4)
+        assert np.allclose((p[:, 3]), f.depth[hit], rtol=1e-3)  # w is the depth buffer's value
+    for before, after in zip(frames, frames[1:]):
+        index, valid = reproject(*tensors(after.position, after.ids, before.ids), after.object_to_world,
+                                 before.object_to_world, before.world_to_screen)
+        hit = after.ids.ravel() >= 0
+        assert np.array(valid)[hit].mean() >= 0.99
+
+
+def test_the_convention_check_fails_on_the_old_matrices(variant_llvm_ad_rgb, buffers):
+    """The z/w check above catches the old export, whose depth row copied the w
+    row (z/w = 1 everywhere, which the course's solutions reject)."""
+    from denoise.frames import camera_matrices, depth_range
+
+    _, _, x, ids = buffers
+    scene = load_scene(ROOT / "scenes" / "showcase.txt")
+    hit = ids >= 0
+    camera, screen = camera_matrices(scene.camera, ids.shape[1], ids.shape[0], *depth_range(scene.camera, x[hit]))
+    old = screen.copy()
+    old[2] = old[3]
+    z = course_z_over_w(old, x[hit])
+    assert not np.all((z > 0) & (z < 1))
 
 
 DIFFUSE_SCENE = """
@@ -224,7 +278,7 @@ def test_reprojection_of_the_ground_truth(variant_llvm_ad_rgb, tmp_path, motion)
     (tmp_path / "diffuse.txt").write_text(DIFFUSE_SCENE)
     moves = {"camera": dict(camera={"orbit": {"center": [0, 0.5, 0], "degrees": 4}, "pan": [0.2, 0, 0]}),
              "object": dict(objects={"2": {"translate": [-0.3, 0, 0.2]}})}[motion]
-    spec = Spec(scene=str(tmp_path / "diffuse.txt"), frames=2, size=(96, 64), spp=1, reference_spp=1,
+    spec = Spec(scene=str(tmp_path / "diffuse.txt"), frames=2, size=(96, 64), spp=1, reference_spp=2,
                 bounces=0, shadows=False, jitter=False, **moves)
     target = tmp_path / "seq"
     assert export(spec, target, whitted=True) == [0, 1]
@@ -232,18 +286,31 @@ def test_reprojection_of_the_ground_truth(variant_llvm_ad_rgb, tmp_path, motion)
     before, after = read_frame(target, 0), read_frame(target, 1)
     truth = [np.stack([read_exr(reference_folder(target) / f"beauty_{i}.exr")[c] for c in "RGB"], -1)
              for i in (0, 1)]
+    for f in (before, after):  # the course's matrix convention (see test_course_example_frames_...)
+        z = course_z_over_w(f.world_to_screen, f.position[f.ids >= 0])
+        assert np.all((z > 0) & (z < 1))
+        assert np.allclose(f.world_to_screen[3], f.world_to_camera[2], atol=1e-4)
+    # every point of the new frame that keeps its history lies in (0, 1) of the old one too
     index, valid = reproject(*tensors(after.position, after.ids, before.ids), after.object_to_world,
                              before.object_to_world, before.world_to_screen)
     index, valid = np.array(index), np.array(valid)
     assert valid.mean() > 0.5  # the rest is sky or newly visible
+    moved = [np.linalg.inv(after.object_to_world[k]) for k in range(len(after.object_to_world))]
+    kept = valid.reshape(after.ids.shape)
+    world_before = np.stack([(before.object_to_world[k] @ moved[k] @ np.append(p, 1))[:3]
+                             for p, k in zip(after.position[kept], after.ids[kept])])
+    z = course_z_over_w(before.world_to_screen, world_before)
+    assert np.all((z > 0) & (z < 1))
     warped = truth[0].reshape(-1, 3)[index][valid]
     assert relmse(warped, truth[1].reshape(-1, 3)[valid]) <= 1e-3
     assert relmse(truth[0].reshape(-1, 3)[valid], truth[1].reshape(-1, 3)[valid]) > 1e-3  # it did move
 
 
 def test_denoise_command_and_benchmark_quick(variant_llvm_ad_rgb, tmp_path):
-    """The quick benchmark renders both sequences small, runs every method (OIDN
-    included) and writes finite numbers; `python -m denoise` writes one result per frame."""
+    """The quick benchmark renders the hard sequence small, runs every method
+    (OIDN included), times them, and writes finite numbers with the new
+    figures; `python -m denoise` writes one result per frame, PNG previews and
+    a video."""
     import json
 
     from benchmarks import denoise as bench
@@ -251,15 +318,94 @@ def test_denoise_command_and_benchmark_quick(variant_llvm_ad_rgb, tmp_path):
     from imaging.image_io import read_exr
 
     out = tmp_path / "dn.json"
-    assert bench.main(["--quick", "--json", str(out), "--work", str(tmp_path / "work")]) == 0
+    assert bench.main(["--quick", "--json", str(out), "--work", str(tmp_path / "work"),
+                       "--sequences", "glossy_shadow"]) == 0
     results = json.loads(out.read_text())
     assert {r["method"] for r in results["results"]} == set(bench.METHODS)
     assert all(np.isfinite([r["relmse"], r["flip"], r["ms"]]).all() for r in results["results"])
-    for sequence in {r["sequence"] for r in results["results"]}:
-        last = {r["method"]: r["relmse"] for r in results["results"] if r["sequence"] == sequence and r["frame"] == 3}
-        assert last["atrous+temporal"] < last["raw"] / 2  # it denoises
-    folder = next(p for p in sorted((tmp_path / "work").iterdir()) if not p.name.endswith("_reference"))
-    assert denoise_main([str(folder), str(tmp_path / "results"), "--method", "atrous"]) == 0
+    assert all((r["temporal"] is None) == (r["frame"] == 0) for r in results["results"])
+    sequence = results["sequences"][0]
+    assert np.isfinite(sequence["reference_noise"]) and sequence["reference_noise"] > 0
+    assert set(sequence["stability"]) == set(bench.METHODS)
+    assert set(results["timing"]["ms"]) == set(bench.TIMED)
+    last = {r["method"]: r["relmse"] for r in results["results"] if r["frame"] == 3}
+    assert last["atrous+temporal"] < last["raw"] / 2  # it denoises
+    folder = tmp_path / "work" / "glossy_shadow_96x54_16spp_quick"
+    video = tmp_path / "den.mp4"
+    assert denoise_main([str(folder), str(tmp_path / "results"), "--method", "svgf", "--png", "--video", str(video),
+                         "--reference", str(folder.parent / "glossy_shadow_96x54_16spp_quick_reference")]) == 0
     results = sorted((tmp_path / "results").glob("result_*.exr"))
-    assert len(results) == 4
+    assert len(results) == 4 and len(list((tmp_path / "results").glob("result_*.png"))) == 4
     assert all(np.isfinite(np.stack(list(read_exr(p).values()))).all() for p in results)
+    import imageio.v2 as imageio
+
+    frames = imageio.mimread(video)
+    assert len(frames) == 4 and frames[0].shape[1] == 3 * 96  # input | output | reference
+
+
+@pytest.mark.parametrize("flags, message", [
+    (["--levels", "31"], "levels must be a whole number from 1 to 12"),
+    (["--radius", "-5"], "radius must be a whole number from 0 to 64"),
+    (["--alpha", "2"], "alpha (the current frame's weight) must be in (0, 1]"),
+    (["--alpha", "0"], "alpha"),
+    (["--k", "-1"], "k (the history clamp"),
+    (["--sigma-color", "0"], "sigma_color must be a finite number > 0"),
+    (["--sigma-plane", "-1"], "sigma_plane"),
+    (["--sigma-coord", "inf"], "sigma_coord"),
+    (["--outliers", "-1"], "outlier removal: k"),
+    (["--method", "svgf", "--sigma-luminance", "nan"], "sigma_luminance"),
+    (["--video", "out.gif"], "name it .mp4"),
+])
+def test_denoise_rejects_bad_parameters(tmp_path, capsys, flags, message):
+    """Each out-of-range parameter: one line, exit 2, before any frame is read."""
+    from denoise.__main__ import main
+
+    assert main([str(tmp_path / "none"), str(tmp_path / "out")] + flags) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("python -m denoise: error: ") and message in err
+
+
+def _small_folder(folder, count=2, size=(5, 4), objects=1):
+    from denoise.frames import FrameData, write_frame
+
+    rng = np.random.default_rng(4)
+    h, w = size[1], size[0]
+    for i in range(count):
+        write_frame(folder, i, FrameData(rng.random((h, w, 3)), rng.random((h, w, 3)), rng.random((h, w, 3)),
+                                         rng.random((h, w)), np.zeros((h, w), np.int32), [np.eye(4)] * objects,
+                                         np.eye(4), np.eye(4)))
+
+
+@pytest.mark.parametrize("damage, message", [
+    (lambda f: (f / "normal_1.exr").write_bytes(b"not an exr"), "normal_1.exr: not a readable EXR"),
+    (lambda f: (f / "beauty_1.exr").write_bytes((f / "beauty_1.exr").read_bytes()[:300]), "beauty_1.exr"),
+    (lambda f: _small_folder_one(f, 1, size=(6, 4)), "beauty_1.exr: 6x4 pixels, but frame 0 has 5x4"),
+    (lambda f: _write_ids(f, 1, 3), "ID_1.exr: object id 3, but matrix_1.mat has matrices for 1 objects"),
+    (lambda f: _write_ids(f, 0, 0.5), "ID_0.exr: object ids must be whole numbers"),
+    (lambda f: (f / "position_0.exr").unlink(), "frame 0 lacks position_0.exr"),
+    (lambda f: (f / "matrix_1.mat").write_bytes(b"\x01\x00"), "matrix_1.mat: expected an int32 object count"),
+])
+def test_denoise_rejects_bad_frames(variant_llvm_ad_rgb, tmp_path, capsys, damage, message):
+    """Damaged or inconsistent frame folders: one line naming the file, exit 2."""
+    from denoise.__main__ import main
+
+    folder = tmp_path / "frames"
+    _small_folder(folder)
+    damage(folder)
+    assert main([str(folder), str(tmp_path / "out"), "--radius", "1"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and message in err, err
+
+
+def _small_folder_one(folder, index, size):
+    from denoise.frames import FrameData, write_frame
+
+    h, w = size[1], size[0]
+    write_frame(folder, index, FrameData(np.ones((h, w, 3)), np.ones((h, w, 3)), np.ones((h, w, 3)), np.ones((h, w)),
+                                         np.zeros((h, w), np.int32), [np.eye(4)], np.eye(4), np.eye(4)))
+
+
+def _write_ids(folder, index, value):
+    from imaging.image_io import write_exr
+
+    write_exr(folder / f"ID_{index}.exr", {"": np.full((4, 5), value, np.float32)})

@@ -1,0 +1,101 @@
+"""The Dask side of :mod:`denoise.export`: its tasks on a Dask distributed cluster.
+
+Every frame is one task (G-buffers and noisy beauty) plus one task per
+ground-truth batch (see :func:`denoise.export.plan`). They are submitted as
+Dask futures and collected with ``as_completed``; this process writes each
+result as it arrives (atomically), so only the scene files need to be
+readable on the workers, at the same path. Dask reschedules the tasks of a
+worker that dies; what was written survives an interrupted client, and the
+next run submits only what is missing.
+
+Without a scheduler address a ``LocalCluster`` is started: one worker process
+per core (or ``workers``), one task at a time each, and Dr.Jit's thread count
+in each worker set to cores / workers. On an existing cluster
+(``dask scheduler`` and ``dask worker ADDRESS --nthreads 1`` per machine),
+Dr.Jit keeps its default: every core of the worker's machine.
+"""
+from __future__ import annotations
+
+import logging
+import os
+import sys
+from contextlib import contextmanager
+from typing import Callable, Iterator
+
+from core.errors import UsageError
+
+from .export import Recorder, Sequence, Task, plan, progress_bar, run_task
+
+
+def has_dashboard() -> bool:
+    """Dask serves its dashboard only where bokeh is installed."""
+    try:
+        import bokeh  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+@contextmanager
+def dask_client(scheduler: str | None = None, workers: int | None = None) -> Iterator[tuple[object, int | None]]:
+    """(a Dask client, the Dr.Jit thread count each worker should use)."""
+    from distributed import Client, LocalCluster
+
+    cluster = None
+    if scheduler:
+        try:
+            client = Client(scheduler, timeout="15s")
+        except (OSError, TimeoutError) as error:
+            raise UsageError(f"--scheduler {scheduler}: cannot reach a Dask scheduler there ({error})") from None
+        threads = None
+    else:
+        cores = os.cpu_count() or 1
+        workers = workers or cores
+        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                               dashboard_address=":0" if has_dashboard() else None, silence_logs=logging.ERROR)
+        client = Client(cluster)
+        threads = max(1, cores // workers)
+    try:
+        yield client, threads
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()
+
+
+def run_futures(client, tasks: list[Task], recorder: Recorder, after_task: Callable[[Task], None] | None = None,
+                total_frames: int = 0) -> None:
+    """Submits ``tasks`` (earlier frames first) and records results as they complete."""
+    from distributed import as_completed
+
+    futures = {}
+    for order, task in enumerate(tasks):
+        future = client.submit(run_task, task, key=task.name, priority=len(tasks) - order)
+        futures[future] = task
+    try:
+        with progress_bar(len(tasks), total_frames) as bar:
+            for future, (result, timing) in as_completed(futures, with_results=True):
+                task = futures.pop(future)
+                recorder.record(task, result, timing)
+                bar.update()
+                bar.set_postfix(frames=f"{recorder.frames_done()}/{total_frames}", refresh=False)
+                if after_task:
+                    after_task(task)
+    finally:
+        if futures:  # interrupted: the cluster stops working for us
+            client.cancel(list(futures))
+
+
+def run_on_cluster(sequences: list[Sequence], recorder: Recorder, scheduler: str | None = None,
+                   workers: int | None = None, after_task: Callable[[Task], None] | None = None,
+                   total_frames: int = 0) -> dict:
+    """Runs the missing tasks of ``sequences`` on Dask; returns what the manifest records about it."""
+    with dask_client(scheduler, workers) as (client, threads):
+        tasks = [t for s in sequences for t in plan(s, threads)]
+        info = client.scheduler_info()
+        extra = {"runner": "dask", "scheduler": scheduler or "LocalCluster", "workers": len(info.get("workers", {})),
+                 "drjit_threads_per_worker": threads, "tasks": len(tasks)}
+        if has_dashboard():
+            print(f"denoise.export: Dask dashboard at {client.dashboard_link}", file=sys.stderr)
+        run_futures(client, tasks, recorder, after_task, total_frames)
+    return extra

@@ -1,0 +1,203 @@
+"""Spatiotemporal Variance-Guided Filtering (Schied et al. 2017), Dr.Jit array code.
+
+Per frame, on the (demodulated) colour ``c`` with luminance ``l``:
+
+1. **Temporal accumulation** through our back projection
+   (:func:`denoise.filters.reproject`): where the history is valid, its length
+   ``n`` grows by one and colour and the first two luminance moments are
+   blended, ``x = lerp(history, current, max(alpha, 1/n))``; elsewhere
+   ``n = 1`` and they start from the current frame.
+2. **Variance** ``max(0, m2 - m1²)`` from the accumulated moments; while the
+   history is shorter than ``variance_frames`` (4) frames, from moments
+   averaged over a 7x7 neighbourhood with the normal and plane weights
+   instead, boosted by ``4/n`` (as the authors' code does).
+3. **À-Trous levels** (5x5 B3 kernel, holes 2^i), each tap weighted by
+   ``exp(-|l_p - l_q| / (sigma_luminance · sqrt(g(var)_p) + ε))`` (``g``: the
+   3x3 Gaussian blur of the variance), ``max(0, n_p·n_q)^sigma_normal`` and the
+   assignment's plane weight ``exp(-(n_p · (x_q - x_p)/|x_q - x_p|)² / (2 sigma_plane²))``;
+   the variance is filtered along with weights squared.
+4. The first level's output is the next frame's colour history.
+
+A level is one kernel: colour and variance are read as one 4-float record per
+tap, the normal and position as packed records made once per frame.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import drjit as dr
+import mitsuba as mi
+
+from .filters import B3, Frame, _inv_two_sigma_sq, _positive, _whole, luminance, neg_exp, plane_distance_sq
+
+GAUSS3 = (0.25, 0.5, 0.25)
+EPSILON = 1e-10
+
+
+@dataclass(frozen=True)
+class SVGFParams:
+    """SVGF's parameters, with the paper's defaults."""
+    levels: int = 5
+    sigma_luminance: float = 4.0
+    sigma_normal: float = 128.0  # exponent of max(0, n·n')
+    sigma_plane: float = 0.1
+    alpha_color: float = 0.2
+    alpha_moments: float = 0.2
+    variance_frames: int = 4  # below this history length the variance is estimated spatially
+    spatial_radius: int = 3  # 7x7
+    feedback_level: int = 0  # the level whose output becomes the next frame's history
+
+    def __post_init__(self):
+        _whole("svgf", "levels", self.levels, 1, 12)
+        _positive("svgf", sigma_luminance=self.sigma_luminance, sigma_normal=self.sigma_normal,
+                  sigma_plane=self.sigma_plane)
+        for name in ("alpha_color", "alpha_moments"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and 0.0 < value <= 1.0):
+                from core.errors import UsageError
+
+                raise UsageError(f"svgf: {name} must be in (0, 1], got {value!r}")
+        _whole("svgf", "variance_frames", self.variance_frames, 1, 64)
+        _whole("svgf", "spatial_radius", self.spatial_radius, 1, 16)
+        _whole("svgf", "feedback_level", self.feedback_level, 0, self.levels - 1)
+
+
+@dataclass
+class SVGFHistory:
+    """What SVGF keeps from one frame to the next, per pixel."""
+    color: mi.Vector3f
+    moments: mi.Vector2f
+    length: mi.Float
+
+
+def normal_power(cosine: mi.Float, exponent: float) -> mi.Float:
+    """``max(0, cosine)^exponent``; a power of two as repeated squaring (exact
+    enough and cheaper than exp/log)."""
+    x = dr.maximum(cosine, 0.0)
+    e = float(exponent)
+    if e >= 1 and e == int(e) and (int(e) & (int(e) - 1)) == 0:
+        for _ in range(int(e).bit_length() - 1):
+            x = x * x
+        return x
+    return dr.select(x > 0.0, dr.power(x, e), 0.0)
+
+
+def plane_log_weight(k_plane: float, normal_p: mi.Vector3f, position_p: mi.Vector3f,
+                     position_q: mi.Vector3f) -> mi.Float:
+    return plane_distance_sq(normal_p, position_p, position_q) * k_plane
+
+
+def temporal_accumulation(color: mi.Vector3f, history: SVGFHistory | None, index: mi.UInt32 | None,
+                          valid: mi.Bool | None, p: SVGFParams) -> tuple[mi.Vector3f, mi.Vector2f, mi.Float]:
+    """(integrated colour, integrated moments, history length) of this frame."""
+    lum = luminance(color)
+    moments = mi.Vector2f(lum, lum * lum)
+    if history is None:
+        return color, moments, dr.full(mi.Float, 1.0, dr.width(lum))
+    previous_color = dr.gather(mi.Vector3f, history.color, index, valid)
+    previous_moments = dr.gather(mi.Vector2f, history.moments, index, valid)
+    previous_length = dr.gather(mi.Float, history.length, index, valid)
+    valid = valid & dr.all(dr.isfinite(previous_color))
+    length = dr.select(valid, previous_length + 1.0, 1.0)
+    alpha_c = dr.select(valid, dr.maximum(p.alpha_color, 1.0 / length), 1.0)
+    alpha_m = dr.select(valid, dr.maximum(p.alpha_moments, 1.0 / length), 1.0)
+    integrated = dr.select(valid, dr.lerp(previous_color, color, alpha_c), color)
+    moments = dr.select(valid, dr.lerp(previous_moments, moments, alpha_m), moments)
+    return integrated, moments, length
+
+
+def estimate_variance(frame: Frame, moments: mi.Vector2f, length: mi.Float, p: SVGFParams) -> mi.Float:
+    """Variance from the temporal moments, or from 7x7 spatial moments while
+    the history is short. The spatial estimate runs only on the pixels that
+    need it (compressed to a list: after the first frames, disocclusions)."""
+    temporal = dr.maximum(moments.y - moments.x * moments.x, 0.0)
+    packed = dr.ravel(moments)
+    dr.eval(packed, length, temporal)
+    short = dr.compress(length < p.variance_frames)
+    if dr.width(short) == 0:
+        return temporal
+    cx, cy = dr.gather(mi.Int32, frame.x, short), dr.gather(mi.Int32, frame.y, short)
+    normal = dr.gather(mi.Vector3f, frame.normal, short)
+    position = dr.gather(mi.Vector3f, frame.position, short)
+    k_plane = _inv_two_sigma_sq(p.sigma_plane)
+    total, weights = mi.Vector2f(0.0), mi.Float(0.0)
+    r = p.spatial_radius
+    for dy in range(-r, r + 1):
+        for dx in range(-r, r + 1):
+            x, y = cx + dx, cy + dy
+            inside = (x >= 0) & (x < frame.width) & (y >= 0) & (y < frame.height)
+            j = mi.UInt32(dr.clip(y, 0, frame.height - 1) * frame.width + dr.clip(x, 0, frame.width - 1))
+            m = dr.gather(mi.Vector2f, packed, j)  # clamped, unmasked: outside taps weigh 0
+            if dx == 0 and dy == 0:
+                w = mi.Float(1.0)
+            else:
+                n_q = frame.gather(frame.normal4, x, y, inside)
+                x_q = frame.gather(frame.position4, x, y, inside)
+                w = normal_power(dr.dot(normal, n_q), p.sigma_normal) * neg_exp(
+                    plane_log_weight(k_plane, normal, position, x_q))
+                w = dr.select(inside, w, 0.0)
+            total += w * m
+            weights += w
+    spatial_moments = total / weights
+    spatial = dr.maximum(spatial_moments.y - spatial_moments.x * spatial_moments.x, 0.0) * (
+        p.variance_frames / dr.gather(mi.Float, length, short))
+    spread = dr.zeros(mi.Float, dr.width(temporal))
+    dr.scatter(spread, spatial, short)
+    dr.eval(spread)
+    return dr.select(length < p.variance_frames, spread, temporal)
+
+
+def atrous_level(frame: Frame, color: mi.Vector3f, variance: mi.Float, step: int, p: SVGFParams
+                 ) -> tuple[mi.Vector3f, mi.Float]:
+    """One SVGF À-Trous level with holes ``step``."""
+    packed = dr.ravel(mi.Vector4f(color.x, color.y, color.z, variance))
+    dr.eval(packed)
+    k_plane = _inv_two_sigma_sq(p.sigma_plane)
+    # 3x3 Gaussian of the variance at the centre: the luminance weight's scale
+    blurred = mi.Float(0.0)
+    for dy in (-1, 0, 1):
+        for dx in (-1, 0, 1):
+            x = dr.clip(frame.x + dx, 0, frame.width - 1)
+            y = dr.clip(frame.y + dy, 0, frame.height - 1)
+            blurred += GAUSS3[dx + 1] * GAUSS3[dy + 1] * dr.gather(mi.Float, packed, mi.UInt32(y * frame.width + x) * 4 + 3)
+    scale = -1.0 / (p.sigma_luminance * dr.sqrt(dr.maximum(blurred, 0.0)) + EPSILON)
+    lum_p = luminance(color)
+    total, weights, total_var = mi.Vector3f(0.0), mi.Float(0.0), mi.Float(0.0)
+    for j, hy in enumerate(B3):
+        for i, hx in enumerate(B3):
+            dx, dy = (i - 2) * step, (j - 2) * step
+            x, y = frame.x + dx, frame.y + dy
+            inside = (x >= 0) & (x < frame.width) & (y >= 0) & (y < frame.height)
+            q = dr.gather(mi.Vector4f, packed, mi.UInt32(dr.clip(y, 0, frame.height - 1) * frame.width
+                                                         + dr.clip(x, 0, frame.width - 1)))
+            c_q = mi.Vector3f(q.x, q.y, q.z)
+            if dx == 0 and dy == 0:
+                w = mi.Float(hx * hy)
+            else:
+                n_q = frame.gather(frame.normal4, x, y, inside)
+                x_q = frame.gather(frame.position4, x, y, inside)
+                log_w = dr.abs(lum_p - luminance(c_q)) * scale - plane_log_weight(
+                    k_plane, frame.normal, frame.position, x_q)
+                w = hx * hy * normal_power(dr.dot(frame.normal, n_q), p.sigma_normal) * neg_exp(-log_w)
+                w = dr.select(inside, w, 0.0)
+            total += w * c_q
+            weights += w
+            total_var += w * w * q.w
+    return total / weights, total_var / (weights * weights)
+
+
+def svgf(frame: Frame, p: SVGFParams, history: SVGFHistory | None = None, index: mi.UInt32 | None = None,
+         valid: mi.Bool | None = None) -> tuple[mi.TensorXf, SVGFHistory, mi.Float]:
+    """One frame of SVGF on ``frame.color``; ``index``/``valid`` are the back
+    projection onto the frame that ``history`` belongs to. Returns (the
+    filtered colour, the history for the next frame, the final variance)."""
+    color, moments, length = temporal_accumulation(frame.color, history, index, valid, p)
+    dr.eval(color, moments, length)
+    variance = estimate_variance(frame, moments, length, p)
+    feedback = color
+    for level in range(p.levels):
+        color, variance = atrous_level(frame, color, variance, 1 << level, p)
+        dr.eval(color, variance)
+        if level == p.feedback_level:
+            feedback = color
+    return frame.tensor(color), SVGFHistory(feedback, moments, length), variance

@@ -1,0 +1,228 @@
+"""denoise.export in one process: the reference's halves, seeds, spec checks,
+folders that refuse other settings, and an interrupted export that resumes."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from core.errors import SpecError
+
+TINY = {"scene": "lamps", "frames": 2, "size": [24, 16], "spp": 1, "reference_spp": 8, "bounces": 1,
+        "camera": {"dolly": 0.5}, "objects": {"5": {"translate": [0.6, 0, 0.3]}}}
+BATCH_SPP = 2  # 4 batches per frame: 2 per half
+
+
+def rgb(path: Path) -> np.ndarray:
+    from imaging.image_io import read_exr
+
+    channels = read_exr(path)
+    return np.stack([channels[c] for c in "RGB"], -1)
+
+
+def folder_bytes(target: Path) -> dict[str, bytes]:
+    """Every image and matrix file of a sequence and its reference."""
+    from denoise.export import reference_folder
+
+    files = {}
+    for folder in (target, reference_folder(target)):
+        for path in sorted(folder.iterdir()):
+            if path.suffix in (".exr", ".mat"):
+                files[f"{folder.name}/{path.name}"] = path.read_bytes()
+    return files
+
+
+def export_tiny(target: Path, **kwargs):
+    from denoise.export import Spec, export
+
+    return export(Spec.from_dict(dict(TINY)), target, batch_spp=BATCH_SPP, **kwargs)
+
+
+@pytest.fixture(scope="module")
+def uninterrupted(tmp_path_factory):
+    """The tiny sequence exported in one go, in this process."""
+    from renderer import variants
+
+    variants.set_variant("llvm_ad_rgb" if variants.find_libllvm() else "scalar_rgb", quiet=True)
+    target = tmp_path_factory.mktemp("whole") / "seq"
+    assert export_tiny(target) == [0, 1]
+    return target
+
+
+def test_reference_is_the_mean_of_two_independent_halves(uninterrupted):
+    from denoise.export import reference_folder
+
+    reference = reference_folder(uninterrupted)
+    for frame in (0, 1):
+        beauty, a, b = (rgb(reference / f"{name}_{frame}.exr") for name in ("beauty", "half_a", "half_b"))
+        # beauty = (a + b) / 2 up to float32 rounding of the three files
+        assert np.allclose(beauty, (a.astype(np.float64) + b) / 2, rtol=2e-7, atol=1e-9)
+        assert halves_look_independent(a, b)
+
+
+def halves_look_independent(a: np.ndarray, b: np.ndarray) -> bool:
+    """Independently seeded halves of 4 spp differ in most lit pixels; the same
+    seeds (a broken seed rule) make them identical."""
+    lit = (a.sum(-1) > 0) | (b.sum(-1) > 0)
+    return lit.sum() > 0 and np.mean(a[lit] != b[lit]) > 0.5
+
+
+def test_halves_check_fails_when_seeds_repeat(tmp_path, uninterrupted, monkeypatch):
+    """The check above on purpose-broken seeds (batch ignored): the halves come out equal."""
+    import denoise.export as export_module
+    from denoise.export import reference_folder
+
+    monkeypatch.setattr(export_module, "seed", lambda key, frame, stream, batch=0: 7 + frame)
+    target = tmp_path / "seq"
+    export_tiny(target)
+    reference = reference_folder(target)
+    assert not halves_look_independent(rgb(reference / "half_a_0.exr"), rgb(reference / "half_b_0.exr"))
+
+
+def test_seeds_depend_on_sequence_frame_pass_and_batch_only():
+    from denoise.export import seed
+
+    seeds = {seed(key, frame, stream, batch) for key in ("k1", "k2") for frame in range(3)
+             for stream in ("noisy", "reference") for batch in range(4)}
+    assert len(seeds) == 2 * 3 * 2 * 4
+    assert seed("k1", 2, "reference", 3) == seed("k1", 2, "reference", 3)
+    assert all(0 <= s < 2 ** 31 for s in seeds)
+
+
+def test_batches_split_each_half_exactly():
+    from denoise.export import Sequence, Spec
+
+    for reference_spp, batch_spp in ((8, 2), (256, 64), (10, 4), (2, 64), (1024, 1000)):
+        spec = Spec.from_dict(dict(TINY, reference_spp=reference_spp))
+        batches = Sequence("s", spec, "x.txt", "out", batch_spp).batches()
+        for half in "ab":
+            sizes = [spp for h, spp in batches if h == half]
+            assert sum(sizes) == reference_spp // 2 and max(sizes) <= batch_spp
+
+
+@pytest.mark.parametrize("change, message", [
+    ({"spp": 0}, "spp: expected 1.."),
+    ({"frames": 0}, "frames: expected 1.."),
+    ({"reference_spp": 7}, "reference_spp: expected an even number"),
+    ({"size": [0, 16]}, "width"),
+    ({"size": [100000, 16]}, "width"),
+    ({"size": [16]}, "size: expected [width, height]"),
+    ({"spp": 2.5}, "spp: expected an integer"),
+    ({"shadows": "yes"}, "shadows: expected true or false"),
+    ({"colour": 1}, "unknown keys colour"),
+    ({"camera": {"zoom": 2}}, "unknown keys zoom"),
+    ({"camera": {"dolly": float("nan")}}, "camera.dolly: expected a finite number"),
+    ({"objects": {"x": {}}}, "expected an object index"),
+    ({"objects": {"1": {"rotate": {"axis": [0, 0, 0], "degrees": 3}}}}, "non-zero axis"),
+    ({"size": [16384, 16384], "spp": 64}, "samples in one render"),
+])
+def test_bad_specs_are_refused_before_any_work(change, message):
+    from denoise.export import Spec
+
+    with pytest.raises(SpecError, match=message.replace("[", r"\[").replace("]", r"\]")):
+        Spec.from_dict(dict(TINY, **change))
+
+
+def test_cli_refuses_bad_specs_with_one_line(tmp_path, capsys):
+    """spp 0 once ended in SIGFPE; a missing object index after loading the scene;
+    both are one line and exit 2, and nothing is written."""
+    from denoise.export import main
+
+    for change, message in (({"spp": 0}, "spp: expected 1..1048576, found 0"),
+                            ({"objects": {"99": {"translate": [1, 0, 0]}}}, "object 99 does not exist")):
+        spec = tmp_path / "spec.json"
+        spec.write_text(json.dumps(dict(TINY, **change)))
+        assert main([str(spec), str(tmp_path / "out"), "--local"]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and err.startswith("denoise.export: error: ") and message in err
+        assert not (tmp_path / "out").exists()
+
+
+def test_folder_made_with_other_settings_is_refused(tmp_path, uninterrupted, capsys):
+    import shutil
+
+    from denoise.export import main, reference_folder
+
+    target = tmp_path / "seq"
+    shutil.copytree(uninterrupted, target)
+    shutil.copytree(reference_folder(uninterrupted), reference_folder(target))
+    spec = tmp_path / "seq.json"
+    spec.write_text(json.dumps(TINY))
+    common = [str(spec), str(target), "--local", "--batch-spp", str(BATCH_SPP)]
+    before = folder_bytes(target)
+    for other in (["--frames", "3"], ["--size", "20", "16"], ["--reference-spp", "4"], ["--batch-spp", "4"]):
+        assert main(common + other) == 2
+        err = capsys.readouterr().err
+        assert "made with other settings" in err and "--force" in err, err
+        assert folder_bytes(target) == before
+    assert main(common) == 0  # the same settings: resumes, nothing to do
+    assert "0 frames rendered" in capsys.readouterr().out
+    # a folder of frames without a record (an older export) is refused too
+    (target / "sequence.json").unlink()
+    assert main(common) == 2
+    assert "without a sequence.json" in capsys.readouterr().err
+    # --force starts over with the new settings
+    assert main(common + ["--frames", "1", "--force"]) == 0
+    assert sorted(p.name for p in target.glob("beauty_*.exr")) == ["beauty_0.exr"]
+    assert sorted(p.name for p in reference_folder(target).glob("*.exr")) == [
+        "beauty_0.exr", "half_a_0.exr", "half_b_0.exr"]
+    assert json.loads((target / "sequence.json").read_text())["spec"]["frames"] == 1
+
+
+class Stop(KeyboardInterrupt):
+    pass
+
+
+def test_interrupted_export_resumes_with_only_the_missing_tasks(tmp_path, uninterrupted):
+    """Ctrl-C after 3 of the 10 tasks (between a frame's batches); the rerun
+    renders only the 7 missing tasks, and the files equal an uninterrupted run's."""
+    from denoise.export import Spec, plan, sequences_for
+
+    target = tmp_path / "seq"
+    done = []
+
+    def interrupt_after_three(task):
+        done.append(task)
+        if len(done) == 3:
+            raise Stop
+
+    with pytest.raises(Stop):
+        export_tiny(target, after_task=interrupt_after_three)
+    [sequence] = sequences_for([("seq", Spec.from_dict(dict(TINY)))], target, batch_spp=BATCH_SPP)
+    remaining = plan(sequence)
+    assert len(remaining) == 10 - 3
+    assert {(t.frame, t.kind, t.batch) for t in remaining}.isdisjoint({(t.frame, t.kind, t.batch) for t in done})
+    manifest = json.loads((target / "dataset.json").read_text())
+    assert [f["status"] for f in manifest["sequences"][0]["frames"]] == ["missing", "missing"]
+    rerun = []
+    assert export_tiny(target, after_task=rerun.append) == [0, 1]
+    assert len(rerun) == 7
+    assert folder_bytes(target) == folder_bytes(uninterrupted)
+    assert not (target.parent / "seq_reference" / ".batches").exists()
+    manifest = json.loads((target / "dataset.json").read_text())
+    frames = manifest["sequences"][0]["frames"]
+    assert [f["status"] for f in frames] == ["rendered", "rendered"]
+    assert sum(len(f["tasks"]) for f in frames) == 10  # the first run's timings are kept
+
+
+def test_resume_check_fails_when_finished_batches_are_ignored(tmp_path, monkeypatch):
+    """The resume test's count on purpose-broken resuming (every batch redone):
+    more than the missing tasks are planned."""
+    import denoise.export as export_module
+    from denoise.export import Spec, plan, sequences_for
+
+    target = tmp_path / "seq"
+    done = []
+
+    def interrupt_after_three(task):
+        done.append(task)
+        if len(done) == 3:
+            raise Stop
+
+    with pytest.raises(Stop):
+        export_tiny(target, after_task=interrupt_after_three)
+    monkeypatch.setattr(export_module, "batch_path", lambda *args: Path("/nonexistent/batch.npy"))
+    [sequence] = sequences_for([("seq", Spec.from_dict(dict(TINY)))], target, batch_spp=BATCH_SPP)
+    assert len(plan(sequence)) > 10 - 3
