@@ -12,7 +12,7 @@ from pathlib import Path
 
 if __name__ == "__main__":  # started by a Python without the project's packages: use ./.venv's
     from core.launcher import use_project_python
-
+    use_project_python("python -m denoise", "denoise")
 
 from .pipeline import METHODS
 
