@@ -606,6 +606,7 @@ class Recorder:
         self.run_id = time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
         self.timings: dict[tuple[str, int], list[dict]] = {}
         self.rendered: dict[str, set[int]] = {s.name: set() for s in sequences}
+        self.record_s: list[float] = []  # this process's time writing each result
         if manifest is not None and manifest.exists():  # keep the timings of an interrupted run
             try:
                 old = json.loads(manifest.read_text())
@@ -617,6 +618,11 @@ class Recorder:
                 pass
 
     def record(self, task: Task, result, timing: dict) -> None:
+        start = time.perf_counter()
+        self._record(task, result, timing)
+        self.record_s.append(time.perf_counter() - start)
+
+    def _record(self, task: Task, result, timing: dict) -> None:
         sequence = task.sequence
         timing = dict(timing, run=self.run_id)
         self.timings.setdefault((sequence.name, task.frame), []).append(timing)
@@ -646,6 +652,8 @@ class Recorder:
                                "batches_waiting": batches, "tasks": self.timings.get((sequence.name, i), [])})
             entries.append({"name": sequence.name, "key": sequence.key, "folder": sequence.target,
                             "reference": str(sequence.reference), "settings": sequence.settings(), "frames": frames})
+        if self.record_s:
+            extra = dict(extra, writing_s_per_task=round(float(np.median(self.record_s)), 4))
         write_json(self.manifest, dict(extra, format=EXPORT_FORMAT, sequences=entries))
 
 
