@@ -607,6 +607,8 @@ class Recorder:
         self.timings: dict[tuple[str, int], list[dict]] = {}
         self.rendered: dict[str, set[int]] = {s.name: set() for s in sequences}
         self.record_s: list[float] = []  # this process's time writing each result
+        self.complete = {(s.name, i) for s in sequences for i in range(s.spec.frames)
+                         if frame_done(Path(s.target), i) and reference_done(Path(s.target), i)}
         if manifest is not None and manifest.exists():  # keep the timings of an interrupted run
             try:
                 old = json.loads(manifest.read_text())
@@ -627,15 +629,17 @@ class Recorder:
         timing = dict(timing, run=self.run_id)
         self.timings.setdefault((sequence.name, task.frame), []).append(timing)
         self.rendered[sequence.name].add(task.frame)
+        target = Path(sequence.target)
         if task.kind == "frame":
-            write_frame(Path(sequence.target), task.frame, result)
+            write_frame(target, task.frame, result)
         else:
             save_batch(batch_path(sequence, task.frame, task.batch), result)
             assemble_reference(sequence, task.frame)
+        if frame_done(target, task.frame) and reference_done(target, task.frame):
+            self.complete.add((sequence.name, task.frame))
 
     def frames_done(self) -> int:
-        return sum(frame_done(Path(s.target), i) and reference_done(Path(s.target), i)
-                   for s in self.sequences.values() for i in range(s.spec.frames))
+        return len(self.complete)
 
     def write(self, extra: dict) -> None:
         if self.manifest is None:
