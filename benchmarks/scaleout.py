@@ -68,8 +68,8 @@ def round_trip(client, count: int = 40) -> float:
 
 def measure(frames: int, size: tuple[int, int], reference_spp: int, batch_spp: int, workers: int,
             work: Path, spp: int = 1) -> dict:
-    from denoise.dataset import dask_client, run_futures
-    from denoise.export import Recorder, Spec, claim_folder, export_sequences, plan, sequences_for
+    from denoise.dataset import dask_client
+    from denoise.export import Spec, export_sequences, sequences_for
     from renderer.variants import set_variant
 
     variant = set_variant(None, quiet=True)
@@ -91,27 +91,23 @@ def measure(frames: int, size: tuple[int, int], reference_spp: int, batch_spp: i
         client.run(_warm, variant, threads)
         cluster_start_s = time.perf_counter() - start
         start = time.perf_counter()
-        for sequence in cluster:
-            claim_folder(sequence)
-        recorder = Recorder(cluster, cluster_out / "dataset.json")
-        tasks = [t for s in cluster for t in plan(s, threads)]
-        run_futures(client, tasks, recorder, total_frames=sum(s.spec.frames for s in cluster))
-        recorder.write({"runner": "dask", "workers": workers, "drjit_threads_per_worker": threads,
-                        "tasks": len(tasks)})
+        export_sequences(cluster, manifest=cluster_out / "dataset.json", client=client, threads=threads)
         cluster_s = time.perf_counter() - start
-        print(f"scaleout: cluster export {cluster_s:.1f} s ({len(tasks)} tasks)", file=sys.stderr)
         overhead_s = round_trip(client)
+    manifest = json.loads((cluster_out / "dataset.json").read_text())
+    print(f"scaleout: cluster export {cluster_s:.1f} s ({manifest['tasks']} tasks)", file=sys.stderr)
 
-    seconds = [t["seconds"] for key, timings in recorder.timings.items() for t in timings]
+    seconds = [t["seconds"] for entry in manifest["sequences"] for f in entry["frames"] for t in f["tasks"]]
+    tasks = len(seconds)
     task_median_s = statistics.median(seconds)
-    writing_s = statistics.median(recorder.record_s)
+    writing_s = manifest["writing_s_per_task"]
     identical = files_of(local_out) == files_of(cluster_out)
-    tasks_per_frame = len(tasks) / sum(s.spec.frames for s in cluster)
+    tasks_per_frame = tasks / sum(s.spec.frames for s in cluster)
     tasks_1000 = 1000 * tasks_per_frame
     busy = min(tasks_1000 / 10, task_median_s / max(overhead_s, writing_s))
     return {"local_s": round(local_s, 3), "cluster_s": round(cluster_s, 3),
             "efficiency": round(local_s / cluster_s, 4), "identical": identical,
-            "tasks": len(tasks), "task_median_s": round(task_median_s, 4), "overhead_s": round(overhead_s, 5),
+            "tasks": tasks, "task_median_s": round(task_median_s, 4), "overhead_s": round(overhead_s, 5),
             "overhead_fraction": round(overhead_s / task_median_s, 5),
             "writing_s_per_task": round(writing_s, 4), "cluster_start_s": round(cluster_start_s, 3),
             "tasks_per_frame": tasks_per_frame, "workers_busy_1000_frames": int(busy),

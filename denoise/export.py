@@ -713,24 +713,38 @@ def sequences_for(specs: list[tuple[str, Spec]], out: Path, data: Path | None = 
 
 def export_sequences(sequences: list[Sequence], force: bool = False, scheduler: str | None = None,
                      workers: int | None = None, local: bool = False, manifest: Path | None = None,
-                     after_task: Callable[[Task], None] | None = None) -> dict[str, list[int]]:
-    """Renders what is missing of ``sequences``; returns the indices of the
-    frames that had work done, per sequence name."""
+                     after_task: Callable[[Task], None] | None = None, client=None,
+                     threads: int | None = None) -> dict[str, list[int]]:
+    """Renders what is missing of ``sequences`` (in this process with ``local``,
+    else on Dask: ``client``, a scheduler address or a new LocalCluster of
+    ``workers``); returns the indices of the frames that had work done, per
+    sequence name. ``threads``: Dr.Jit threads per process that runs tasks."""
+    if local or client is not None:
+        return _export(sequences, force, manifest, after_task, client, threads)
+    from .dataset import dask_client
+
+    with dask_client(scheduler, workers) as (client, threads):
+        return _export(sequences, force, manifest, after_task, client, threads, scheduler or "LocalCluster")
+
+
+def _export(sequences: list[Sequence], force: bool, manifest: Path | None, after_task, client, threads,
+            scheduler: str | None = None) -> dict[str, list[int]]:
     for sequence in sequences:
         claim_folder(sequence, force)
     recorder = Recorder(sequences, manifest)
     frames = sum(s.spec.frames for s in sequences)
-    extra: dict = {"started": recorder.run_id}
+    tasks = [t for s in sequences for t in plan(s, threads)]
+    extra: dict = {"started": recorder.run_id, "tasks": len(tasks), "drjit_threads": threads}
     start = time.perf_counter()
     try:
-        if local:
-            tasks = [t for s in sequences for t in plan(s)]
-            extra.update(runner="local", tasks=len(tasks))
+        if client is None:
+            extra.update(runner="local")
             run_local(tasks, recorder, after_task, frames)
         else:
-            from .dataset import run_on_cluster
+            from .dataset import describe, run_futures
 
-            extra.update(run_on_cluster(sequences, recorder, scheduler, workers, after_task, frames))
+            extra.update(describe(client, scheduler))
+            run_futures(client, tasks, recorder, after_task, frames)
     finally:
         extra["wall_s"] = round(time.perf_counter() - start, 3)
         recorder.write(extra)
