@@ -9,10 +9,10 @@ worker that dies; what was written survives an interrupted client, and the
 next run submits only what is missing.
 
 Without a scheduler address a ``LocalCluster`` is started: one worker process
-per core (or ``workers``), one task at a time each, and Dr.Jit's thread count
-in each worker set to cores / workers. On an existing cluster
-(``dask scheduler`` and ``dask worker ADDRESS --nthreads 1`` per machine),
-Dr.Jit keeps its default: every core of the worker's machine.
+per core (or ``workers``), one task at a time each. Every render runs on one
+Dr.Jit thread (:data:`denoise.export.RENDER_THREADS`), so on an existing
+cluster start one single-threaded worker per core:
+``dask worker ADDRESS --nworkers -1 --nthreads 1`` on each machine.
 """
 from __future__ import annotations
 

@@ -38,7 +38,8 @@ reference's own noise is estimated as relMSE(half_a, half_b) / 4.
 Seeds come from a hash of the sequence (its spec and settings), the frame, the
 pass and the batch, and batches are summed in a fixed order, so a frame's
 bytes do not depend on how many workers rendered it or in which order tasks
-finished. The folder records its spec and settings in ``sequence.json``; an
+finished; every render runs on one Dr.Jit thread (whose count would change
+the sums' rounding), parallel across processes. The folder records its spec and settings in ``sequence.json``; an
 interrupted export resumes with only the missing frames and batches (finished
 batches wait in ``OUT_reference/.batches``), and one made with other settings
 is refused (``--force`` starts it over).
@@ -310,7 +311,7 @@ class Sequence:
                 "size": [width, height], "spp": self.spec.spp, "reference_spp": self.spec.reference_spp,
                 "batch_spp": self.batch_spp, "batches": [spp for _, spp in self.batches()],
                 "noisy_integrator": "whitted" if self.whitted else "path", "gbuffer": "whitted AOVs at pixel centres",
-                "variant": self.variant, "versions": versions(),
+                "variant": self.variant, "versions": versions(), "render_threads": RENDER_THREADS,
                 "seeds": "sha256(key/frame/pass/batch) -> uint31; key = sha256 of this file's other settings"}
 
     @property
@@ -447,10 +448,32 @@ def _where_run() -> str:
         return "local"
 
 
-def run_task(task: Task) -> tuple[object, dict]:
-    """Renders one task; returns (its result, its timing)."""
+#: Dr.Jit threads per render. Its film sums a pixel's samples in an order that
+#: follows the thread count (1, 2, 4, 8, 16, 48, 63 spp all gave other bytes on
+#: 1 and 2 threads at 160x120 or 320x180 with Dr.Jit 1.5 / Mitsuba 3.9.1), so
+#: every pass renders on one thread and parallelism comes from processes: the
+#: LocalCluster runs one worker per core.
+RENDER_THREADS = 1
+
+
+def render_pass(mi_scene, spp: int, seed: int, **where) -> np.ndarray:
+    """``mi.render`` as float32 on :data:`RENDER_THREADS` Dr.Jit threads."""
+    import drjit as dr
     import mitsuba as mi
 
+    threads = dr.thread_count()
+    pinned = RENDER_THREADS is not None and threads != RENDER_THREADS
+    if pinned:
+        dr.set_thread_count(RENDER_THREADS)
+    try:
+        return np.array(mi.render(mi_scene, spp=spp, seed=seed, **where), np.float32)
+    finally:
+        if pinned:
+            dr.set_thread_count(threads)
+
+
+def run_task(task: Task) -> tuple[object, dict]:
+    """Renders one task; returns (its result, its timing)."""
     from renderer.job import split_layers
 
     start = time.perf_counter()
@@ -461,18 +484,15 @@ def run_task(task: Task) -> tuple[object, dict]:
     jittered = _sensor(mi_scene, sequence.spec.jitter)
     if task.kind == "frame":
         width, height = sequence.spec.size
-        image = np.array(mi.render(mi_scene, sensor=_sensor(mi_scene, False), spp=1, seed=0), np.float32)
-        layers = split_layers(image, GBUFFER_AOVS)
-        beauty = np.array(mi.render(mi_scene, integrator=integrator, sensor=jittered, spp=task.spp,
-                                    seed=task.seed), np.float32)[..., :3]
+        layers = split_layers(render_pass(mi_scene, 1, 0, sensor=_sensor(mi_scene, False)), GBUFFER_AOVS)
+        beauty = render_pass(mi_scene, task.spp, task.seed, integrator=integrator, sensor=jittered)[..., :3]
         world_to_camera, world_to_screen = camera_matrices(scene.camera, width, height)
         result = FrameData(beauty, layers["normal"], layers["position"], layers["depth"],
                            layers["id"].astype(np.int32), [o.to_world for o in scene.objects], world_to_camera,
                            world_to_screen)
         result.albedo = layers["albedo"]  # not in the course's layout; OIDN uses it
     elif task.kind == "batch":
-        result = np.array(mi.render(mi_scene, integrator=integrator, sensor=jittered, spp=task.spp,
-                                    seed=task.seed), np.float32)[..., :3]
+        result = render_pass(mi_scene, task.spp, task.seed, integrator=integrator, sensor=jittered)[..., :3]
     else:
         raise ValueError(f"unknown task kind {task.kind!r}")
     end = time.perf_counter()
