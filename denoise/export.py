@@ -456,24 +456,27 @@ def _where_run() -> str:
 RENDER_THREADS = 1
 
 
-def render_pass(mi_scene, spp: int, seed: int, **where) -> np.ndarray:
-    """``mi.render`` as float32 on :data:`RENDER_THREADS` Dr.Jit threads."""
+def run_task(task: Task) -> tuple[object, dict]:
+    """Renders one task on :data:`RENDER_THREADS` Dr.Jit threads (the
+    process's count restored after); returns (its result, its timing)."""
     import drjit as dr
-    import mitsuba as mi
 
+    _prepare(task.sequence.variant, task.threads)
     threads = dr.thread_count()
     pinned = RENDER_THREADS is not None and threads != RENDER_THREADS
     if pinned:
         dr.set_thread_count(RENDER_THREADS)
     try:
-        return np.array(mi.render(mi_scene, spp=spp, seed=seed, **where), np.float32)
+        return _render_task(dataclasses.replace(task, threads=None))  # keeps the pinned count
     finally:
         if pinned:
             dr.set_thread_count(threads)
 
 
-def run_task(task: Task) -> tuple[object, dict]:
+def _render_task(task: Task) -> tuple[object, dict]:
     """Renders one task; returns (its result, its timing)."""
+    import mitsuba as mi
+
     from renderer.job import split_layers
 
     start = time.perf_counter()
@@ -484,15 +487,18 @@ def run_task(task: Task) -> tuple[object, dict]:
     jittered = _sensor(mi_scene, sequence.spec.jitter)
     if task.kind == "frame":
         width, height = sequence.spec.size
-        layers = split_layers(render_pass(mi_scene, 1, 0, sensor=_sensor(mi_scene, False)), GBUFFER_AOVS)
-        beauty = render_pass(mi_scene, task.spp, task.seed, integrator=integrator, sensor=jittered)[..., :3]
+        image = np.array(mi.render(mi_scene, sensor=_sensor(mi_scene, False), spp=1, seed=0), np.float32)
+        layers = split_layers(image, GBUFFER_AOVS)
+        beauty = np.array(mi.render(mi_scene, integrator=integrator, sensor=jittered, spp=task.spp,
+                                    seed=task.seed), np.float32)[..., :3]
         world_to_camera, world_to_screen = camera_matrices(scene.camera, width, height)
         result = FrameData(beauty, layers["normal"], layers["position"], layers["depth"],
                            layers["id"].astype(np.int32), [o.to_world for o in scene.objects], world_to_camera,
                            world_to_screen)
         result.albedo = layers["albedo"]  # not in the course's layout; OIDN uses it
     elif task.kind == "batch":
-        result = render_pass(mi_scene, task.spp, task.seed, integrator=integrator, sensor=jittered)[..., :3]
+        result = np.array(mi.render(mi_scene, integrator=integrator, sensor=jittered, spp=task.spp,
+                                    seed=task.seed), np.float32)[..., :3]
     else:
         raise ValueError(f"unknown task kind {task.kind!r}")
     end = time.perf_counter()
