@@ -76,25 +76,32 @@ def test_byte_comparison_fails_on_order_dependent_sums(tmp_path, in_process, mon
     assert folder_bytes(broken) != folder_bytes(in_process)
 
 
-def test_killed_worker_is_replaced_and_the_result_is_unchanged(tmp_path, in_process):
-    """SIGKILL one of two worker processes while it holds tasks; Dask (its
-    nanny restarts the process) reruns them; the files equal one process's."""
-    from distributed import default_client
+def _running(dask_worker):
+    """(the worker's process id, the frame tasks it is running: the longer ones)."""
+    return os.getpid(), [str(state.key) for state in dask_worker.state.executing if str(state.key).endswith("frame")]
 
-    killed = {}
+
+def worker_killer(killed: dict):
+    """An ``after_task`` hook that SIGKILLs, once, a worker process in the middle of a task."""
+    from distributed import default_client
 
     def kill_a_busy_worker(task):
         if killed:
             return
-        client = default_client()
-        busy = {address: keys for address, keys in client.processing().items() if keys}
-        if not busy:
-            return  # nothing in flight right now: try after the next result
-        address, keys = next(iter(busy.items()))
-        pid = client.run(os.getpid, workers=[address])[address]
-        os.kill(pid, signal.SIGKILL)
-        killed.update(address=address, pid=pid, keys=list(keys))
+        for address, (pid, keys) in default_client().run(_running).items():
+            if keys:
+                os.kill(pid, signal.SIGKILL)
+                killed.update(address=address, pid=pid, keys=keys)
+                return
 
+    return kill_a_busy_worker
+
+
+def test_killed_worker_is_replaced_and_the_result_is_unchanged(tmp_path, in_process):
+    """SIGKILL one of two worker processes while it holds tasks; Dask (its
+    nanny restarts the process) reruns them; the files equal one process's."""
+    killed = {}
+    kill_a_busy_worker = worker_killer(killed)
     target = tmp_path / "seq"
     assert export_with(target, workers=2, after_task=kill_a_busy_worker) == [0, 1]
     assert killed, "no worker was busy after any result: the test did not kill anything"
@@ -112,8 +119,21 @@ def test_killed_worker_is_replaced_and_the_result_is_unchanged(tmp_path, in_proc
         return f"{entry['name']}-{entry['key'][:8]}-{frame['index']}-{tail}"
 
     finished_by = {name(f, t): t["worker"] for f in frames for t in f["tasks"]}
-    # what the killed worker held was finished by another (the restarted process has a new address)
-    assert any(finished_by[key] != killed["address"] for key in killed["keys"]), (killed, finished_by)
+    # the task it was running was finished by another process (the restarted one has a new address)
+    assert any(finished_by.get(key) not in (None, killed["address"]) for key in killed["keys"]), (killed, finished_by)
+
+
+def test_kill_check_fails_when_dask_may_not_retry(tmp_path, in_process):
+    """The kill test on purpose-broken fault tolerance (no retries allowed):
+    the same kill ends the export with KilledWorker instead."""
+    import dask
+    from distributed import KilledWorker
+
+    killed = {}
+    with dask.config.set({"distributed.scheduler.allowed-failures": 0}):
+        with pytest.raises(KilledWorker):
+            export_with(tmp_path / "seq", workers=2, after_task=worker_killer(killed))
+    assert killed
 
 
 def test_dataset_of_two_specs_and_the_cli(tmp_path, capsys):
