@@ -9,10 +9,10 @@ worker that dies; what was written survives an interrupted client, and the
 next run submits only what is missing.
 
 Without a scheduler address a ``LocalCluster`` is started: one worker process
-per core (or ``workers``), one task at a time each, and Dr.Jit's thread count
-in each worker set to cores / workers. On an existing cluster
-(``dask scheduler`` and ``dask worker ADDRESS --nthreads 1`` per machine),
-Dr.Jit keeps its default: every core of the worker's machine.
+per core (or ``workers``), one task at a time each. Every render runs on one
+Dr.Jit thread (:data:`denoise.export.RENDER_THREADS`), so on an existing
+cluster start one single-threaded worker per core:
+``dask worker ADDRESS --nworkers -1 --nthreads 1`` on each machine.
 """
 from __future__ import annotations
 
@@ -24,7 +24,7 @@ from typing import Callable, Iterator
 
 from core.errors import UsageError
 
-from .export import Recorder, Sequence, Task, plan, progress_bar, run_task
+from .export import Recorder, Task, progress_bar, run_task
 
 
 def has_dashboard() -> bool:
@@ -52,7 +52,7 @@ def dask_client(scheduler: str | None = None, workers: int | None = None) -> Ite
         cores = os.cpu_count() or 1
         workers = workers or cores
         cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                               dashboard_address=":0" if has_dashboard() else None, silence_logs=logging.ERROR)
+                               dashboard_address=":0", silence_logs=logging.ERROR)
         client = Client(cluster)
         threads = max(1, cores // workers)
     try:
@@ -86,16 +86,10 @@ def run_futures(client, tasks: list[Task], recorder: Recorder, after_task: Calla
             client.cancel(list(futures))
 
 
-def run_on_cluster(sequences: list[Sequence], recorder: Recorder, scheduler: str | None = None,
-                   workers: int | None = None, after_task: Callable[[Task], None] | None = None,
-                   total_frames: int = 0) -> dict:
-    """Runs the missing tasks of ``sequences`` on Dask; returns what the manifest records about it."""
-    with dask_client(scheduler, workers) as (client, threads):
-        tasks = [t for s in sequences for t in plan(s, threads)]
-        info = client.scheduler_info()
-        extra = {"runner": "dask", "scheduler": scheduler or "LocalCluster", "workers": len(info.get("workers", {})),
-                 "drjit_threads_per_worker": threads, "tasks": len(tasks)}
-        if has_dashboard():
-            print(f"denoise.export: Dask dashboard at {client.dashboard_link}", file=sys.stderr)
-        run_futures(client, tasks, recorder, after_task, total_frames)
-    return extra
+def describe(client, scheduler: str | None = None) -> dict:
+    """What the manifest records about the cluster (and the dashboard's link, on stderr)."""
+    info = client.scheduler_info()
+    if has_dashboard():
+        print(f"denoise.export: Dask dashboard at {client.dashboard_link}", file=sys.stderr)
+    return {"runner": "dask", "scheduler": scheduler or info.get("address"),
+            "workers": len(info.get("workers", {}))}

@@ -38,7 +38,8 @@ reference's own noise is estimated as relMSE(half_a, half_b) / 4.
 Seeds come from a hash of the sequence (its spec and settings), the frame, the
 pass and the batch, and batches are summed in a fixed order, so a frame's
 bytes do not depend on how many workers rendered it or in which order tasks
-finished. The folder records its spec and settings in ``sequence.json``; an
+finished; every render runs on one Dr.Jit thread (whose count would change
+the sums' rounding), parallel across processes. The folder records its spec and settings in ``sequence.json``; an
 interrupted export resumes with only the missing frames and batches (finished
 batches wait in ``OUT_reference/.batches``), and one made with other settings
 is refused (``--force`` starts it over).
@@ -61,7 +62,7 @@ import sys
 import time
 from collections import OrderedDict
 from pathlib import Path
-from typing import Callable, Iterable, Iterator
+from typing import Callable
 
 if __name__ == "__main__":  # started by a Python without the project's packages: use ./.venv's
     from core.launcher import use_project_python
@@ -314,7 +315,7 @@ class Sequence:
                 "size": [width, height], "spp": self.spec.spp, "reference_spp": self.spec.reference_spp,
                 "batch_spp": self.batch_spp, "batches": [spp for _, spp in self.batches()],
                 "noisy_integrator": "whitted" if self.whitted else "path", "gbuffer": "whitted AOVs at pixel centres",
-                "variant": self.variant, "versions": versions(),
+                "variant": self.variant, "versions": versions(), "render_threads": RENDER_THREADS,
                 "seeds": "sha256(key/frame/pass/batch) -> uint31; key = sha256 of this file's other settings"}
 
     @property
@@ -451,7 +452,32 @@ def _where_run() -> str:
         return "local"
 
 
+#: Dr.Jit threads per render. Its film sums a pixel's samples in an order that
+#: follows the thread count (1, 2, 4, 8, 16, 48, 63 spp all gave other bytes on
+#: 1 and 2 threads at 160x120 or 320x180 with Dr.Jit 1.5 / Mitsuba 3.9.1), so
+#: every pass renders on one thread and parallelism comes from processes: the
+#: LocalCluster runs one worker per core.
+RENDER_THREADS = 1
+
+
 def run_task(task: Task) -> tuple[object, dict]:
+    """Renders one task on :data:`RENDER_THREADS` Dr.Jit threads (the
+    process's count restored after); returns (its result, its timing)."""
+    import drjit as dr
+
+    _prepare(task.sequence.variant, task.threads)
+    threads = dr.thread_count()
+    pinned = RENDER_THREADS is not None and threads != RENDER_THREADS
+    if pinned:
+        dr.set_thread_count(RENDER_THREADS)
+    try:
+        return _render_task(dataclasses.replace(task, threads=None))  # keeps the pinned count
+    finally:
+        if pinned:
+            dr.set_thread_count(threads)
+
+
+def _render_task(task: Task) -> tuple[object, dict]:
     """Renders one task; returns (its result, its timing)."""
     import mitsuba as mi
 
@@ -611,6 +637,9 @@ class Recorder:
         self.run_id = time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
         self.timings: dict[tuple[str, int], list[dict]] = {}
         self.rendered: dict[str, set[int]] = {s.name: set() for s in sequences}
+        self.record_s: list[float] = []  # this process's time writing each result
+        self.complete = {(s.name, i) for s in sequences for i in range(s.spec.frames)
+                         if frame_done(Path(s.target), i) and reference_done(Path(s.target), i)}
         if manifest is not None and manifest.exists():  # keep the timings of an interrupted run
             try:
                 old = json.loads(manifest.read_text())
@@ -622,19 +651,26 @@ class Recorder:
                 pass
 
     def record(self, task: Task, result, timing: dict) -> None:
+        start = time.perf_counter()
+        self._record(task, result, timing)
+        self.record_s.append(time.perf_counter() - start)
+
+    def _record(self, task: Task, result, timing: dict) -> None:
         sequence = task.sequence
         timing = dict(timing, run=self.run_id)
         self.timings.setdefault((sequence.name, task.frame), []).append(timing)
         self.rendered[sequence.name].add(task.frame)
+        target = Path(sequence.target)
         if task.kind == "frame":
-            write_frame(Path(sequence.target), task.frame, result)
+            write_frame(target, task.frame, result)
         else:
             save_batch(batch_path(sequence, task.frame, task.batch), result)
             assemble_reference(sequence, task.frame)
+        if frame_done(target, task.frame) and reference_done(target, task.frame):
+            self.complete.add((sequence.name, task.frame))
 
     def frames_done(self) -> int:
-        return sum(frame_done(Path(s.target), i) and reference_done(Path(s.target), i)
-                   for s in self.sequences.values() for i in range(s.spec.frames))
+        return len(self.complete)
 
     def write(self, extra: dict) -> None:
         if self.manifest is None:
@@ -651,6 +687,8 @@ class Recorder:
                                "batches_waiting": batches, "tasks": self.timings.get((sequence.name, i), [])})
             entries.append({"name": sequence.name, "key": sequence.key, "folder": sequence.target,
                             "reference": str(sequence.reference), "settings": sequence.settings(), "frames": frames})
+        if self.record_s:
+            extra = dict(extra, writing_s_per_task=round(float(np.median(self.record_s)), 4))
         write_json(self.manifest, dict(extra, format=EXPORT_FORMAT, sequences=entries))
 
 
@@ -706,24 +744,38 @@ def sequences_for(specs: list[tuple[str, Spec]], out: Path, data: Path | None = 
 
 def export_sequences(sequences: list[Sequence], force: bool = False, scheduler: str | None = None,
                      workers: int | None = None, local: bool = False, manifest: Path | None = None,
-                     after_task: Callable[[Task], None] | None = None) -> dict[str, list[int]]:
-    """Renders what is missing of ``sequences``; returns the indices of the
-    frames that had work done, per sequence name."""
+                     after_task: Callable[[Task], None] | None = None, client=None,
+                     threads: int | None = None) -> dict[str, list[int]]:
+    """Renders what is missing of ``sequences`` (in this process with ``local``,
+    else on Dask: ``client``, a scheduler address or a new LocalCluster of
+    ``workers``); returns the indices of the frames that had work done, per
+    sequence name. ``threads``: Dr.Jit threads per process that runs tasks."""
+    if local or client is not None:
+        return _export(sequences, force, manifest, after_task, client, threads)
+    from .dataset import dask_client
+
+    with dask_client(scheduler, workers) as (client, threads):
+        return _export(sequences, force, manifest, after_task, client, threads, scheduler or "LocalCluster")
+
+
+def _export(sequences: list[Sequence], force: bool, manifest: Path | None, after_task, client, threads,
+            scheduler: str | None = None) -> dict[str, list[int]]:
     for sequence in sequences:
         claim_folder(sequence, force)
     recorder = Recorder(sequences, manifest)
     frames = sum(s.spec.frames for s in sequences)
-    extra: dict = {"started": recorder.run_id}
+    tasks = [t for s in sequences for t in plan(s, threads)]
+    extra: dict = {"started": recorder.run_id, "tasks": len(tasks), "drjit_threads": threads}
     start = time.perf_counter()
     try:
-        if local:
-            tasks = [t for s in sequences for t in plan(s)]
-            extra.update(runner="local", tasks=len(tasks))
+        if client is None:
+            extra.update(runner="local")
             run_local(tasks, recorder, after_task, frames)
         else:
-            from .dataset import run_on_cluster
+            from .dataset import describe, run_futures
 
-            extra.update(run_on_cluster(sequences, recorder, scheduler, workers, after_task, frames))
+            extra.update(describe(client, scheduler))
+            run_futures(client, tasks, recorder, after_task, frames)
     finally:
         extra["wall_s"] = round(time.perf_counter() - start, 3)
         recorder.write(extra)

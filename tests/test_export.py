@@ -226,3 +226,47 @@ def test_resume_check_fails_when_finished_batches_are_ignored(tmp_path, monkeypa
     monkeypatch.setattr(export_module, "batch_path", lambda *args: Path("/nonexistent/batch.npy"))
     [sequence] = sequences_for([("seq", Spec.from_dict(dict(TINY)))], target, batch_spp=BATCH_SPP)
     assert len(plan(sequence)) > 10 - 3
+
+
+def passes_on(threads: int, spp: int, batch_spp: int) -> list[bytes]:
+    """The frame and batch results of frame 0 at 160x120 (more than one Dr.Jit
+    block, so 2 threads split each image) rendered on ``threads`` Dr.Jit threads."""
+    from denoise.export import Spec, plan, run_task, sequences_for
+
+    spec = Spec.from_dict(dict(TINY, size=[160, 120], spp=spp, reference_spp=2 * batch_spp))
+    [sequence] = sequences_for([("big", spec)], Path("/nonexistent/big"), batch_spp=batch_spp)
+    results = []
+    for task in plan(sequence, threads):
+        if task.frame == 0:
+            result, _ = run_task(task)
+            parts = [result] if task.kind == "batch" else [result.beauty, result.normal, result.position,
+                                                          result.depth, result.ids, result.albedo]
+            results += [np.ascontiguousarray(p).tobytes() for p in parts]
+    return results
+
+
+@pytest.mark.parametrize("spp, batch_spp", [(1, 3), (2, 8), (1, 16)])
+def test_bytes_do_not_depend_on_the_thread_count(uninterrupted, spp, batch_spp):
+    """1 and 2 Dr.Jit threads (a worker's and the local process's) give the same bytes."""
+    import drjit as dr
+
+    threads = dr.thread_count()
+    try:
+        assert passes_on(1, spp, batch_spp) == passes_on(2, spp, batch_spp)
+    finally:
+        dr.set_thread_count(threads)
+
+
+def test_thread_check_fails_without_single_threaded_passes(uninterrupted, monkeypatch):
+    """The check above on purpose-broken code (passes on the process's threads):
+    the renders follow the thread count."""
+    import drjit as dr
+
+    import denoise.export as export_module
+
+    monkeypatch.setattr(export_module, "RENDER_THREADS", None)
+    threads = dr.thread_count()
+    try:
+        assert passes_on(1, 1, 3) != passes_on(2, 1, 3)
+    finally:
+        dr.set_thread_count(threads)

@@ -1,0 +1,179 @@
+"""denoise.export on Dask: the same bytes with 1 and 2 workers as in one
+process, a killed worker's tasks redone, several specs into one dataset, and
+the scale-out benchmark's figures (at a tiny size)."""
+from __future__ import annotations
+
+import json
+import os
+import signal
+from pathlib import Path
+
+import pytest
+
+from test_export import BATCH_SPP, TINY, folder_bytes
+
+pytest.importorskip("distributed")
+
+# 2 frames x (1 frame task + 6 batches) = 14 tasks: enough for both workers to
+# be busy when one is killed, small enough for CI
+SPEC = dict(TINY, reference_spp=12)
+
+
+def export_with(target: Path, **where):
+    from denoise.export import Spec, export
+
+    return export(Spec.from_dict(dict(SPEC)), target, batch_spp=BATCH_SPP, **where)
+
+
+@pytest.fixture(scope="module")
+def in_process(tmp_path_factory):
+    from renderer import variants
+
+    variants.set_variant("llvm_ad_rgb" if variants.find_libllvm() else "scalar_rgb", quiet=True)
+    target = tmp_path_factory.mktemp("local") / "seq"
+    assert export_with(target, local=True) == [0, 1]
+    return target
+
+
+def test_one_and_two_workers_give_the_bytes_of_one_process(tmp_path, in_process):
+    one, two = tmp_path / "one" / "seq", tmp_path / "two" / "seq"
+    assert export_with(one, workers=1) == [0, 1]
+    assert export_with(two, workers=2) == [0, 1]
+    expected = folder_bytes(in_process)
+    assert len(expected) == 2 * 7 + 2 * 3  # 7 files per frame, 3 per reference
+    assert folder_bytes(one) == expected
+    assert folder_bytes(two) == expected
+    manifest = json.loads((two / "dataset.json").read_text())
+    workers = {t["worker"] for f in manifest["sequences"][0]["frames"] for t in f["tasks"]}
+    assert len(workers) == 2 and "local" not in workers  # really ran on both workers
+    assert manifest["runner"] == "dask" and manifest["tasks"] == 14
+
+
+def test_byte_comparison_fails_on_order_dependent_sums(tmp_path, in_process, monkeypatch):
+    """The comparison above on purpose-broken code: the halves summed in float32
+    from the last batch to the first (as completion order might have it)
+    change the bytes, so a sum that depended on the order would be caught."""
+    import numpy as np
+
+    import denoise.export as export_module
+    from imaging.image_io import write_exr
+
+    def sums_last_first(sequence, frame):
+        paths = [export_module.batch_path(sequence, frame, b) for b in range(len(sequence.batches()))]
+        if not all(p.exists() for p in paths):
+            return False
+        halves = {h: np.zeros(sequence.spec.size[::-1] + (3,), np.float32) for h in "ab"}
+        for (half, spp), path in reversed(list(zip(sequence.batches(), paths))):
+            halves[half] += np.load(path) * np.float32(2 * spp / sequence.spec.reference_spp)
+        write_exr(sequence.reference / f"half_a_{frame}.exr", {"": halves["a"]})
+        write_exr(sequence.reference / f"half_b_{frame}.exr", {"": halves["b"]})
+        write_exr(sequence.reference / f"beauty_{frame}.exr", {"": (halves["a"] + halves["b"]) / 2})
+        return True
+
+    monkeypatch.setattr(export_module, "assemble_reference", sums_last_first)
+    broken = tmp_path / "seq"
+    export_with(broken, local=True)
+    assert folder_bytes(broken) != folder_bytes(in_process)
+
+
+def _running(dask_worker):
+    """(the worker's process id, the frame tasks it is running: the longer ones)."""
+    return os.getpid(), [str(state.key) for state in dask_worker.state.executing if str(state.key).endswith("frame")]
+
+
+def worker_killer(killed: dict):
+    """An ``after_task`` hook that SIGKILLs, once, a worker process in the middle of a task."""
+    from distributed import default_client
+
+    def kill_a_busy_worker(task):
+        if killed:
+            return
+        for address, (pid, keys) in default_client().run(_running).items():
+            if keys:
+                os.kill(pid, signal.SIGKILL)
+                killed.update(address=address, pid=pid, keys=keys)
+                return
+
+    return kill_a_busy_worker
+
+
+def test_killed_worker_is_replaced_and_the_result_is_unchanged(tmp_path, in_process):
+    """SIGKILL one of two worker processes while it holds tasks; Dask (its
+    nanny restarts the process) reruns them; the files equal one process's."""
+    killed = {}
+    kill_a_busy_worker = worker_killer(killed)
+    target = tmp_path / "seq"
+    assert export_with(target, workers=2, after_task=kill_a_busy_worker) == [0, 1]
+    assert killed, "no worker was busy after any result: the test did not kill anything"
+    with pytest.raises(ProcessLookupError):
+        os.kill(killed["pid"], 0)
+    assert folder_bytes(target) == folder_bytes(in_process)
+    manifest = json.loads((target / "dataset.json").read_text())
+    frames = manifest["sequences"][0]["frames"]
+    assert [f["status"] for f in frames] == ["rendered", "rendered"]
+    assert sum(len(f["tasks"]) for f in frames) == 14
+    entry = manifest["sequences"][0]
+
+    def name(frame, task):
+        tail = "frame" if task["kind"] == "frame" else f"batch{task['batch']}"
+        return f"{entry['name']}-{entry['key'][:8]}-{frame['index']}-{tail}"
+
+    finished_by = {name(f, t): t["worker"] for f in frames for t in f["tasks"]}
+    # the task it was running was finished by another process (the restarted one has a new address)
+    assert any(finished_by.get(key) not in (None, killed["address"]) for key in killed["keys"]), (killed, finished_by)
+
+
+def test_kill_check_fails_when_dask_may_not_retry(tmp_path, in_process):
+    """The kill test on purpose-broken fault tolerance (no retries allowed):
+    the same kill ends the export with KilledWorker instead."""
+    import dask
+    from distributed import KilledWorker
+
+    killed = {}
+    with dask.config.set({"distributed.scheduler.allowed-failures": 0}):
+        with pytest.raises(KilledWorker):
+            export_with(tmp_path / "seq", workers=2, after_task=worker_killer(killed))
+    assert killed
+
+
+def test_dataset_of_two_specs_and_the_cli(tmp_path, capsys):
+    """Two specs -> OUT/<name> and OUT/<name>_reference each, and one manifest
+    (the layout does not depend on where tasks run: here in this process)."""
+    from denoise.export import main
+
+    paths = []
+    for name, change in (("first", {}), ("second", {"frames": 1, "camera": {"pan": [0.3, 0, 0]}})):
+        path = tmp_path / f"{name}.json"
+        path.write_text(json.dumps(dict(SPEC, **change)))
+        paths.append(str(path))
+    out = tmp_path / "set"
+    assert main(paths + [str(out), "--local", "--batch-spp", str(BATCH_SPP)]) == 0
+    assert "2 frames rendered into" in capsys.readouterr().out
+    manifest = json.loads((out / "dataset.json").read_text())
+    assert [s["name"] for s in manifest["sequences"]] == ["first", "second"]
+    assert [len(s["frames"]) for s in manifest["sequences"]] == [2, 1]
+    for entry in manifest["sequences"]:
+        assert {"spec", "variant", "versions", "seeds", "reference_spp", "batch_spp"} <= set(entry["settings"])
+        for frame in entry["frames"]:
+            assert frame["status"] == "rendered" and frame["tasks"]
+            assert all(t["seconds"] > 0 for t in frame["tasks"])
+    assert sorted(p.name for p in (out / "second_reference").iterdir()) == [
+        "beauty_0.exr", "half_a_0.exr", "half_b_0.exr"]
+    assert (out / "first" / "sequence.json").exists() and (out / "second" / "matrix_0.mat").exists()
+    # the same name twice would share a folder
+    assert main([paths[0], paths[0], str(tmp_path / "dup"), "--local"]) == 2
+    assert "would share one folder" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_scaleout_benchmark_reports_its_figures(tmp_path):
+    from benchmarks.scaleout import main
+
+    path = tmp_path / "scaleout.json"
+    assert main(["--json", str(path), "--frames", "1", "--size", "16", "12", "--reference-spp", "4",
+                 "--batch-spp", "1"]) == 0
+    result = json.loads(path.read_text())
+    assert result["identical"] is True
+    assert result["tasks"] == 2 * (1 + 4)
+    assert result["efficiency"] == pytest.approx(result["local_s"] / result["cluster_s"], rel=1e-3)
+    assert 0 < result["overhead_s"] < result["cluster_s"] and result["task_median_s"] > 0
