@@ -34,6 +34,7 @@ JSON: ``{"sequences": [{..., "reference_noise", "reference_temporal",
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import time
 from pathlib import Path
@@ -372,7 +373,9 @@ def main(argv: list[str] | None = None) -> int:
         spec = Spec.load(spec_path, **settings)
         # the folder names its settings: other settings render beside it, never into it
         folder = args.work / f"{spec_path.stem}_{spec.size[0]}x{spec.size[1]}_{spec.reference_spp}spp{suffix}"
-        export(spec, folder)
+        # one Dask worker per core (each render is single-threaded so that bytes do not
+        # depend on thread counts; see denoise/export.py); the quick CI size stays in-process
+        export(spec, folder, **({} if args.quick else {"workers": os.cpu_count() or 1}))
         outputs = {} if spec_path.stem == HARD else None
         rows, figures = run_sequence(folder, spec_path.stem, outputs=outputs)
         if outputs is not None:
