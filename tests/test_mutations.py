@@ -14,6 +14,7 @@ passes) and once on purpose-broken code (it must fail).
 """
 from __future__ import annotations
 
+import json
 import math
 from pathlib import Path
 
@@ -61,6 +62,7 @@ def test_furnace_is_two_sided(variant_rgb, monkeypatch):
     original = cls.eval
     monkeypatch.setattr(cls, "eval", lambda self, *args, **kwargs: original(self, *args, **kwargs) * 0.9)
     assert not furnace_passes(samples)
+    json.dumps(crossval.furnace_case(*FURNACE_CASES[0], samples=samples))  # a failed case still serialises
 
 
 def hemisphere_light(wo: np.ndarray) -> np.ndarray:
