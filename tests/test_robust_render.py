@@ -185,8 +185,8 @@ def test_one_sample_renders_as_mitsuba_does(variant_llvm_ad_rgb):
 
 
 def test_ctrl_c_stops_a_long_render(variant_llvm_ad_rgb, tmp_path):
-    """A render that needs well over 10 s gets SIGINT once it renders (its progress
-    bar shows, ~3 s or more after the start): it exits with 130 within 2 s."""
+    """A render that needs well over a minute gets SIGINT 8 s after its start (it is
+    rendering by then): it exits with 130 within 2 s."""
     scene = ROOT / "scenes" / "mirrors.txt"
     out = tmp_path / "out"
     out.mkdir()
@@ -200,12 +200,11 @@ def test_ctrl_c_stops_a_long_render(variant_llvm_ad_rgb, tmp_path):
     reader.start()
     started = time.perf_counter()
     try:
-        # launches have begun when the progress bar shows (tqdm draws it after 1 s)
-        while b"Rendering" not in b"".join(stderr):
+        # the launches have begun after start-up and the first kernel's compilation (~2-3 s
+        # on a quiet machine; no progress bar to watch: stderr is not a terminal here)
+        while time.perf_counter() - started < 8.0:
             assert process.poll() is None, b"".join(stderr).decode()
-            assert time.perf_counter() - started < 300, "no progress shown"
             time.sleep(0.05)
-        time.sleep(max(0.0, 3.0 - (time.perf_counter() - started)))
         process.send_signal(signal.SIGINT)
         sent = time.perf_counter()
         process.wait(timeout=60)
