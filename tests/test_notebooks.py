@@ -67,8 +67,7 @@ def test_the_notebook_asserts_catch_errors_that_do_not_converge():
     pass as is, and fail when the error no longer falls with the sample count."""
     shrink = ("from pathlib import Path\nimport benchmarks.crossval as cv, benchmarks.error_vs_time as evt\n"
               "cv.scene_paths = lambda course, quick: [Path('scenes/lamps.txt')]\n"
-              "evt.settings = lambda quick: (16, {'whitted': [1, 4, 16], 'path': [1, 4, 16]}, "
-              "{'whitted': 256, 'path': 256})\n")
+              "evt.settings = lambda quick: (16, {'whitted': [1, 4, 16], 'path': [1, 4, 16]}, 256)\n")
     for broken, expected in (("", []), ("evt.relmse = lambda image, reference: 0.01\n", ["AssertionError"])):
         notebook = build.make("error_vs_time")
         notebook.cells.insert(2, new_code_cell(shrink + broken))
