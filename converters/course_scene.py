@@ -446,6 +446,25 @@ def parse_scene(text: str, path: str | Path = "<string>") -> Scene:
     return _Parser(Path(path), text).scene()
 
 
+def referenced_files(path: str | Path) -> list[Path]:
+    """The files a scene file reads besides itself: its meshes and cube-map
+    faces, found by a scan of its words (no parsing: a damaged scene stays the
+    parser's to report). Unreadable scenes name none."""
+    path = Path(path)
+    try:
+        text = path.read_bytes().decode("utf-8-sig")
+    except (OSError, UnicodeDecodeError):
+        return []
+    words = [token.text for token in _tokenize(text)]
+    files = []
+    for key, value in zip(words, words[1:]):
+        if key == "obj_file":
+            files.append(path.parent / value)
+        elif key == "cubeMap":
+            files.extend(path.parent / value / f"{face}.png" for face in CUBE_FACES)
+    return files
+
+
 def load_scene(path: str | Path) -> Scene:
     """Reads and parses a scene file."""
     path = Path(path)
@@ -454,7 +473,7 @@ def load_scene(path: str | Path) -> Scene:
     except OSError as error:
         raise SceneError(path, 1, 1, f"cannot read scene: {error.strerror or error}") from None
     try:
-        text = data.decode("utf-8")
+        text = data.decode("utf-8-sig")  # a byte-order mark (Windows editors) is not text
     except UnicodeDecodeError as error:
         line = data[: error.start].count(b"\n") + 1
         raise SceneError(path, line, 1, "expected scene text, found binary data") from None

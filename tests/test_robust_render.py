@@ -300,3 +300,27 @@ def test_scalar_ids_under_jitter(variant_scalar_rgb, scene_file, tmp_path):
     layers = render(RenderJob(scene=scene_file, width=12, height=9, exr=tmp_path / "x.exr", jitter=True, spp=2,
                               **FLAGS)).layers
     assert set(np.unique(layers["id"])) <= {-1.0, 0.0, 1.0, 2.0}
+
+
+def test_depth_images_are_clamped_and_black_where_nothing_is_hit(tmp_path, monkeypatch):
+    """README: (t - MIN) / (MAX - MIN), clamped, black where nothing is hit, for
+    every format and also for an inverted ramp (MIN > MAX): misses used to be
+    white with MIN > MAX, and an .exr held unclamped values (misses -MIN/(MAX-MIN))."""
+    import renderer.cli as cli
+    from imaging.image_io import read_exr, read_png
+
+    # the sky fills the top rows: no hit there
+    (tmp_path / "s.txt").write_text(scene_text(center="0 1 6", direction="0 0.3 -1"))
+    monkeypatch.chdir(tmp_path)
+    for near, far in [(2, 9), (9, 2), (6.5, 7), (20, 30)]:
+        for name in ("d.exr", "d.png"):
+            assert cli.main(["-input", "s.txt", "-size", "24", "18", "--quiet",
+                             "-depth", str(near), str(far), name]) == 0
+        depth = read_exr("d.exr")["R"]
+        grey = read_png("d.png")[..., 0]
+        assert depth.min() >= 0.0 and depth.max() <= 1.0, (near, far, depth.min(), depth.max())
+        assert np.all(depth[0] == 0.0) and np.all(grey[0] == 0), (near, far)  # the sky row
+        assert np.abs(np.floor(depth * 255.0) - grey).max() <= 1, (near, far)  # .png and .exr agree
+    # the inverted ramp: what is near is bright, and something is hit
+    assert cli.main(["-input", "s.txt", "-size", "24", "18", "--quiet", "-depth", "9", "2", "d.exr"]) == 0
+    assert read_exr("d.exr")["R"].max() > 0.3
