@@ -21,7 +21,7 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
-from core.entry import one_line, run
+from core.entry import hold_signals, one_line, run
 from core.errors import ToolkitError, UsageError, describe
 
 from . import checks
@@ -357,6 +357,10 @@ def _run(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
     from .variants import prepare_libllvm
 
     prepare_libllvm(args.variant)  # first: the checks below import Mitsuba, which loads libLLVM
+    with hold_signals():  # a signal inside the import of Dr.Jit's extension aborts the process
+        import mitsuba  # noqa: F401
+
+        import drjit  # noqa: F401
     if args.batch:
         given = [flag for flag, value, default in (
             ("SCENE", args.scenes, []), ("-input", args.input, None), ("-size", args.size, list(DEFAULT_SIZE)),

@@ -315,3 +315,17 @@ def test_a_scene_file_with_a_byte_order_mark_is_read(tmp_path):
 
     (tmp_path / "s.txt").write_bytes(b"\xef\xbb\xbf" + scene().encode())
     assert len(load_scene(tmp_path / "s.txt").objects) == 3
+
+
+def test_a_libllvm_that_is_not_a_library_is_named_in_a_whole_sentence(tmp_path):
+    """The fallback line used to end mid-sentence ('...("libLLVM.so") could; using scalar_rgb')."""
+    garbage = tmp_path / "libLLVM-19.so"
+    garbage.write_text("not a library\n")
+    (tmp_path / "s.txt").write_text(scene())
+    env = {"DRJIT_LIBLLVM_PATH": str(garbage), "XDG_CACHE_HOME": str(tmp_path / "cache")}
+    result = run("-input", "s.txt", "-size", "6", "4", "-output", "a.png", cwd=tmp_path, env=env)
+    assert result.returncode == 0, result.stderr[-2000:]
+    notes = [line for line in result.stderr.splitlines() if "scalar_rgb" in line]
+    assert len(notes) == 1, result.stderr
+    reason = notes[0].split("Dr.Jit cannot use it (")[1].split(");")[0]
+    assert reason.endswith("could not be found"), notes[0]

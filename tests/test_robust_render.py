@@ -324,3 +324,61 @@ def test_depth_images_are_clamped_and_black_where_nothing_is_hit(tmp_path, monke
     # the inverted ramp: what is near is bright, and something is hit
     assert cli.main(["-input", "s.txt", "-size", "24", "18", "--quiet", "-depth", "9", "2", "d.exr"]) == 0
     assert read_exr("d.exr")["R"].max() > 0.3
+
+
+#: Delays after the start at which the start-up test sends its signals: the
+#: imports (0.15 s), Dr.Jit's initialisation (~1-2 s, where SIGTERM used to
+#: give a 60-line ImportError / SystemError traceback and a signal inside the
+#: import of its extension aborted the process), the render and the
+#: interpreter's teardown. Earlier than ~0.1 s the signal lands in Python's
+#: own start-up (site), before render.py's first line runs.
+START_UP_DELAYS = (0.15, 0.3, 0.7, 1.0, 1.4, 1.8, 2.2)
+
+
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+def test_a_signal_in_any_phase_of_start_up_keeps_the_contract(tmp_path, signum):
+    """Finished first (0), or one line and 128 + signum; never a traceback, an
+    abort or a temporary file left behind."""
+    outcomes = []
+    for delay in START_UP_DELAYS:
+        out = tmp_path / f"{delay}"
+        out.mkdir()
+        process = subprocess.Popen([sys.executable, str(ROOT / "render.py"), "scene03", "-size", "48", "48",
+                                    "--out", str(out)], cwd=out, stdout=subprocess.PIPE,
+                                   stderr=subprocess.PIPE, text=True)
+        time.sleep(delay)
+        process.send_signal(signum)
+        _, stderr = process.communicate(timeout=120)
+        lines = stderr.strip().splitlines()
+        outcomes.append((delay, process.returncode))
+        assert process.returncode in (0, 128 + signum), (delay, process.returncode, stderr[-3000:])
+        assert len(lines) <= 1, (delay, stderr[-3000:])
+        if process.returncode:
+            assert lines and "interrupted" in lines[0], (delay, stderr)
+        assert not [p for p in out.rglob(".*")], (delay, list(out.rglob("*")))
+    print(signal.Signals(signum).name, outcomes)
+
+
+def test_an_interruption_wrapped_by_native_code_is_an_interrupted_exit(capsys):
+    """Dr.Jit's start-up turns the handler's exception into an ImportError, and
+    CPython then into a SystemError: the chain still holds the interruption."""
+    from core.entry import Interrupted, run
+
+    def wrapped():
+        try:
+            try:
+                raise Interrupted(signal.SIGTERM)
+            except Interrupted as stop:
+                raise ImportError("initializing the extension") from stop
+        except ImportError:
+            raise SystemError("<built-in function __import__> returned a result with an exception set")
+
+    assert run("render.py", wrapped) == 143
+    assert capsys.readouterr().err.strip().splitlines() == [
+        "render.py: interrupted; finished files are complete, unfinished ones were not written"]
+
+    def bug():
+        raise ValueError("a bug keeps its traceback")
+
+    with pytest.raises(ValueError):
+        run("render.py", bug)
