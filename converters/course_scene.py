@@ -48,6 +48,14 @@ _TOKEN = re.compile(r"[{}]|[^\s{}]+")
 #: The renderer stores every number as float32: larger magnitudes are not representable
 FLOAT32_MAX = float(np.finfo(np.float32).max)
 
+#: Rendered scenes are float32 (Mitsuba's rays, hits and offsets): a scene
+#: scaled uniformly renders the same from 1e-10 to 1e11 times the size of
+#: benchmarks.stress_cases' scene (about 6 across), not at 1e-12 or 1e12
+#: (measured, 2026-11-29). So world coordinates are at most MAX_COORDINATE in
+#: magnitude, and a scene (camera and objects) spans at least MIN_SCENE_SIZE.
+MAX_COORDINATE = 1e12
+MIN_SCENE_SIZE = 1e-10
+
 #: Deepest nesting of Group and Transform blocks (scenes nest a handful; the
 #: limit keeps the recursive parser far from Python's recursion limit)
 MAX_NESTING = 200
@@ -108,6 +116,8 @@ class _Parser:
         self.material_index: int | None = None
         self.objects = []
         self.mesh_cache: dict[Path, tuple[np.ndarray, np.ndarray]] = {}
+        self.bounds: list[tuple[np.ndarray, np.ndarray]] = []  # of each object's world points
+        self.camera_token: _Token | None = None
         self.nesting = 0  # Group and Transform blocks open around the current token
 
     # -- tokens -------------------------------------------------------------
@@ -210,6 +220,14 @@ class _Parser:
                 raise self.error(token, "a section (PerspectiveCamera, Lights, Background, Materials, Group)")
         if camera is None:
             raise self.error(self.end, "a PerspectiveCamera section")
+        if self.bounds:
+            corners = np.array([corner for bound in self.bounds for corner in bound] + [camera.center])
+            size = float(np.linalg.norm(corners.max(axis=0) - corners.min(axis=0)))
+            if size < MIN_SCENE_SIZE:
+                token = self.camera_token
+                raise SceneError(self.path, token.line, token.col,
+                                 f"expected a scene (camera and objects) at least {MIN_SCENE_SIZE:g} across "
+                                 f"(float32 rendering is exact enough only above that), found {size:g}")
         return Scene(path=self.path, camera=camera, lights=lights or [],
                      background=background or Background(), materials=self.materials,
                      objects=self.objects)
@@ -232,6 +250,8 @@ class _Parser:
                              f"(lengths {FLOAT32_LENGTHS[0]:g}..{FLOAT32_LENGTHS[1]:g}, angle not tiny), found "
                              f"|direction| {np.linalg.norm(direction):g}, |up| {np.linalg.norm(up):g}, "
                              f"angle {angle:g}")
+        self.within_range(start, "a camera center", values["center"])
+        self.camera_token = start
         return Camera(values["center"], values["direction"], values["up"], angle)
 
     def counted(self, count_key: str, item) -> list:
@@ -276,6 +296,7 @@ class _Parser:
                                      f"expected a falloff > 0, found {falloff:g}")
                 self.finite32(token, "a light intensity (color * pi / falloff)",
                               np.asarray(values["color"]) * (math.pi / falloff))
+                self.within_range(token, "a light position", values["position"])
                 return PointLight(values["position"], values["color"], falloff)
             raise self.error(token, "DirectionalLight or PointLight")
         return self.counted("numLights", light)
@@ -318,6 +339,15 @@ class _Parser:
         with np.errstate(over="ignore", invalid="ignore"):
             world = points @ to_world[:3, :3].T + to_world[:3, 3]
         self.finite32(token, "the object's world-space coordinates", world)
+        self.within_range(token, "the object's world-space coordinates", world)
+        self.bounds.append((world.min(axis=0), world.max(axis=0)))
+
+    def within_range(self, token: _Token, what: str, points) -> None:
+        largest = float(np.abs(np.asarray(points, np.float64)).max(initial=0.0))
+        if largest > MAX_COORDINATE:
+            raise SceneError(self.path, token.line, token.col,
+                             f"expected {what} of magnitude at most {MAX_COORDINATE:g} (float32 rendering "
+                             f"is exact enough only within that), found {largest:g}")
 
     def enter(self, token: _Token) -> None:
         self.nesting += 1
