@@ -86,6 +86,9 @@ def scale_cases() -> list[Case]:
         Case("scene 1e-11 across is refused",
              scene(center="0 1e-12 6e-12", num_objects=1, objects="MaterialIndex 0 Sphere { center 0 0 0 radius 1e-12 }"),
              "error", expect="at least 1e-10 across"),
+        Case("camera in an infinite plane (no size to refuse)",
+             scene(center="0 0 0", direction="1 -0.2 0", num_objects=1,
+                   objects="MaterialIndex 0 Plane { normal 0 1 0 offset 0 }"), "render"),
         # Non-uniformly scaled spheres were Mitsuba ellipsoids, which miss rays
         # at small sizes (speckles at 1e-4, nothing at 1e-5) and from inside
         Case("scene with an ellipsoid, scaled by 1e-2", scene(objects=ELLIPSOID_OBJECTS), "render", scale=1e-2),

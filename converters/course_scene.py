@@ -116,7 +116,7 @@ class _Parser:
         self.material_index: int | None = None
         self.objects = []
         self.mesh_cache: dict[Path, tuple[np.ndarray, np.ndarray]] = {}
-        self.bounds: list[tuple[np.ndarray, np.ndarray]] = []  # of each object's world points
+        self.bounds: list[tuple[np.ndarray, np.ndarray]] = []  # of each bounded object's world points
         self.camera_token: _Token | None = None
         self.nesting = 0  # Group and Transform blocks open around the current token
 
@@ -333,14 +333,15 @@ class _Parser:
         return self.counted("numMaterials", material)
 
     # -- objects ------------------------------------------------------------
-    def in_world(self, token: _Token, to_world: np.ndarray, points) -> None:
+    def in_world(self, token: _Token, to_world: np.ndarray, points, bounded: bool = True) -> None:
         """An object's points, moved into the world, must stay float32 numbers."""
         points = np.asarray(points, np.float64).reshape(-1, 3)
         with np.errstate(over="ignore", invalid="ignore"):
             world = points @ to_world[:3, :3].T + to_world[:3, 3]
         self.finite32(token, "the object's world-space coordinates", world)
         self.within_range(token, "the object's world-space coordinates", world)
-        self.bounds.append((world.min(axis=0), world.max(axis=0)))
+        if bounded:  # (a plane's point is any of its points: no size)
+            self.bounds.append((world.min(axis=0), world.max(axis=0)))
 
     def within_range(self, token: _Token, what: str, points) -> None:
         largest = float(np.abs(np.asarray(points, np.float64)).max(initial=0.0))
@@ -407,7 +408,7 @@ class _Parser:
             if not any(values["normal"]):
                 raise SceneError(self.path, token.line, token.col, "expected a non-zero plane normal, found 0 0 0")
             normal = np.asarray(values["normal"], np.float64)
-            self.in_world(token, to_world, [normal / np.linalg.norm(normal) * values["offset"]])
+            self.in_world(token, to_world, [normal / np.linalg.norm(normal) * values["offset"]], bounded=False)
             self.objects.append(Plane(**common, normal=values["normal"], offset=values["offset"]))
         elif kind == "Triangle":
             values, _ = self.fields({"vertex0": self.vector, "vertex1": self.vector, "vertex2": self.vector},
