@@ -8,9 +8,8 @@ import sys
 
 from core.entry import exit_on_signals  # first: standard library only, before the heavy imports
 
-if __name__ == "__main__":
-    exit_on_signals("render.py")  # until main's core.entry.run takes over
-    # started by a Python without the project's packages: use ./.venv's
+if __name__ == "__main__":  # started by a Python without the project's packages: use ./.venv's
+    exit_on_signals("render.py")  # first, until main's core.entry.run takes over
     from core.launcher import use_project_python
     use_project_python("render.py")
 
