@@ -1,14 +1,25 @@
 #!/usr/bin/env python3
 """Renders course scenes; accepts the course binary's flags verbatim. See --help.
 
-Every error is one line and exit code 2 (``core.entry.run`` inside ``main``)."""
+Every error is one line and exit code 2 (``core.entry.run`` inside ``main``);
+Ctrl-C and SIGTERM are one line and 130 / 143 in every phase, the imports included."""
+import signal
 import sys
 
+from core.entry import exit_on_signals  # first: standard library only, before the heavy imports
+
 if __name__ == "__main__":  # started by a Python without the project's packages: use ./.venv's
+    exit_on_signals("render.py")  # first, until main's core.entry.run takes over
     from core.launcher import use_project_python
     use_project_python("render.py")
 
 from renderer.cli import main
 
 if __name__ == "__main__":
-    sys.exit(main())
+    code = main()
+    # Done: a signal during the interpreter's teardown (Dr.Jit's shutdown takes
+    # a moment) would kill it silently, as Python restores the default handlers
+    # there; every file is complete, so the exit code stays this one
+    for signum in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(signum, signal.SIG_IGN)
+    sys.exit(code)

@@ -26,6 +26,16 @@ def sun(distance: float, direction=(1.0, 3.0, 2.0)) -> str:
     return "PointLight {{ position {:.9g} {:.9g} {:.9g} color 1 1 1 falloff {:.9g} }}".format(*position, falloff)
 
 
+#: The default objects with the small sphere squashed to an ellipsoid
+ELLIPSOID_OBJECTS = DEFAULTS["objects"].replace("Scale 0.6 0.6 0.6", "Scale 0.6 0.35 0.8")
+assert ELLIPSOID_OBJECTS != DEFAULTS["objects"]
+
+
+def inside(transform: str) -> str:
+    """A large sphere around the camera (which sees its inside) under ``transform``."""
+    return f"MaterialIndex 0 Transform {{ {transform} Sphere {{ center 0 0 0 radius 1 }} }}"
+
+
 def with_objects(extra: str, count: int = 1) -> str:
     return scene(num_objects=3 + count, objects=DEFAULTS["objects"] + " " + extra)
 
@@ -61,4 +71,29 @@ def scale_cases() -> list[Case]:
         Case("scene with a far light, scaled by 1e3", scene(lights=f"{sun(1e5)} {NEAR_LIGHT}"), "render",
              scale=1e3),
         Case("20 lights (a symbolic loop)", many_lights(20), "render", reference=True),
+        # float32 rendering: uniformly scaled scenes render the same within the
+        # parser's limits (converters.course_scene.MAX_COORDINATE, MIN_SCENE_SIZE), and
+        # beyond them are refused (a sphere at 1e18 removed a shadow; a scene scaled to
+        # 1e18 or 1e-30 rendered empty, with exit 0)
+        Case("scene scaled by 1e-10", scene(), "render", scale=1e-10),
+        Case("scene scaled by 1e11", scene(), "render", scale=1e11),
+        Case("sphere 1e18 away is refused", with_objects("MaterialIndex 0 Sphere { center 1e18 0 0 radius 1 }"),
+             "error", expect="magnitude at most 1e+12"),
+        Case("camera 1e13 away is refused", scene(center="0 1 1e13"), "error", expect="camera center"),
+        Case("point light 1e13 away is refused",
+             scene(lights="PointLight { position 1 3 1e13 color 1 1 1 falloff 1e-26 }"), "error",
+             expect="light position"),
+        Case("scene 1e-11 across is refused",
+             scene(center="0 1e-12 6e-12", num_objects=1, objects="MaterialIndex 0 Sphere { center 0 0 0 radius 1e-12 }"),
+             "error", expect="at least 1e-10 across"),
+        Case("camera in an infinite plane (no size to refuse)",
+             scene(center="0 0 0", direction="1 -0.2 0", num_objects=1,
+                   objects="MaterialIndex 0 Plane { normal 0 1 0 offset 0 }"), "render"),
+        # Non-uniformly scaled spheres were Mitsuba ellipsoids, which miss rays
+        # at small sizes (speckles at 1e-4, nothing at 1e-5) and from inside
+        Case("scene with an ellipsoid, scaled by 1e-2", scene(objects=ELLIPSOID_OBJECTS), "render", scale=1e-2),
+        Case("scene with an ellipsoid, scaled by 1e-5", scene(objects=ELLIPSOID_OBJECTS), "render", scale=1e-5),
+        Case("camera inside an ellipsoid = inside a sphere",
+             scene(center="0 0.5 0", num_objects=1, objects=inside("Scale 20 20 20.02")), "render",
+             match=scene(center="0 0.5 0", num_objects=1, objects=inside("UniformScale 20"))),
     ]

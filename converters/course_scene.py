@@ -48,6 +48,14 @@ _TOKEN = re.compile(r"[{}]|[^\s{}]+")
 #: The renderer stores every number as float32: larger magnitudes are not representable
 FLOAT32_MAX = float(np.finfo(np.float32).max)
 
+#: Rendered scenes are float32 (Mitsuba's rays, hits and offsets): a scene
+#: scaled uniformly renders the same from 1e-10 to 1e11 times the size of
+#: benchmarks.stress_cases' scene (about 6 across), not at 1e-12 or 1e12
+#: (measured, 2026-11-29). So world coordinates are at most MAX_COORDINATE in
+#: magnitude, and a scene (camera and objects) spans at least MIN_SCENE_SIZE.
+MAX_COORDINATE = 1e12
+MIN_SCENE_SIZE = 1e-10
+
 #: Deepest nesting of Group and Transform blocks (scenes nest a handful; the
 #: limit keeps the recursive parser far from Python's recursion limit)
 MAX_NESTING = 200
@@ -108,6 +116,8 @@ class _Parser:
         self.material_index: int | None = None
         self.objects = []
         self.mesh_cache: dict[Path, tuple[np.ndarray, np.ndarray]] = {}
+        self.bounds: list[tuple[np.ndarray, np.ndarray]] = []  # of each bounded object's world points
+        self.camera_token: _Token | None = None
         self.nesting = 0  # Group and Transform blocks open around the current token
 
     # -- tokens -------------------------------------------------------------
@@ -210,6 +220,14 @@ class _Parser:
                 raise self.error(token, "a section (PerspectiveCamera, Lights, Background, Materials, Group)")
         if camera is None:
             raise self.error(self.end, "a PerspectiveCamera section")
+        if self.bounds:
+            corners = np.array([corner for bound in self.bounds for corner in bound] + [camera.center])
+            size = float(np.linalg.norm(corners.max(axis=0) - corners.min(axis=0)))
+            if size < MIN_SCENE_SIZE:
+                token = self.camera_token
+                raise SceneError(self.path, token.line, token.col,
+                                 f"expected a scene (camera and objects) at least {MIN_SCENE_SIZE:g} across "
+                                 f"(float32 rendering is exact enough only above that), found {size:g}")
         return Scene(path=self.path, camera=camera, lights=lights or [],
                      background=background or Background(), materials=self.materials,
                      objects=self.objects)
@@ -232,6 +250,8 @@ class _Parser:
                              f"(lengths {FLOAT32_LENGTHS[0]:g}..{FLOAT32_LENGTHS[1]:g}, angle not tiny), found "
                              f"|direction| {np.linalg.norm(direction):g}, |up| {np.linalg.norm(up):g}, "
                              f"angle {angle:g}")
+        self.within_range(start, "a camera center", values["center"])
+        self.camera_token = start
         return Camera(values["center"], values["direction"], values["up"], angle)
 
     def counted(self, count_key: str, item) -> list:
@@ -276,6 +296,7 @@ class _Parser:
                                      f"expected a falloff > 0, found {falloff:g}")
                 self.finite32(token, "a light intensity (color * pi / falloff)",
                               np.asarray(values["color"]) * (math.pi / falloff))
+                self.within_range(token, "a light position", values["position"])
                 return PointLight(values["position"], values["color"], falloff)
             raise self.error(token, "DirectionalLight or PointLight")
         return self.counted("numLights", light)
@@ -312,12 +333,22 @@ class _Parser:
         return self.counted("numMaterials", material)
 
     # -- objects ------------------------------------------------------------
-    def in_world(self, token: _Token, to_world: np.ndarray, points) -> None:
+    def in_world(self, token: _Token, to_world: np.ndarray, points, bounded: bool = True) -> None:
         """An object's points, moved into the world, must stay float32 numbers."""
         points = np.asarray(points, np.float64).reshape(-1, 3)
         with np.errstate(over="ignore", invalid="ignore"):
             world = points @ to_world[:3, :3].T + to_world[:3, 3]
         self.finite32(token, "the object's world-space coordinates", world)
+        self.within_range(token, "the object's world-space coordinates", world)
+        if bounded:  # (a plane's point is any of its points: no size)
+            self.bounds.append((world.min(axis=0), world.max(axis=0)))
+
+    def within_range(self, token: _Token, what: str, points) -> None:
+        largest = float(np.abs(np.asarray(points, np.float64)).max(initial=0.0))
+        if largest > MAX_COORDINATE:
+            raise SceneError(self.path, token.line, token.col,
+                             f"expected {what} of magnitude at most {MAX_COORDINATE:g} (float32 rendering "
+                             f"is exact enough only within that), found {largest:g}")
 
     def enter(self, token: _Token) -> None:
         self.nesting += 1
@@ -377,7 +408,7 @@ class _Parser:
             if not any(values["normal"]):
                 raise SceneError(self.path, token.line, token.col, "expected a non-zero plane normal, found 0 0 0")
             normal = np.asarray(values["normal"], np.float64)
-            self.in_world(token, to_world, [normal / np.linalg.norm(normal) * values["offset"]])
+            self.in_world(token, to_world, [normal / np.linalg.norm(normal) * values["offset"]], bounded=False)
             self.objects.append(Plane(**common, normal=values["normal"], offset=values["offset"]))
         elif kind == "Triangle":
             values, _ = self.fields({"vertex0": self.vector, "vertex1": self.vector, "vertex2": self.vector},
@@ -446,6 +477,25 @@ def parse_scene(text: str, path: str | Path = "<string>") -> Scene:
     return _Parser(Path(path), text).scene()
 
 
+def referenced_files(path: str | Path) -> list[Path]:
+    """The files a scene file reads besides itself: its meshes and cube-map
+    faces, found by a scan of its words (no parsing: a damaged scene stays the
+    parser's to report). Unreadable scenes name none."""
+    path = Path(path)
+    try:
+        text = path.read_bytes().decode("utf-8-sig")
+    except (OSError, UnicodeDecodeError):
+        return []
+    words = [token.text for token in _tokenize(text)]
+    files = []
+    for key, value in zip(words, words[1:]):
+        if key == "obj_file":
+            files.append(path.parent / value)
+        elif key == "cubeMap":
+            files.extend(path.parent / value / f"{face}.png" for face in CUBE_FACES)
+    return files
+
+
 def load_scene(path: str | Path) -> Scene:
     """Reads and parses a scene file."""
     path = Path(path)
@@ -454,7 +504,7 @@ def load_scene(path: str | Path) -> Scene:
     except OSError as error:
         raise SceneError(path, 1, 1, f"cannot read scene: {error.strerror or error}") from None
     try:
-        text = data.decode("utf-8")
+        text = data.decode("utf-8-sig")  # a byte-order mark (Windows editors) is not text
     except UnicodeDecodeError as error:
         line = data[: error.start].count(b"\n") + 1
         raise SceneError(path, line, 1, "expected scene text, found binary data") from None

@@ -9,15 +9,25 @@
   the file and returns 2; ``MemoryError`` one line and 2;
 - Ctrl-C (SIGINT) and SIGTERM print one line and return 130 / 143; the
   handler raises :class:`Interrupted` (a ``BaseException``), so every
-  ``atomic_path`` on the way out removes its temporary file.
+  ``atomic_path`` on the way out removes its temporary file. An error whose
+  chain (``__cause__`` / ``__context__``) holds such an interruption counts
+  as one: native extensions (Dr.Jit's start-up) wrap it in an ImportError or
+  SystemError.
+- before ``run`` starts (the imports of a script), :func:`exit_on_signals`
+  makes both signals print the same line and exit at once (nothing is
+  written yet); :func:`hold_signals` defers them past code that must not be
+  interrupted (a native library's initialisation).
 
 Anything else is a bug and keeps its traceback.
 """
 from __future__ import annotations
 
+import os
 import signal
 import sys
-from typing import Callable
+import threading
+from contextlib import contextmanager
+from typing import Callable, Iterator
 
 from .errors import ToolkitError
 
@@ -34,6 +44,68 @@ def _raise_interrupted(signum, frame):
     raise Interrupted(signum)
 
 
+#: What an interrupted command prints (after ``PROG: ``)
+INTERRUPTED = "interrupted; finished files are complete, unfinished ones were not written"
+_STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+
+def exit_on_signals(prog: str) -> None:
+    """SIGINT and SIGTERM print the interrupted line and exit (130 / 143) at
+    once: for a script's start-up, before :func:`run` installs its handlers
+    (a KeyboardInterrupt there would be a traceback from inside some import)."""
+    line = f"{prog}: {INTERRUPTED}\n".encode()
+
+    def stop(signum, frame):
+        os.write(2, line)
+        os._exit(128 + signum)
+
+    for signum in _STOP_SIGNALS:
+        signal.signal(signum, stop)
+
+
+@contextmanager
+def hold_signals() -> Iterator[None]:
+    """Holds SIGINT and SIGTERM back while the block runs, and delivers them
+    (to the handlers they had) right after it.
+
+    For code that an exception raised by a signal handler would break
+    instead of stop: native code that runs Python callbacks (Dr.Jit's
+    tracing, its start-up in ``mi.set_variant``) turns the exception into an
+    ImportError, RuntimeError or SystemError with a traceback.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    pending: list[int] = []
+    previous = {signum: signal.signal(signum, lambda signum, frame: pending.append(signum))
+                for signum in _STOP_SIGNALS}
+    try:
+        yield
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
+        for signum in dict.fromkeys(pending):
+            handler = previous[signum]
+            if callable(handler):
+                handler(signum, None)  # e.g. Python's SIGINT handler raises KeyboardInterrupt
+            elif handler == signal.SIG_DFL:
+                signal.raise_signal(signum)
+
+
+def interruption(error: BaseException) -> int | None:
+    """The signal number of an Interrupted / KeyboardInterrupt that is
+    ``error`` or in its chain of causes and contexts, else None."""
+    seen = set()
+    while error is not None and id(error) not in seen:
+        seen.add(id(error))
+        if isinstance(error, Interrupted):
+            return error.signum
+        if isinstance(error, KeyboardInterrupt):
+            return int(signal.SIGINT)
+        error = error.__cause__ or error.__context__
+    return None
+
+
 def one_line(error: BaseException) -> str:
     """``str(error)`` on one line (messages never span lines)."""
     text = str(error) or type(error).__name__
@@ -42,28 +114,29 @@ def one_line(error: BaseException) -> str:
 
 def run(prog: str, body: Callable[[], int | None]) -> int:
     """Runs ``body`` under the error contract; returns the exit code."""
-    previous = signal.getsignal(signal.SIGTERM)
+    handlers = {signal.SIGINT: signal.default_int_handler, signal.SIGTERM: _raise_interrupted}
     try:
-        signal.signal(signal.SIGTERM, _raise_interrupted)
+        previous = {signum: signal.signal(signum, handler) for signum, handler in handlers.items()}
     except ValueError:  # not the main thread (e.g. under a test runner's worker)
-        previous = None
+        previous = {}
     try:
         return int(body() or 0)
-    except ToolkitError as error:
-        print(f"{prog}: error: {one_line(error)}", file=sys.stderr)
-        return 2
-    except MemoryError:
-        print(f"{prog}: error: out of memory; try a smaller size or fewer samples", file=sys.stderr)
-        return 2
-    except OSError as error:
-        where = f" {error.filename}" if getattr(error, "filename", None) else ""
-        print(f"{prog}: error:{where}: {error.strerror or one_line(error)}", file=sys.stderr)
-        return 2
-    except (KeyboardInterrupt, Interrupted) as stop:
-        signum = stop.signum if isinstance(stop, Interrupted) else signal.SIGINT
-        print(f"{prog}: interrupted; finished files are complete, unfinished ones were not written",
-              file=sys.stderr)
-        return 128 + int(signum)
+    except BaseException as error:
+        signum = interruption(error)
+        if signum is not None:
+            print(f"{prog}: {INTERRUPTED}", file=sys.stderr)
+            return 128 + int(signum)
+        if isinstance(error, ToolkitError):
+            print(f"{prog}: error: {one_line(error)}", file=sys.stderr)
+            return 2
+        if isinstance(error, MemoryError):
+            print(f"{prog}: error: out of memory; try a smaller size or fewer samples", file=sys.stderr)
+            return 2
+        if isinstance(error, OSError):
+            where = f" {error.filename}" if getattr(error, "filename", None) else ""
+            print(f"{prog}: error:{where}: {error.strerror or one_line(error)}", file=sys.stderr)
+            return 2
+        raise
     finally:
-        if previous is not None:
-            signal.signal(signal.SIGTERM, previous)
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)

@@ -29,12 +29,15 @@ def normals_to_rgb(normals: np.ndarray) -> np.ndarray:
 
 
 def depth_to_grey(depth: np.ndarray, near: float, far: float) -> np.ndarray:
-    """The course's depth image: (t - near) / (far - near), clamped later by the
-    encoding. Pixels without a hit have t = 0. ``near == far`` gives a step."""
+    """The course's depth image: (t - near) / (far - near), clamped to [0, 1]
+    for every format (an .exr stores the same values as a .png). Pixels
+    without a hit (t = 0) are black, also for an inverted ramp (``near > far``).
+    ``near == far`` gives a step."""
     depth = np.asarray(depth, np.float64)
     span = far - near
     if span == 0.0:
         grey = np.where(depth > near, 1.0, 0.0)
     else:
-        grey = (depth - near) / span
+        grey = np.clip((depth - near) / span, 0.0, 1.0)
+    grey = np.where(depth > 0.0, np.nan_to_num(grey, nan=0.0), 0.0)
     return np.repeat(grey[..., None], 3, axis=-1) if grey.ndim == 2 else grey

@@ -10,7 +10,8 @@ not after minutes of rendering, and never with a signal:
 - outputs (:class:`OutputError`): a known format per flag, no two outputs on
   one file (also across the lines of a batch, and across named scenes that
   map to the same ``<out>/<stem>.png``), no folder where a file should go, a
-  folder that exists or can be created, and permission to write there.
+  folder that exists or can be created, and permission to write there;
+  no output on a file the render reads (the scene, its meshes, cube-map faces).
 """
 from __future__ import annotations
 
@@ -131,6 +132,23 @@ def job_outputs(job) -> list[tuple[str, Path]]:
     return outputs
 
 
+def job_inputs(job) -> list[tuple[str, Path]]:
+    """``(what, path)`` for every file ``job`` reads: the scene, its meshes and cube-map faces."""
+    from converters.course_scene import referenced_files
+
+    return [("the scene", Path(job.scene))] + [("the input", path) for path in referenced_files(job.scene)]
+
+
+def _same_file(output: Path, source: Path) -> bool:
+    """``output`` is ``source`` (through links, relative spellings or hard links)."""
+    if _identity(output) == _identity(source):
+        return True
+    try:
+        return os.path.samefile(output, source)
+    except (OSError, ValueError):  # one of them does not exist: not one file
+        return False
+
+
 def _identity(path: Path) -> str:
     """Two spellings of one file (relative, through links) give one identity."""
     return os.path.normcase(os.path.realpath(path))
@@ -171,6 +189,7 @@ def check_outputs(job, seen: dict[str, str] | None = None, extra: list[tuple[str
     scenes) to who writes them; this job's files are added to it.
     """
     seen = {} if seen is None else seen
+    inputs = job_inputs(job)
     for flag, path in job_outputs(job) + list(extra):
         suffix = path.suffix.lower()
         if flag == "--exr" and suffix != ".exr":
@@ -184,6 +203,10 @@ def check_outputs(job, seen: dict[str, str] | None = None, extra: list[tuple[str
         writer = f"{flag} {path}"
         if identity in seen:
             raise OutputError(f"{writer}: the same file as {seen[identity]}; give each output its own file")
+        for what, source in inputs:
+            if _same_file(path, source):
+                raise OutputError(f"{writer}: the same file as {what} {source}, which the render reads; "
+                                  f"writing it would destroy it")
         check_writable(flag, path)
         seen[identity] = writer
 

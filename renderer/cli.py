@@ -21,7 +21,7 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
-from core.entry import one_line, run
+from core.entry import hold_signals, one_line, run
 from core.errors import ToolkitError, UsageError, describe
 
 from . import checks
@@ -63,6 +63,22 @@ class ArgumentParser(argparse.ArgumentParser):
 
     def error(self, message: str):
         raise UsageError(one_line(message))
+
+
+class Once(argparse.Action):
+    """A flag that takes a value and may be given once: a repeated one (``-output
+    a.png -output b.png``) would silently drop the first, and an empty value
+    (``--variant ''``) would silently mean "not given"."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        given = getattr(namespace, "_given", set())
+        if self.dest in given:
+            raise UsageError(f"{option_string} given twice; give it once")
+        words = values if isinstance(values, list) else [values]
+        if any(isinstance(word, str) and not word.strip() for word in words):
+            raise UsageError(f"{option_string} wants a value, got an empty one")
+        namespace._given = given | {self.dest}
+        setattr(namespace, self.dest, values)
 
 
 def course_data_dir(explicit: str | None) -> Path | None:
@@ -114,37 +130,37 @@ def build_parser() -> argparse.ArgumentParser:
                         help=f"scene names or .txt paths (default: {DEFAULT_SCENE}); names are looked up in "
                              "scenes/ and then the course data folder; each renders into --out")
     course = parser.add_argument_group("course binary flags")
-    course.add_argument("-input", metavar="FILE", help="scene file in the course format (default: none; "
+    course.add_argument("-input", action=Once, metavar="FILE", help="scene file in the course format (default: none; "
                                                        "then SCENE names are rendered)")
-    course.add_argument("-size", nargs=2, type=int, metavar=("W", "H"), default=list(DEFAULT_SIZE),
+    course.add_argument("-size", action=Once, nargs=2, type=int, metavar=("W", "H"), default=list(DEFAULT_SIZE),
                         help=f"image width and height in pixels (default: {DEFAULT_SIZE[0]} {DEFAULT_SIZE[1]})")
-    course.add_argument("-output", metavar="FILE", help="beauty image, .png .bmp .tga (8-bit, course encoding) "
+    course.add_argument("-output", action=Once, metavar="FILE", help="beauty image, .png .bmp .tga (8-bit, course encoding) "
                                                         "or .exr (float) (default: none)")
-    course.add_argument("-normals", metavar="FILE", help="normal image, (N + 1) / 2 (default: none)")
-    course.add_argument("-depth", nargs=3, metavar=("MIN", "MAX", "FILE"),
+    course.add_argument("-normals", action=Once, metavar="FILE", help="normal image, (N + 1) / 2 (default: none)")
+    course.add_argument("-depth", action=Once, nargs=3, metavar=("MIN", "MAX", "FILE"),
                         help="depth image, (t - MIN) / (MAX - MIN), clamped (default: none)")
-    course.add_argument("-bounces", type=int, default=0, metavar="N",
+    course.add_argument("-bounces", action=Once, type=int, default=0, metavar="N",
                         help=f"mirror bounces, 0..{checks.MAX_BOUNCES} (default: 0, plain ray casting)")
     course.add_argument("-shadows", action="store_true", help="trace shadow rays (default: off)")
     course.add_argument("-jitter", action="store_true", help="16 jittered samples per pixel (default: off)")
     course.add_argument("-filter", action="store_true",
                         help="render at 3x the size, then a 3x3 Gaussian down (default: off)")
     ours = parser.add_argument_group("toolkit options")
-    ours.add_argument("--variant", help="Mitsuba variant (default: llvm_ad_rgb if a usable LLVM exists, "
+    ours.add_argument("--variant", action=Once, help="Mitsuba variant (default: llvm_ad_rgb if a usable LLVM exists, "
                                         "else scalar_rgb with one line saying why)")
-    ours.add_argument("--data", metavar="DIR", help="course data folder for scene names "
+    ours.add_argument("--data", action=Once, metavar="DIR", help="course data folder for scene names "
                                                     "(default: $COURSE_DATA, else ../shared/course/data)")
-    ours.add_argument("--out", metavar="DIR", default="out",
+    ours.add_argument("--out", action=Once, metavar="DIR", default="out",
                       help="output folder for named scenes: <out>/<scene>.png (default: out)")
-    ours.add_argument("--exr", nargs="?", const=True, metavar="FILE",
+    ours.add_argument("--exr", action=Once, nargs="?", const=True, metavar="FILE",
                       help="also write a multilayer EXR (beauty + depth, normal, position, albedo, id); "
                            "a FILE with -input, <out>/<scene>.exr for named scenes (default: none)")
     ours.add_argument("--png", action="store_true",
                       help="with --exr: also write a tone-mapped sRGB preview PNG beside the EXR "
                            "(<exr name>.png) unless the beauty is already a PNG (default: off)")
-    ours.add_argument("--spp", type=int, metavar="N",
+    ours.add_argument("--spp", action=Once, type=int, metavar="N",
                       help=f"samples per pixel, 1..{checks.MAX_SPP} (default: 1, 16 with -jitter)")
-    ours.add_argument("--batch", metavar="FILE",
+    ours.add_argument("--batch", action=Once, metavar="FILE",
                       help="run course command lines from FILE, one per line, in this one process "
                            "(default: none)")
     ours.add_argument("--stats", action="store_true",
@@ -341,6 +357,10 @@ def _run(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
     from .variants import prepare_libllvm
 
     prepare_libllvm(args.variant)  # first: the checks below import Mitsuba, which loads libLLVM
+    with hold_signals():  # a signal inside the import of Dr.Jit's extension aborts the process
+        import mitsuba  # noqa: F401
+
+        import drjit  # noqa: F401
     if args.batch:
         given = [flag for flag, value, default in (
             ("SCENE", args.scenes, []), ("-input", args.input, None), ("-size", args.size, list(DEFAULT_SIZE)),

@@ -1,11 +1,8 @@
 """One render: a course scene, the course's flags, and the files to write."""
 from __future__ import annotations
 
-import signal
-import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
-from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -13,6 +10,7 @@ import numpy as np
 
 from converters.course_scene import load_scene
 from converters.to_mitsuba import RenderOptions, load_scene_dict, scene_dict
+from core.entry import hold_signals
 from imaging import colour as encoding
 from imaging import image_io
 from imaging.filters import centre_sample_3x, downsample_3x
@@ -230,33 +228,11 @@ def render_in_launches(scene, spp: int, jitter: bool, seed: int = 0, launch_samp
     return image.reshape(height, width, channels)
 
 
-@contextmanager
-def signals_between_launches():
-    """Holds SIGINT and SIGTERM back while a launch is traced and runs, and
-    delivers them (to the handlers they had) right after it.
-
-    Tracing runs Python code inside Dr.Jit's loop recording, which would turn
-    a KeyboardInterrupt raised there into a RuntimeError with a traceback;
-    a kernel cannot be stopped anyway. So the signal takes effect between
-    launches: each takes well under a second (compiling the first one aside).
-    """
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    pending: list[int] = []
-    wanted = (signal.SIGINT, signal.SIGTERM)
-    previous = {signum: signal.signal(signum, lambda signum, frame: pending.append(signum)) for signum in wanted}
-    try:
-        yield
-    finally:
-        for signum, handler in previous.items():
-            signal.signal(signum, handler)
-        for signum in dict.fromkeys(pending):
-            handler = previous[signum]
-            if callable(handler):
-                handler(signum, None)  # e.g. Python's SIGINT handler raises KeyboardInterrupt
-            elif handler == signal.SIG_DFL:
-                signal.raise_signal(signum)
+#: SIGINT and SIGTERM take effect between launches: tracing runs Python code
+#: inside Dr.Jit's loop recording, which would turn a KeyboardInterrupt raised
+#: there into a RuntimeError with a traceback, and a kernel cannot be stopped
+#: anyway; each launch takes well under a second (compiling the first one aside)
+signals_between_launches = hold_signals
 
 
 def _launch(scene, sensor, width: int, spp: int, jitter: bool, seed: int, first: int, count: int) -> list:

@@ -24,6 +24,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+from core.entry import hold_signals
 from core.errors import UsageError
 
 #: Oldest libLLVM major version that Dr.Jit 1.5 works with
@@ -54,6 +55,20 @@ def _cache_file() -> Path:
     return Path(root) / "course-render" / "libllvm-probe.json"
 
 
+#: Changes when the wording of cached verdicts does (older verdicts are then probed again)
+VERDICT_FORMAT = 2
+
+
+def first_sentence(line: str) -> str:
+    """The first sentence of an error line, without its type and function
+    prefixes (``RuntimeError: jit_init_thread_state(): the LLVM backend ...!
+    Set ...`` gives ``the LLVM backend ...``), whole: never cut mid-word."""
+    text = re.sub(r"^[\w.]+(Error|Exception): ", "", " ".join(line.split()))
+    text = re.sub(r"^\w+\(\): ", "", text)
+    match = re.match(r"(.+?)[.!?](\s|$)", text)
+    return match.group(1) if match else text
+
+
 def _key(path: str) -> str | None:
     """What a verdict depends on: the library's real path, size and mtime, and Dr.Jit's version."""
     try:
@@ -67,7 +82,7 @@ def _key(path: str) -> str | None:
         drjit = f"{origin}@{os.stat(origin).st_mtime_ns}"
     except (ImportError, AttributeError, TypeError, OSError):  # no Dr.Jit: the probe then says no anyway
         drjit = "?"
-    return hashlib.sha1(f"{real}|{stat.st_size}|{stat.st_mtime_ns}|{drjit}".encode()).hexdigest()
+    return hashlib.sha1(f"{VERDICT_FORMAT}|{real}|{stat.st_size}|{stat.st_mtime_ns}|{drjit}".encode()).hexdigest()
 
 
 def _read_cache() -> dict:
@@ -106,7 +121,7 @@ def probe_libllvm(path: str) -> str | None:
             why = f"loading it ends in {_signal_name(-done.returncode)}"
         else:
             last = [line for line in done.stderr.splitlines() if line.strip()]
-            why = "Dr.Jit cannot use it" + (f" ({last[-1].strip()[:120]})" if last else "")
+            why = "Dr.Jit cannot use it" + (f" ({first_sentence(last[-1])})" if last else "")
     except subprocess.TimeoutExpired:
         why = f"loading it takes more than {PROBE_TIMEOUT} s"
     except OSError as error:
@@ -208,13 +223,17 @@ def choose_variant(requested: str | None = None, quiet: bool = False) -> str:
 def set_variant(requested: str | None = None, quiet: bool = False) -> str:
     """Chooses the variant, sets it and registers the project's plugins."""
     variant = choose_variant(requested, quiet)  # first: it decides what Dr.Jit loads on import
-    import mitsuba as mi
+    # Ctrl-C / SIGTERM wait until Dr.Jit has started: raised inside its
+    # initialisation they become an ImportError or SystemError with a traceback
+    with hold_signals():
+        import mitsuba as mi
 
-    import mi_plugins
+        import mi_plugins
 
-    try:
-        mi.set_variant(variant)
-    except (ImportError, RuntimeError, AttributeError) as error:  # e.g. a cuda_* variant without a GPU
-        raise UsageError(f"--variant {variant} cannot be used here: {' '.join(str(error).split())[:200]}") from None
-    mi_plugins.register()
+        try:
+            mi.set_variant(variant)
+        except (ImportError, RuntimeError, AttributeError) as error:  # e.g. a cuda_* variant without a GPU
+            raise UsageError(f"--variant {variant} cannot be used here: "
+                             f"{' '.join(str(error).split())[:200]}") from None
+        mi_plugins.register()
     return variant

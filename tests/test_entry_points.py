@@ -98,6 +98,61 @@ def test_outputs_are_checked_before_the_variant_is_set(tmp_path, scene_file, mon
         assert cli.main(["-input", str(scene_file), "-size", "4", "4", "--quiet", *outputs]) == 2, outputs
 
 
+def test_an_output_on_a_file_the_render_reads_is_refused(tmp_path, capsys, monkeypatch):
+    """The scene file (also through a link or a hard link), a mesh or a cube-map
+    face given as an output would be overwritten by the render: refused, and the
+    file is unchanged."""
+    import shutil
+
+    import renderer.cli as cli
+
+    monkeypatch.chdir(tmp_path)
+    shutil.copytree(ROOT / "scenes" / "tex" / "sky", tmp_path / "sky")
+    (tmp_path / "m.png").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")  # an OBJ under an image name
+    text = scene(background="cubeMap sky", num_objects=4,
+                 objects="MaterialIndex 0 Sphere { center 0 0 0 radius 1 } "
+                         "MaterialIndex 0 Sphere { center 2 0 0 radius 1 } "
+                         "MaterialIndex 0 Sphere { center -2 0 0 radius 1 } "
+                         "MaterialIndex 0 TriangleMesh { obj_file m.png }")
+    (tmp_path / "in.png").write_text(text)
+    (tmp_path / "link.png").symlink_to(tmp_path / "in.png")
+    os.link(tmp_path / "in.png", tmp_path / "hard.png")
+    before = {p: p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()}
+    for flags, named in [(["-output", "in.png"], "the scene"), (["-output", "./sub/../in.png"], "the scene"),
+                         (["-output", "link.png"], "the scene"), (["-depth", "0", "9", "hard.png"], "the scene"),
+                         (["-normals", "m.png"], "m.png"), (["-output", "sky/up.png"], "up.png")]:
+        (tmp_path / "sub").mkdir(exist_ok=True)
+        assert cli.main(["-input", "in.png", "-size", "4", "4", "--quiet", *flags]) == 2, flags
+        line = capsys.readouterr().err.strip()
+        assert "\n" not in line and named in line and "reads" in line, (flags, line)
+    assert {p: p.read_bytes() for p in before} == before
+    # a named scene's own folder is fine when the names differ
+    assert cli.main(["-input", "in.png", "-size", "4", "4", "--quiet", "-output", "out.png",
+                     "--variant", "scalar_rgb"]) == 0, capsys.readouterr().err
+
+
+def test_a_repeated_or_empty_single_value_flag_is_refused(tmp_path, scene_file, capsys, monkeypatch):
+    """``-output a.png -output b.png`` used to render b.png only, silently."""
+    import renderer.cli as cli
+
+    monkeypatch.chdir(tmp_path)
+    scene = str(scene_file)
+    cases = [(["-input", scene, "-output", "a.png", "-output", "b.png"], "-output"),
+             (["-input", scene, "-input", scene, "-output", "a.png"], "-input"),
+             (["-input", scene, "-depth", "0", "1", "a.png", "-depth", "0", "2", "b.png"], "-depth"),
+             (["-input", scene, "-output", "a.png", "-size", "4", "4", "-size", "8", "8"], "-size"),
+             (["-input", scene, "-output", "a.png", "-bounces", "1", "-bounces", "2"], "-bounces"),
+             (["-input", scene, "-output", "a.png", "--exr", "a.exr", "--exr", "b.exr"], "--exr"),
+             (["--batch", "a.sh", "--batch", "b.sh"], "--batch"),
+             (["-input", scene, "-output", "a.png", "--variant", ""], "--variant"),
+             (["-input", scene, "-output", ""], "-output")]
+    for argv, named in cases:
+        assert cli.main(argv) == 2, argv
+        line = capsys.readouterr().err.strip()
+        assert "\n" not in line and named in line, (argv, line)
+    assert not list(tmp_path.glob("*.png"))
+
+
 def test_entry_point_errors_are_one_line(tmp_path, scene_file):
     assert "/no/such/folder/s.txt" in one_error_line(run("/no/such/folder/s.txt", "-size", "4", "4",
                                                          cwd=tmp_path))
@@ -252,3 +307,25 @@ def test_cli_cases_and_the_fuzzer_can_fail(variant_llvm_ad_rgb, monkeypatch):
     monkeypatch.setattr(checks, "check_limits", crash)
     with pytest.raises(Exception, match="traceback|escaped|mirror_by_depth"):
         fuzz_cli(examples=5)
+
+
+def test_a_scene_file_with_a_byte_order_mark_is_read(tmp_path):
+    """Windows editors start UTF-8 files with U+FEFF; batch files accepted it, scenes did not."""
+    from converters.course_scene import load_scene
+
+    (tmp_path / "s.txt").write_bytes(b"\xef\xbb\xbf" + scene().encode())
+    assert len(load_scene(tmp_path / "s.txt").objects) == 3
+
+
+def test_a_libllvm_that_is_not_a_library_is_named_in_a_whole_sentence(tmp_path):
+    """The fallback line used to end mid-sentence ('...("libLLVM.so") could; using scalar_rgb')."""
+    garbage = tmp_path / "libLLVM-19.so"
+    garbage.write_text("not a library\n")
+    (tmp_path / "s.txt").write_text(scene())
+    env = {"DRJIT_LIBLLVM_PATH": str(garbage), "XDG_CACHE_HOME": str(tmp_path / "cache")}
+    result = run("-input", "s.txt", "-size", "6", "4", "-output", "a.png", cwd=tmp_path, env=env)
+    assert result.returncode == 0, result.stderr[-2000:]
+    notes = [line for line in result.stderr.splitlines() if "scalar_rgb" in line]
+    assert len(notes) == 1, result.stderr
+    reason = notes[0].split("Dr.Jit cannot use it (")[1].split(");")[0]
+    assert reason.endswith("could not be found"), notes[0]

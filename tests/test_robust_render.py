@@ -299,3 +299,85 @@ def test_scalar_ids_under_jitter(variant_scalar_rgb, scene_file, tmp_path):
     layers = render(RenderJob(scene=scene_file, width=12, height=9, exr=tmp_path / "x.exr", jitter=True, spp=2,
                               **FLAGS)).layers
     assert set(np.unique(layers["id"])) <= {-1.0, 0.0, 1.0, 2.0}
+
+
+def test_depth_images_are_clamped_and_black_where_nothing_is_hit(tmp_path, monkeypatch):
+    """README: (t - MIN) / (MAX - MIN), clamped, black where nothing is hit, for
+    every format and also for an inverted ramp (MIN > MAX): misses used to be
+    white with MIN > MAX, and an .exr held unclamped values (misses -MIN/(MAX-MIN))."""
+    import renderer.cli as cli
+    from imaging.image_io import read_exr, read_png
+
+    # the sky fills the top rows: no hit there
+    (tmp_path / "s.txt").write_text(scene_text(center="0 1 6", direction="0 0.3 -1"))
+    monkeypatch.chdir(tmp_path)
+    for near, far in [(2, 9), (9, 2), (6.5, 7), (20, 30)]:
+        for name in ("d.exr", "d.png"):
+            assert cli.main(["-input", "s.txt", "-size", "24", "18", "--quiet",
+                             "-depth", str(near), str(far), name]) == 0
+        depth = read_exr("d.exr")["R"]
+        grey = read_png("d.png")[..., 0]
+        assert depth.min() >= 0.0 and depth.max() <= 1.0, (near, far, depth.min(), depth.max())
+        assert np.all(depth[0] == 0.0) and np.all(grey[0] == 0), (near, far)  # the sky row
+        assert np.abs(np.floor(depth * 255.0) - grey).max() <= 1, (near, far)  # .png and .exr agree
+    # the inverted ramp: what is near is bright, and something is hit
+    assert cli.main(["-input", "s.txt", "-size", "24", "18", "--quiet", "-depth", "9", "2", "d.exr"]) == 0
+    assert read_exr("d.exr")["R"].max() > 0.3
+
+
+#: Delays after the start at which the start-up test sends its signals: the
+#: imports (0.15 s), Dr.Jit's initialisation (~1-2 s, where SIGTERM used to
+#: give a 60-line ImportError / SystemError traceback and a signal inside the
+#: import of its extension aborted the process), the render and the
+#: interpreter's teardown. Earlier than ~0.1 s the signal lands in Python's
+#: own start-up (site), before render.py's first line runs.
+START_UP_DELAYS = (0.15, 0.3, 0.7, 1.0, 1.4, 1.8, 2.2)
+
+
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+def test_a_signal_in_any_phase_of_start_up_keeps_the_contract(tmp_path, signum):
+    """Finished first (0), or one line and 128 + signum; never a traceback, an
+    abort or a temporary file left behind."""
+    outcomes = []
+    for delay in START_UP_DELAYS:
+        out = tmp_path / f"{delay}"
+        out.mkdir()
+        process = subprocess.Popen([sys.executable, str(ROOT / "render.py"), "scene03", "-size", "48", "48",
+                                    "--out", str(out)], cwd=out, stdout=subprocess.PIPE,
+                                   stderr=subprocess.PIPE, text=True)
+        time.sleep(delay)
+        process.send_signal(signum)
+        _, stderr = process.communicate(timeout=120)
+        lines = stderr.strip().splitlines()
+        outcomes.append((delay, process.returncode))
+        assert process.returncode in (0, 128 + signum), (delay, process.returncode, stderr[-3000:])
+        assert len(lines) <= 1, (delay, stderr[-3000:])
+        if process.returncode:
+            assert lines and "interrupted" in lines[0], (delay, stderr)
+        assert not [p for p in out.rglob(".*")], (delay, list(out.rglob("*")))
+    print(signal.Signals(signum).name, outcomes)
+
+
+def test_an_interruption_wrapped_by_native_code_is_an_interrupted_exit(capsys):
+    """Dr.Jit's start-up turns the handler's exception into an ImportError, and
+    CPython then into a SystemError: the chain still holds the interruption."""
+    from core.entry import Interrupted, run
+
+    def wrapped():
+        try:
+            try:
+                raise Interrupted(signal.SIGTERM)
+            except Interrupted as stop:
+                raise ImportError("initializing the extension") from stop
+        except ImportError:
+            raise SystemError("<built-in function __import__> returned a result with an exception set")
+
+    assert run("render.py", wrapped) == 143
+    assert capsys.readouterr().err.strip().splitlines() == [
+        "render.py: interrupted; finished files are complete, unfinished ones were not written"]
+
+    def bug():
+        raise ValueError("a bug keeps its traceback")
+
+    with pytest.raises(ValueError):
+        run("render.py", bug)
