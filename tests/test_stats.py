@@ -29,7 +29,11 @@ def check(path: Path, flags: dict):
     hits, misses = int((ids >= 0).sum()), int((ids < 0).sum())
     assert stats["camera"] == 48 * 36
     assert stats["aovs"] == ["depth", "normal", "position", "albedo", "id"]
-    assert stats["kernels"] >= 1
+    import drjit as dr
+    import mitsuba as mi
+
+    if dr.is_jit_v(mi.Float):  # scalar variants launch no kernels (the fallback runs these tests too)
+        assert stats["kernels"] >= 1
     lights = len(scene.lights)
     if flags["shadows"]:
         assert stats["shadow"] >= hits * lights  # every hit, at every depth, asks every light
