@@ -182,5 +182,6 @@ def test_scaleout_benchmark_reports_its_figures(tmp_path):
     result = json.loads(path.read_text())
     assert result["identical"] is True
     assert result["tasks"] == 2 * (1 + 4)
-    assert result["efficiency"] == pytest.approx(result["local_s"] / result["cluster_s"], rel=1e-3)
+    # (the JSON rounds times to milliseconds: a tiny run's ratio is only that precise)
+    assert result["efficiency"] == pytest.approx(result["local_s"] / result["cluster_s"], rel=2e-2)
     assert 0 < result["overhead_s"] < result["cluster_s"] and result["task_median_s"] > 0
