@@ -217,14 +217,11 @@ def fuzz_cli(examples: int, seed: int = 0) -> int:
     in a scratch folder: each must end in exit 0, or exit 2 with one
     ``render.py: error:`` line (per bad batch line), never a traceback or another
     exception. Returns how many inputs were tried; raises on the first escape."""
-    import contextlib
-    import io
     import os
 
     from hypothesis import HealthCheck, given, settings, strategies as st
 
-    from benchmarks.stress_cases_inputs import contract_problems
-    from renderer.cli import main
+    from benchmarks.stress_cases_inputs import contract_problems, run_render_cli
 
     folder = Path(tempfile.mkdtemp(prefix="stress-cli-"))
     (folder / "s.txt").write_text(base_scene())
@@ -240,18 +237,12 @@ def fuzz_cli(examples: int, seed: int = 0) -> int:
     def check(argv: list[str], batch: bool) -> None:
         nonlocal count
         count += 1
-        stderr = io.StringIO()
-        cwd = os.getcwd()
-        os.chdir(folder)
         try:
-            with contextlib.redirect_stderr(stderr), contextlib.redirect_stdout(io.StringIO()):
-                code = main(argv)
+            code, text = run_render_cli(folder, argv)
         except SystemExit as stop:  # argparse's own exits (none expected: its errors are UsageErrors)
-            code = stop.code
-        finally:
-            os.chdir(cwd)
-        problems = contract_problems(code, stderr.getvalue(), batch or "--batch" in argv)
-        assert not problems, f"{argv}: {problems}: {stderr.getvalue()[-500:]}"
+            code, text = stop.code, ""
+        problems = contract_problems(code, text, batch or "--batch" in argv)
+        assert not problems, f"{argv}: {problems}: {text[-500:]}"
 
     common = settings(max_examples=examples, deadline=None, database=None, derandomize=True,
                       suppress_health_check=list(HealthCheck))

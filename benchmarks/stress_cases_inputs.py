@@ -29,6 +29,22 @@ import numpy as np
 
 from benchmarks.stress_cases import DEFAULTS, Case, material, scene
 
+
+def run_render_cli(folder: Path, argv: list[str]) -> tuple[int, str]:
+    """``render.py``'s ``main(argv)`` run in-process in ``folder``: (exit code, stderr).
+    Whatever escapes ``main`` propagates (the callers decide what that means)."""
+    from renderer.cli import main
+
+    stderr = io.StringIO()
+    cwd = os.getcwd()
+    os.chdir(folder)
+    try:
+        with contextlib.redirect_stderr(stderr), contextlib.redirect_stdout(io.StringIO()):
+            code = main(argv)
+    finally:
+        os.chdir(cwd)
+    return code, stderr.getvalue()
+
 FACES = ("left", "right", "up", "down", "front", "back")
 TINY = ["-size", "8", "6", "--quiet"]
 
@@ -169,23 +185,15 @@ class CliCase:
     kind: str = "cli"
 
     def check(self) -> tuple[bool, str]:
-        from renderer.cli import main
-
         with tempfile.TemporaryDirectory() as tmp:
             folder = Path(tmp)
             _make_files(folder, self.files)
             argv = [a.replace("{dir}", str(folder)) for a in self.argv]
-            stderr = io.StringIO()
-            cwd = os.getcwd()
-            os.chdir(folder)
             try:
-                with contextlib.redirect_stderr(stderr), contextlib.redirect_stdout(io.StringIO()):
-                    code = main(argv)
+                code, text = run_render_cli(folder, argv)
             except BaseException as error:  # noqa: BLE001 - anything escaping main is the failure
                 return False, f"escaped main: {type(error).__name__}: {error}"
-            finally:
-                os.chdir(cwd)
-            text = stderr.getvalue().replace(str(folder) + os.sep, "").replace(str(folder), ".")
+            text = text.replace(str(folder) + os.sep, "").replace(str(folder), ".")
             problems = contract_problems(code, text, batch="--batch" in argv)
             if code != self.code:
                 problems.append(f"exit code {code}, expected {self.code}")
