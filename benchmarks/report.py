@@ -207,6 +207,7 @@ def main(argv: list[str] | None = None) -> int:
     unknown = set(steps) - set(STEPS)
     if unknown:
         parser.error(f"unknown steps: {', '.join(sorted(unknown))}")
+    os.chdir(ROOT)  # the commands recorded in docs/ name paths relative to the checkout
     if "course_images" in steps:
         record(crossval.DEFAULT_COURSE, None)
     if "crossval" in steps:
@@ -215,7 +216,7 @@ def main(argv: list[str] | None = None) -> int:
     if "crossval_power" in steps:
         run_power(DOCS / "crossval_bias.json")
     if "error_vs_time" in steps:
-        error_vs_time.main(["--json", str(DOCS / "error_vs_time.json"), "--out", str(DOCS)])
+        error_vs_time.main(["--json", str((DOCS / "error_vs_time.json").relative_to(ROOT)), "--out", str(DOCS.relative_to(ROOT))])
     if "scalar_suite" in steps:
         run_scalar_suite(DOCS / "scalar_suite.json")
 
