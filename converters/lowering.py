@@ -78,7 +78,7 @@ class EllipsoidData:
 def lower(description: dict) -> dict:
     """``description`` with every node in Mitsuba plugins (see the module's
     docstring); a new dict, the input is left as it is. Keys keep their order,
-    a plane's tiles take its place."""
+    a plane's tiles take its place. A lowered dict lowers to itself."""
     lowered: dict = {}
     for key, node in description.items():
         kind = node.get("type") if isinstance(node, dict) else None
@@ -90,7 +90,7 @@ def lower(description: dict) -> dict:
             for part, to_world in enumerate(node["to_world"]):
                 lowered[key if part == 0 else f"{key}_part{part}"] = {
                     "type": "rectangle", "to_world": np.asarray(to_world, np.float64), "bsdf": node["bsdf"]}
-        elif kind == "ellipsoids":
+        elif kind == "ellipsoids" and "centers" in node:
             data = EllipsoidData(node["centers"], node["scales"], node["quaternions"])
             lowered[key] = {"type": "ellipsoids", "filename": data, "extent": float(node["extent"]),
                             "bsdf": node["bsdf"]}

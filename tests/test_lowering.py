@@ -36,7 +36,10 @@ def non_mitsuba_nodes(lowered: dict) -> list[str]:
             if node.get("type") in DESCRIPTION_ONLY_TYPES:
                 found.append(f"{where}: type {node['type']!r}")
             for name, value in node.items():
-                visit(f"{where}.{name}", value) if isinstance(value, dict) else check(f"{where}.{name}", name, value)
+                if isinstance(value, dict):
+                    visit(f"{where}.{name}", value)
+                else:
+                    check(f"{where}.{name}", name, value)
         else:
             check(where, "", node)
 
@@ -69,6 +72,8 @@ def test_lowered_description_holds_only_mitsuba_plugins():
     lowered = lower(original)
     assert non_mitsuba_nodes(lowered) == []
     assert sum(node.get("type") == "rectangle" for node in lowered.values() if isinstance(node, dict)) > 1
+    again = lower(lowered)
+    assert list(again) == list(lowered) and all(again[key] is lowered[key] for key in lowered)
     # every variant's result lowers as cleanly
     for variant in (scene_variants.with_path_tracer, scene_variants.with_mirror_sampling):
         assert non_mitsuba_nodes(lower(variant(original))) == []
