@@ -216,27 +216,34 @@ def scene_paths(course: Path | None = DEFAULT_COURSE, quick: bool = False) -> li
     return course_scenes + ours
 
 
-def render(path: Path, size: int, **options) -> np.ndarray:
-    """Renders with the active variant; ``options`` are :class:`RenderOptions` fields."""
+def render(path: Path, size: int, variants=(), **options) -> np.ndarray:
+    """Renders with the active variant; ``options`` are :class:`RenderOptions` fields,
+    ``variants`` :mod:`converters.scene_variants` functions applied in order."""
     import mitsuba as mi
 
     from converters.course_scene import load_scene
-    from converters.to_mitsuba import RenderOptions, load_scene_dict, scene_dict
+    from converters.description import RenderOptions, scene_dict
+    from converters.scene_variants import apply
+    from converters.to_mitsuba import load_scene_dict
 
-    description = scene_dict(load_scene(path), RenderOptions(width=size, height=size, **options))
+    description = apply(scene_dict(load_scene(path), RenderOptions(width=size, height=size, **options)), variants)
     return np.array(mi.render(load_scene_dict(description)), np.float32)[..., :3]
 
 
 def agreement(path: Path, bounces: int, spp: int, size: int) -> Agreement:
     """whitted vs path restricted to Whitted's light paths: per-tile z-scores of their
     difference (same pixel samples) and relMSE against that of path vs path."""
-    common = dict(bounces=bounces, shadows=True, spp=spp, jitter=True, ambient=False, background=False)
-    path_only = dict(integrator="path", phong_sampling="mirror")
+    from converters.scene_variants import (with_mirror_sampling, with_path_tracer, without_ambient,
+                                           without_background, without_ray_epsilon)
+
+    common = dict(bounces=bounces, shadows=True, spp=spp, jitter=True)
+    whitted_paths = (without_ambient, without_background)
+    path_only = (with_path_tracer, with_mirror_sampling)
     # whitted's course-compatible "skip hits within epsilon" is a different
     # visibility rule from the path tracer's; compare the light transport alone
-    whitted = render(path, size, seed=1, ray_epsilon=False, **common)
-    path_a = render(path, size, seed=1, **common, **path_only)
-    path_b = render(path, size, seed=2, **common, **path_only)
+    whitted = render(path, size, seed=1, variants=(*whitted_paths, without_ray_epsilon), **common)
+    path_a = render(path, size, seed=1, variants=(*whitted_paths, *path_only), **common)
+    path_b = render(path, size, seed=2, variants=(*whitted_paths, *path_only), **common)
     z = tile_z_scores(whitted - path_a, path_a)
     total_w, total_p = float(whitted.astype(np.float64).sum()), float(path_a.astype(np.float64).sum())
     d = (whitted.astype(np.float64) - path_a).sum(axis=-1).ravel()
@@ -401,12 +408,15 @@ def plot_light_paths(path: Path, size: int = 160, spp: int = 64, bounces: int = 
     """Whitted, the path tracer on Whitted's light paths, and the full path tracer."""
     import matplotlib.pyplot as plt
 
+    from converters.scene_variants import with_mirror_sampling, with_path_tracer, without_ambient, without_background
+
     common = dict(bounces=bounces, shadows=True, spp=spp, jitter=True)
+    whitted_paths = (without_ambient, without_background)
     images = {
-        "whitted (ambient 0, no background)": render(path, size, ambient=False, background=False, **common),
-        "path, Whitted's light paths": render(path, size, ambient=False, background=False, integrator="path",
-                                              phong_sampling="mirror", **common),
-        "path, full Phong model + background light": render(path, size, integrator="path",
+        "whitted (ambient 0, no background)": render(path, size, variants=whitted_paths, **common),
+        "path, Whitted's light paths": render(path, size, variants=(*whitted_paths, with_path_tracer,
+                                                                    with_mirror_sampling), **common),
+        "path, full Phong model + background light": render(path, size, variants=(with_path_tracer,),
                                                             **dict(common, bounces=max(bounces, 6))),
     }
     fig, axes = plt.subplots(1, 3, figsize=(12, 4.4))

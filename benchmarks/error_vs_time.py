@@ -59,14 +59,19 @@ def flags_for(path: Path) -> dict:
 
 
 def method_options(method: str, path: Path) -> dict:
-    """RenderOptions fields (beyond size, spp, seed) of a method: both render
-    whitted's light paths (shadows on, so the two have the same visibility)."""
-    common = dict(jitter=True, ambient=False, background=False, bounces=flags_for(path)["bounces"], shadows=True)
+    """RenderOptions fields (beyond size, spp, seed) of a method, and under
+    "variants" the :mod:`converters.scene_variants` functions it applies: both
+    render whitted's light paths (shadows on, so the two have the same visibility)."""
+    from converters.scene_variants import (with_mirror_sampling, with_path_tracer, without_ambient,
+                                           without_background, without_ray_epsilon)
+
+    common = dict(jitter=True, bounces=flags_for(path)["bounces"], shadows=True)
+    whitted_paths = (without_ambient, without_background)
     if method == "whitted":
         # the course's "skip hits within epsilon" is not the path tracer's visibility rule
-        return dict(ray_epsilon=False, **common)
+        return dict(variants=(*whitted_paths, without_ray_epsilon), **common)
     if method == "path":
-        return dict(integrator="path", phong_sampling="mirror", **common)
+        return dict(variants=(*whitted_paths, with_path_tracer, with_mirror_sampling), **common)
     raise ValueError(method)
 
 
@@ -84,10 +89,14 @@ def render_timed(path: Path, size: int, spp: int, seed: int, options: dict) -> t
     import mitsuba as mi
 
     from converters.course_scene import load_scene
-    from converters.to_mitsuba import RenderOptions, load_scene_dict, scene_dict
+    from converters.description import RenderOptions, scene_dict
+    from converters.scene_variants import apply
+    from converters.to_mitsuba import load_scene_dict
 
-    scene = load_scene_dict(scene_dict(load_scene(path), RenderOptions(width=size, height=size, spp=spp,
-                                                                      seed=seed, **options)))
+    fields = {name: value for name, value in options.items() if name != "variants"}
+    scene = load_scene_dict(apply(scene_dict(load_scene(path), RenderOptions(width=size, height=size, spp=spp,
+                                                                            seed=seed, **fields)),
+                                  options.get("variants", ())))
     mi.render(scene, spp=1)  # kernels compiled and cached before timing
     dr.sync_thread()
     start = time.perf_counter()

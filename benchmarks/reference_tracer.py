@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from converters.model import DirectionalLight, Plane, Scene, Sphere, Triangle, TriangleMesh
-from converters.to_mitsuba import ray_epsilons
+from converters.description import ray_epsilons
 from imaging.image_io import CUBE_FACES as FACES, read_png
 
 

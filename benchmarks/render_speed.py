@@ -58,7 +58,8 @@ def measure(course: Path, repeat: int, variant: str | None, peer: Path | None = 
     import mitsuba as mi
 
     from converters.course_scene import load_scene
-    from converters.to_mitsuba import load_scene_dict, scene_dict
+    from converters.description import scene_dict
+    from converters.to_mitsuba import load_scene_dict
     from renderer.cli import build_parser, jobs_from_args
 
     def render(scene):

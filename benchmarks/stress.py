@@ -60,7 +60,8 @@ def scaled(scene, scale: float, offset: float):
 def _layers(scene, flags: dict) -> dict:
     import mitsuba as mi
 
-    from converters.to_mitsuba import RenderOptions, load_scene_dict, scene_dict
+    from converters.description import RenderOptions, scene_dict
+    from converters.to_mitsuba import load_scene_dict
     from renderer.job import split_layers
 
     width, height = flags.get("size", SIZE)
@@ -85,7 +86,7 @@ def run_case(case: Case) -> tuple[bool, str]:
     if hasattr(case, "check"):  # a command-line case (benchmarks.stress_cases_inputs.CliCase)
         return case.check()
     from converters.course_scene import load_scene, parse_scene
-    from converters.to_mitsuba import scene_dict
+    from converters.description import scene_dict
 
     with tempfile.TemporaryDirectory() as tmp:
         path = _write(Path(tmp), case)
@@ -138,7 +139,7 @@ def fuzz(examples: int, seed: int = 0) -> int:
     from hypothesis import HealthCheck, given, settings, strategies as st
 
     from converters.course_scene import load_scene, parse_scene
-    from converters.to_mitsuba import scene_dict
+    from converters.description import scene_dict
 
     count = 0
     folder = Path(tempfile.mkdtemp(prefix="stress-fuzz-"))

@@ -106,7 +106,7 @@ def convert(source: Path, target: Path, root: Path | None = None, settings: dict
     from renderer.scene_flags import with_scene_flags
 
     from .course_scene import load_scene
-    from .to_mitsuba import scene_dict
+    from .description import scene_dict
     from .xml_writer import write_xml
 
     scene = load_scene(source.resolve())  # absolute paths, written relative to the XML

@@ -284,7 +284,7 @@ class _Parser:
                                      f"expected a light direction of length {FLOAT32_LENGTHS[0]:g}.."
                                      f"{FLOAT32_LENGTHS[1]:g} (float32 squares it), "
                                      f"found {np.linalg.norm(values['direction']):g}")
-                # the converter multiplies by pi (see converters.to_mitsuba)
+                # the converter multiplies by pi (see converters.description)
                 self.finite32(token, "a light irradiance (color * pi)", np.asarray(values["color"]) * math.pi)
                 return DirectionalLight(values["direction"], values["color"])
             if token.text == "PointLight":

@@ -1,7 +1,7 @@
 """Typed model of a scene in the course's text format.
 
 The parser (:mod:`converters.course_scene`) produces a :class:`Scene`; the
-Mitsuba writer (:mod:`converters.to_mitsuba`) consumes it. Groups and
+scene description (:mod:`converters.description`) consumes it. Groups and
 transforms are flattened by the parser: every object carries its own
 object-to-world matrix and material, and its index in ``Scene.objects`` is its
 object id (the ``id`` AOV).

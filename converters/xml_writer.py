@@ -1,6 +1,9 @@
-"""Writes a :func:`converters.to_mitsuba.scene_dict` description as Mitsuba XML.
+"""Writes a :func:`converters.description.scene_dict` description as Mitsuba XML.
 
-Meshes become binary PLY files in ``<stem>_meshes/`` beside the XML. Load the
+The description is lowered first (:func:`converters.lowering.lower`), as for
+:func:`converters.to_mitsuba.load_scene_dict`; this module only writes the
+lowered nodes as text. Files held in memory (meshes, ellipsoids) become
+binary PLY files in ``<stem>_meshes/`` beside the XML. Load the
 result with the project's plugins registered and merging off (merging would
 fuse the plane's tiles into one imprecise mesh)::
 
@@ -18,12 +21,14 @@ import numpy as np
 
 from imaging.image_io import atomic_path
 
+from .lowering import EllipsoidData, MeshData, lower
+
 #: XML tag of each plugin type the converter writes
 TAGS = {
     "whitted": "integrator", "course_camera": "sensor", "hdrfilm": "film", "box": "rfilter",
     "independent": "sampler", "phong": "bsdf", "point": "emitter", "directional": "emitter",
     "constant": "emitter", "course_cubemap": "emitter", "sphere": "shape", "rectangle": "shape",
-    "ellipsoids": "shape", "ply": "shape",
+    "ellipsoids": "shape", "ply": "shape", "path": "integrator",
 }
 
 
@@ -46,9 +51,12 @@ class _Writer:
     def emit(self, depth: int, text: str) -> None:
         self.lines.append("    " * depth + text)
 
-    def value(self, depth: int, name: str, value) -> None:
+    def value(self, depth: int, name: str, value, owner: str = "") -> None:
+        """One parameter; ``owner``: the key of the plugin it belongs to (names its file)."""
         attr = f"name={quoteattr(name)}"
-        if isinstance(value, bool):
+        if isinstance(value, (MeshData, EllipsoidData)):  # a file's content: written beside the XML
+            self.value(depth, name, self.write_file(f"{owner}.ply", value.ply_bytes()))
+        elif isinstance(value, bool):
             self.emit(depth, f'<boolean {attr} value="{str(value).lower()}"/>')
         elif isinstance(value, int):
             self.emit(depth, f'<integer {attr} value="{value}"/>')
@@ -77,54 +85,14 @@ class _Writer:
 
     def plugin(self, depth: int, key: str, spec: dict) -> None:
         kind = spec["type"]
-        if kind == "mesh_data":
-            filename = self.write_mesh_ply(key, spec)
-            spec = {"type": "ply", "filename": filename, "face_normals": "normals" not in spec,
-                    "bsdf": spec["bsdf"]}
-            kind = "ply"
-        elif kind == "ellipsoids":
-            spec = {"type": "ellipsoids", "filename": self.write_ellipsoid_ply(key, spec), "extent": 1.0,
-                    "bsdf": spec["bsdf"]}
-        elif kind == "plane_tiles":
-            for part, to_world in enumerate(spec["to_world"]):
-                self.plugin(depth, key if part == 0 else f"{key}_part{part}",
-                            {"type": "rectangle", "to_world": to_world, "bsdf": spec["bsdf"]})
-            return
         tag = TAGS[kind]
         identity = spec.get("id", key if tag in ("shape", "bsdf", "emitter") else None)
         id_attr = f" id={quoteattr(identity)}" if identity else ""
         self.emit(depth, f"<{tag} type={quoteattr(kind)}{id_attr}>")
         for name, value in spec.items():
             if name not in ("type", "id"):
-                self.value(depth + 1, name, value)
+                self.value(depth + 1, name, value, owner=key)
         self.emit(depth, f"</{tag}>")
-
-    def write_mesh_ply(self, key: str, spec: dict) -> str:
-        positions = np.asarray(spec["positions"], np.float32)
-        faces = np.asarray(spec["faces"], np.uint32)
-        normals = spec.get("normals")
-        vertex_fields = ["x", "y", "z"] + (["nx", "ny", "nz"] if normals is not None else [])
-        vertices = positions if normals is None else np.hstack([positions, np.asarray(normals, np.float32)])
-        header = ["ply", "format binary_little_endian 1.0", f"element vertex {len(vertices)}"]
-        header += [f"property float {f}" for f in vertex_fields]
-        header += [f"element face {len(faces)}", "property list uchar uint vertex_indices", "end_header"]
-        face_records = np.zeros(len(faces), dtype=[("n", "u1"), ("v", "<u4", 3)])
-        face_records["n"], face_records["v"] = 3, faces
-        body = vertices.astype("<f4").tobytes() + face_records.tobytes()
-        return self.write_file(f"{key}.ply", ("\n".join(header) + "\n").encode() + body)
-
-    def write_ellipsoid_ply(self, key: str, spec: dict) -> str:
-        # Mitsuba's ellipsoid PLY: x y z nx ny nz <extras> scale_0..2 (log) rot_0..3 (w x y z)
-        center = np.asarray(spec["centers"], np.float64)[0]
-        scales = np.log(np.asarray(spec["scales"], np.float64)[0])
-        x, y, z, w = np.asarray(spec["quaternions"], np.float64)[0]
-        fields = ["x", "y", "z", "nx", "ny", "nz", "opacity", "scale_0", "scale_1", "scale_2",
-                  "rot_0", "rot_1", "rot_2", "rot_3"]
-        values = [*center, 0.0, 0.0, 0.0, 1.0, *scales, w, x, y, z]
-        header = ["ply", "format binary_little_endian 1.0", "element vertex 1"]
-        header += [f"property float {f}" for f in fields] + ["end_header"]
-        return self.write_file(f"{key}.ply", ("\n".join(header) + "\n").encode()
-                               + np.asarray(values, "<f4").tobytes())
 
     def write_file(self, name: str, data: bytes) -> str:
         path = self.mesh_dir / name
@@ -135,7 +103,7 @@ class _Writer:
 
 
 def write_xml(description: dict, path: str | Path, source: str | None = None, note: str | None = None) -> list[Path]:
-    """Writes ``description`` to ``path`` (plus mesh files); returns every file written.
+    """Writes ``description`` (lowered) to ``path`` (plus mesh files); returns every file written.
 
     ``note`` (e.g. the render flags) goes into the header comment. Mesh files
     left in ``<stem>_meshes/`` by an earlier conversion are removed, so the
@@ -147,7 +115,7 @@ def write_xml(description: dict, path: str | Path, source: str | None = None, no
     if source:
         made = f" {note}" if note else ""
         writer.emit(1, f"<!-- Converted from {source} by converters/{made}; load with optimize=False -->")
-    for key, value in description.items():
+    for key, value in lower(description).items():
         if key == "type":
             continue
         writer.value(1, key, value)

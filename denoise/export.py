@@ -417,7 +417,9 @@ def loaded_frame(sequence: Sequence, frame: int):
     ``sensor_jittered`` at sub-pixel positions."""
     import mitsuba as mi
 
-    from converters.to_mitsuba import RenderOptions, load_scene_dict, scene_dict
+    from converters.description import RenderOptions, scene_dict
+    from converters.scene_variants import with_path_tracer, without_ambient
+    from converters.to_mitsuba import load_scene_dict
 
     cache_key = (sequence.key, sequence.scene_path, frame)
     if cache_key in _LOADED:
@@ -428,9 +430,11 @@ def loaded_frame(sequence: Sequence, frame: int):
     scene = animate(_course_scene(sequence.scene_path), spec, frame / max(spec.frames - 1, 1))
     description = scene_dict(scene, RenderOptions(width=width, height=height, aovs=GBUFFER_AOVS))
     description["sensor_jittered"] = dict(description["sensor"], pixel_centers=False)
-    noisy = RenderOptions(width=width, height=height, jitter=spec.jitter, bounces=spec.bounces,
-                          shadows=spec.shadows, **({} if sequence.whitted else dict(integrator="path", ambient=False)))
-    integrator = mi.load_dict(scene_dict(scene, noisy)["integrator"])
+    noisy = scene_dict(scene, RenderOptions(width=width, height=height, jitter=spec.jitter, bounces=spec.bounces,
+                                            shadows=spec.shadows))
+    if not sequence.whitted:
+        noisy = without_ambient(with_path_tracer(noisy))
+    integrator = mi.load_dict(noisy["integrator"])
     loaded = (load_scene_dict(description), integrator, scene)
     _LOADED[cache_key] = loaded
     while len(_LOADED) > 2:

@@ -9,7 +9,8 @@ from pathlib import Path
 import numpy as np
 
 from converters.course_scene import load_scene
-from converters.to_mitsuba import RenderOptions, load_scene_dict, scene_dict
+from converters.description import RenderOptions, scene_dict
+from converters.to_mitsuba import load_scene_dict
 from core.entry import hold_signals
 from imaging import colour as encoding
 from imaging import image_io

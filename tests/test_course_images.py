@@ -60,7 +60,8 @@ def check_band_on_scalar(course):
     """Every grading line, rows SCALAR_BAND only, through the job's own options, filter and encodings."""
     import mitsuba as mi
 
-    from converters.to_mitsuba import load_scene_dict, scene_dict
+    from converters.description import scene_dict
+    from converters.to_mitsuba import load_scene_dict
     from imaging import colour
     from imaging.filters import downsample_3x
     from renderer.cli import build_parser, jobs_from_args

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from converters.course_scene import load_scene
+from converters.scene_variants import with_path_tracer
 from helpers import render_layers
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -103,7 +104,7 @@ def buffers():
     _set("llvm_ad_rgb")
     scene = load_scene(ROOT / "scenes" / "showcase.txt")
     g = render_layers(scene, width=40, height=28, aovs=("normal", "position", "id"))
-    noisy = render_layers(scene, width=40, height=28, spp=1, jitter=True, integrator="path", bounces=3)[""]
+    noisy = render_layers(scene, width=40, height=28, spp=1, jitter=True, bounces=3, variants=(with_path_tracer,))[""]
     return noisy.astype(np.float64), g["normal"].astype(np.float64), g["position"].astype(np.float64), g["id"]
 
 

@@ -120,7 +120,7 @@ def test_freshness_check_ignores_last_bits_but_not_changes(tmp_path):
 
 def test_xml_renders_like_the_dict(variant_llvm_ad_rgb):
     from conftest import SCALAR_FALLBACK
-    from converters.to_mitsuba import RenderOptions, scene_dict
+    from converters.description import RenderOptions, scene_dict
 
     for name in ("showcase", "transforms"):
         scene = load_scene(ROOT / "scenes" / f"{name}.txt")

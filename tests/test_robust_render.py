@@ -26,7 +26,8 @@ import pytest
 from benchmarks.stress import scaled
 from benchmarks.stress_cases import DEFAULTS, scene as scene_text
 from converters.course_scene import parse_scene
-from converters.to_mitsuba import RenderOptions, load_scene_dict, scene_dict
+from converters.description import RenderOptions, scene_dict
+from converters.to_mitsuba import load_scene_dict
 from helpers import MAX_BAD_FRACTION, bad_fraction, encode
 from renderer.job import RenderJob, render, render_in_launches
 

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from converters.course_scene import load_scene
-from converters.to_mitsuba import scene_dict
+from converters.description import scene_dict
 from renderer.job import RenderJob, render
 
 ROOT = Path(__file__).resolve().parent.parent
