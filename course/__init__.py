@@ -75,7 +75,7 @@ def resolve_scene(name: str, data: Path | None) -> Path:
 
 # -- grading command lines ------------------------------------------------------------
 #: the course binary's flags and how many values each takes
-COURSE_FLAGS = {"-input": 1, "-size": 2, "-output": 1, "-normals": 1, "-depth": 3, "-bounces": 1,
+FLAG_VALUE_COUNTS = {"-input": 1, "-size": 2, "-output": 1, "-normals": 1, "-depth": 3, "-bounces": 1,
                 "-shadows": 0, "-jitter": 0, "-filter": 0}
 
 
@@ -90,9 +90,9 @@ class CourseRun:
         flags, words = {}, list(self.arguments)
         while words:
             flag = words.pop(0)
-            if flag not in COURSE_FLAGS or len(words) < COURSE_FLAGS[flag]:
+            if flag not in FLAG_VALUE_COUNTS or len(words) < FLAG_VALUE_COUNTS[flag]:
                 raise ValueError(f"grading line {shlex.join(self.arguments)}: unexpected {flag!r}")
-            flags[flag] = [words.pop(0) for _ in range(COURSE_FLAGS[flag])]
+            flags[flag] = [words.pop(0) for _ in range(FLAG_VALUE_COUNTS[flag])]
         return flags
 
     def job(self, course: Path | None = None, outputs: Path | None = None):
