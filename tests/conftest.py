@@ -25,6 +25,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
+from course import ENVIRONMENT as COURSE_ENVIRONMENT, root as course_root  # noqa: E402
 from renderer import variants  # noqa: E402
 
 # Point Dr.Jit at a usable LLVM before anything initialises its LLVM backend
@@ -35,7 +36,7 @@ if _LIBLLVM:
 #: no usable LLVM: image tests run on scalar_rgb (Python plugins, one ray at a
 #: time), at the smaller sizes they choose with this flag
 SCALAR_FALLBACK = _LIBLLVM is None
-COURSE = Path(os.environ.get("COURSE_ROOT", ROOT.parent / "shared" / "course"))
+COURSE = course_root()  # $COURSE_ROOT, else ../shared/course
 #: fixtures whose tests must not be skipped
 REQUIRED_FIXTURES = {"variant_rgb", "variant_llvm_ad_rgb", "variant_scalar_rgb"}
 #: tests of Dr.Jit kernels that have no scalar form (the denoiser): for these
@@ -94,7 +95,7 @@ def variants_all_rgb(request):
 def course() -> Path:
     """The course's data folder (``../shared/course``); tests needing it skip without it."""
     if not (COURSE / "data").is_dir() or not (COURSE / "sample_out").is_dir():
-        pytest.skip(f"course data not found at {COURSE} (set COURSE_ROOT)")
+        pytest.skip(f"course data not found at {COURSE} (set {COURSE_ENVIRONMENT})")
     return COURSE
 
 

@@ -14,10 +14,11 @@ import numpy as np
 import pytest
 
 from core.errors import SceneError
+from course import root as course_root
 from helpers import MAX_BAD_FRACTION, bad_fraction, encode
 
 ROOT = Path(__file__).resolve().parent.parent
-COURSE_DATA = ROOT.parent / "shared" / "course" / "data"
+COURSE_SCENES = course_root() / "data"
 
 
 def _system_python() -> Path:
@@ -65,7 +66,7 @@ def test_readme_commands_in_a_fresh_shell(fresh_shell, tmp_path):
     """`python render.py scene06 --variant scalar_rgb`, `python -m converters`,
     `python -m denoise.export` and `python -m denoise` as the README writes them,
     with the system Python first on PATH (tiny sizes)."""
-    if COURSE_DATA.is_dir():
+    if COURSE_SCENES.is_dir():
         result = fresh_shell("python", "render.py", "scene06", "--variant", "scalar_rgb", "-size", "16", "16",
                              "--out", str(tmp_path / "out"))
         assert result.returncode == 0, result.stderr

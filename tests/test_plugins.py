@@ -6,7 +6,7 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
-from benchmarks.reference_tracer import ReferenceTracer, normalize
+from validation.reference_tracer import ReferenceTracer, normalize
 from converters.course_scene import load_scene
 
 ROOT = __import__("pathlib").Path(__file__).resolve().parent.parent
