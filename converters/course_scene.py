@@ -50,7 +50,7 @@ FLOAT32_MAX = float(np.finfo(np.float32).max)
 
 #: Rendered scenes are float32 (Mitsuba's rays, hits and offsets): a scene
 #: scaled uniformly renders the same from 1e-10 to 1e11 times the size of
-#: benchmarks.stress_cases' scene (about 6 across), not at 1e-12 or 1e12
+#: validation.stress_cases' scene (about 6 across), not at 1e-12 or 1e12
 #: (measured, 2026-11-29). So world coordinates are at most MAX_COORDINATE in
 #: magnitude, and a scene (camera and objects) spans at least MIN_SCENE_SIZE.
 MAX_COORDINATE = 1e12
