@@ -287,7 +287,7 @@ def scene_dict(scene: Scene, options: RenderOptions = RenderOptions()) -> dict:
         "type": "scene",
         "integrator": {
             "type": "whitted",
-            "max_depth": int(options.bounces),
+            "bounces": int(options.bounces),
             "shadows": bool(options.shadows),
             "ambient": _rgb(scene.background.ambient),
             "ray_epsilons": ",".join(f"{e:.9g}" for e in ray_epsilons(scene)) if options.ray_epsilon else "",
@@ -338,7 +338,7 @@ def scene_dict(scene: Scene, options: RenderOptions = RenderOptions()) -> dict:
     if not options.background:
         pass
     elif background.cube_map is not None:
-        result["background"] = {"type": "course_cubemap", "filename": str(background.cube_map)}
+        result["background"] = {"type": "course_cubemap", "folder": str(background.cube_map)}
     elif any(v != 0.0 for v in background.color):
         result["background"] = {"type": "constant", "radiance": _rgb(background.color)}
 

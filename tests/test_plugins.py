@@ -88,7 +88,7 @@ def test_course_camera_rays(variants_all_rgb):
 
 def test_cube_map_lookup_matches_reference(variants_all_rgb):
     folder = ROOT / "scenes" / "tex" / "sky"
-    emitter = mi.load_dict({"type": "course_cubemap", "filename": str(folder)})
+    emitter = mi.load_dict({"type": "course_cubemap", "folder": str(folder)})
     scene = load_scene(ROOT / "scenes" / "mirrors.txt")
     reference = ReferenceTracer(scene)
     rng = np.random.default_rng(3)
