@@ -57,9 +57,13 @@ class LightTable:
 
 
 class SceneAnalysis:
-    """What the kernel needs to know about one scene: computed at the start of
-    every render (and for direct ``sample`` calls, while the scene still holds
-    the same shapes and emitters), never looked up by ``id(scene)``."""
+    """What the kernel needs to know about one scene, kept while the scene holds
+    the same shapes and emitters (never looked up by ``id(scene)``) and, at
+    each render, has the same :func:`scene_state`. The light table's values
+    are read once: a point or directional light changed through
+    ``mi.traverse`` is seen at once when it is unrolled (up to
+    ``max_unrolled_lights``), after :meth:`WhittedIntegrator.forget` in the
+    symbolic light loop."""
 
     def __init__(self, shapes, emitters, unrolled, table, mirrors, slots, tables):
         self.shapes = shapes  # held, so that their identity shows the analysis belongs to a scene
@@ -70,6 +74,7 @@ class SceneAnalysis:
         self.slots = slots  # shape id -> row of the per-shape tables (scalar variants; 0: no shape)
         self.tables = tables  # "ids", "epsilons", "scales" -> mi.TensorXf, one row per shape slot
         self.bsphere = (0.0, 0.0, 0.0, 0.0)  # scene's bounding sphere (centre, radius), for directional lights
+        self.state: tuple = ()  # scene_state() when analysed
 
     def belongs_to(self, scene: mi.Scene) -> bool:
         shapes, emitters = scene.shapes(), scene.emitters()
@@ -88,6 +93,15 @@ class SceneAnalysis:
     def per_shape(self, si: mi.SurfaceInteraction3f, name: str) -> mi.Float:
         """The hit shape's entry of table ``ids``, ``epsilons`` or ``scales``."""
         return self.tables[name].array[self.shape_slot(si)]
+
+
+def scene_state(scene: mi.Scene) -> tuple:
+    """What parameter updates may change of an analysis, cheap to read once per
+    render: each shape's BSDF flags (mirror lobes) and the scene's bounding box
+    (the shapes' scales, the directional lights' reach)."""
+    box = scene.bbox()
+    return (tuple(int(s.bsdf().flags()) if s.bsdf() is not None else -1 for s in scene.shapes()),
+            tuple(_vector(box.min)), tuple(_vector(box.max)))
 
 
 def none_active(mask) -> bool:
@@ -233,9 +247,10 @@ class WhittedIntegrator(mi.SamplingIntegrator):
         self._analysed: SceneAnalysis | None = None
 
     def render(self, scene: mi.Scene, sensor=0, seed=0, spp=0, develop=True, evaluate=True):
-        # analysed afresh for every render: parameter updates since the last one
-        # (a light moved, a phong's ks switched its mirror lobe on) are seen
-        self._analysed = None
+        # parameter updates since the last render that change the analysis (a
+        # phong's ks switching its mirror lobe on, a shape moved) are seen here
+        if self._analysed is not None and self._analysed.state != scene_state(scene):
+            self._analysed = None
         self.analyse(scene)
         return super().render(scene, sensor, seed, spp, develop, evaluate)
 
@@ -244,12 +259,12 @@ class WhittedIntegrator(mi.SamplingIntegrator):
 
     # -- scene analysis (trace time) ----------------------------------------
     def analyse(self, scene: mi.Scene) -> SceneAnalysis:
-        """Lights, mirrors and per-shape tables of ``scene``. :meth:`render`
-        computes them afresh; within a render (scalar variants call
-        :meth:`sample` once per ray) and for direct ``sample`` calls they are
-        reused while the scene still holds exactly the same shapes and
-        emitters. The analysis holds those objects, so a new scene at a freed
-        one's address is never mistaken for it."""
+        """Lights, mirrors and per-shape tables of ``scene``, reused (scalar
+        variants call :meth:`sample` once per ray) while the scene still holds
+        exactly the same shapes and emitters, and renewed by :meth:`render`
+        when its :func:`scene_state` changed. The analysis holds those
+        objects, so a new scene at a freed one's address is never mistaken
+        for it."""
         if self._analysed is not None and self._analysed.belongs_to(scene):
             return self._analysed
         shapes, emitters = scene.shapes(), scene.emitters()
@@ -278,11 +293,16 @@ class WhittedIntegrator(mi.SamplingIntegrator):
         tables = {name: mi.TensorXf(values) for name, values in columns.items()}
         slots = {shape.id(): row for shape, row in zip(shapes, rows)}
         analysis = SceneAnalysis(shapes, emitters, unrolled, table, mirrors, slots, tables)
+        analysis.state = scene_state(scene)
         if shapes:
             sphere = scene.bbox().bounding_sphere()
             analysis.bsphere = (*_vector(sphere.center), float(sphere.radius))
         self._analysed = analysis
         return analysis
+
+    def forget(self) -> None:
+        """Drops the scene analysis: the next render or ``sample`` makes a new one."""
+        self._analysed = None
 
     @staticmethod
     def light_table(lights: list) -> LightTable:
