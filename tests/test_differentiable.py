@@ -7,7 +7,9 @@ show of the material are all proportional to it), so the finite difference is
 exact up to float32 rounding (measured: 3e-7 of the gradient); :data:`RTOL` is far
 above that and far below what a wrong derivative does: a gradient only 1 % too
 large fails (``test_a_wrong_gradient_fails``), as does one that misses the
-diffuse term's ``kd``.
+diffuse term's ``kd``. With 2 bounces, 17 % of the gradient comes through the
+mirrors (0.0375 against 0.0312 with ray casting), so the mirror loop's
+derivative is checked too.
 """
 from __future__ import annotations
 

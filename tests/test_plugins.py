@@ -208,3 +208,25 @@ def _teardown_works(monkeypatch, broken: bool) -> bool:
 def test_variant_fixtures_restore_the_variant_and_flags(variant_vectorised_rgb, monkeypatch):
     assert _teardown_works(monkeypatch, broken=False)
     assert not _teardown_works(monkeypatch, broken=True)  # the check can fail
+
+
+def _camera_follows_its_parameters(monkeypatch, broken: bool) -> bool:
+    sensor = mi.load_dict({"type": "course_camera", "film": {"type": "hdrfilm", "width": 5, "height": 5}})
+    if broken:  # purpose-broken: a camera that ignores parameter updates
+        monkeypatch.setattr(type(sensor), "parameters_changed", lambda self, keys=[]: None)
+    params = mi.traverse(sensor)
+    params["origin"] = mi.Point3f(1, 2, 3)
+    params["direction"] = mi.Vector3f(1, 0, 0)
+    params["fov"] = mi.Float(90.0)
+    params.update()
+    ray, _ = sensor.sample_ray(0.0, 0.5, mi.Point2f(0.99, 0.5), mi.Point2f(0.5))  # right edge, middle row
+    # x = +1 at the right edge: direction normalize(D / tan(45 deg) + H) with H = D x up = (0, 0, 1)
+    return (np.allclose(value(ray.o), [1, 2, 3], atol=1e-6)
+            and np.allclose(value(ray.d), np.array([1, 0, 1]) / np.sqrt(2), atol=1e-6))
+
+
+def test_camera_parameters_are_exposed_and_followed(variant_vectorised_rgb, monkeypatch):
+    """(Vectorised variants: in scalar ones the float ``fov`` of a Python plugin is
+    a Python float, which ``mi.traverse`` cannot write.)"""
+    assert _camera_follows_its_parameters(monkeypatch, broken=False)
+    assert not _camera_follows_its_parameters(monkeypatch, broken=True)
