@@ -121,7 +121,9 @@ class CourseCamera(mi.Sensor):
         return ray, weight
 
     def bbox(self) -> mi.ScalarBoundingBox3f:
-        return mi.ScalarBoundingBox3f(self.ray_origin)
+        # (scalar variants name the scalar type without the "Scalar" prefix)
+        box = getattr(mi, "ScalarBoundingBox3f", None) or mi.BoundingBox3f
+        return box(self.ray_origin)
 
     def traverse(self, callback):
         super().traverse(callback)  # the film
