@@ -85,7 +85,7 @@ def measure(course: Path, repeat: int, variant: str | None, peer: Path | None = 
             # native direct vs whitted, same scene and spp, interleaved
             lights = max(1, len(parsed.lights))
             native = dict(description, integrator={"type": "direct", "emitter_samples": lights, "bsdf_samples": 0})
-            ours = dict(description, integrator=dict(description["integrator"], max_depth=0, shadows=True, aovs=""))
+            ours = dict(description, integrator=dict(description["integrator"], bounces=0, shadows=True, aovs=""))
             native_scene, ours_scene = load_scene_dict(native), load_scene_dict(ours)
             render(native_scene), render(ours_scene)
             native_t, ours_t = [], []

@@ -38,7 +38,7 @@ import numpy as np
 from imaging.image_io import CUBE_FACES, read_cube_map
 
 from . import transforms
-from .errors import SceneError, describe
+from core.errors import SceneError, describe
 from .model import (Background, Camera, DirectionalLight, Material, Plane, PointLight, Scene,
                     Sphere, Triangle, TriangleMesh)
 from .obj import read_obj
