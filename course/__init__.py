@@ -23,6 +23,9 @@ REPO = Path(__file__).resolve().parent.parent
 OUR_SCENES = REPO / "scenes"
 #: the one environment variable that moves the course folder
 ENVIRONMENT = "COURSE_ROOT"
+#: names that located the course before: refused with a pointer to ENVIRONMENT,
+#: never read (a user who set one would otherwise get the default silently)
+RETIRED_ENVIRONMENT = ("COURSE_DATA",)
 #: where CI and the development machines keep the course
 DEFAULT_ROOT = REPO.parent / "shared" / "course"
 
@@ -30,6 +33,10 @@ DEFAULT_ROOT = REPO.parent / "shared" / "course"
 def root() -> Path:
     """The course folder: ``$COURSE_ROOT``, else ``../shared/course`` (which may not exist)."""
     value = os.environ.get(ENVIRONMENT)
+    retired = [name for name in RETIRED_ENVIRONMENT if os.environ.get(name)]
+    if retired and not value:
+        raise UsageError(f"${retired[0]} is no longer read; set ${ENVIRONMENT} to the course folder "
+                         f"(the one holding data/ and sample_out/), or pass --data DIR")
     return Path(value) if value else DEFAULT_ROOT
 
 

@@ -6,6 +6,8 @@ from __future__ import annotations
 import ast
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parent.parent
 PACKAGES = ("core", "converters", "course", "mi_plugins", "imaging", "renderer", "validation", "benchmarks",
             "denoise", "notebooks", "tests")
@@ -59,9 +61,21 @@ def test_each_metric_and_course_function_has_one_home():
 
 
 def test_the_course_is_located_by_one_environment_variable():
-    from course import ENVIRONMENT
+    from course import ENVIRONMENT, RETIRED_ENVIRONMENT
 
-    assert environment_reads(ROOT) == {ENVIRONMENT}
+    assert environment_reads(ROOT) == {ENVIRONMENT, *RETIRED_ENVIRONMENT}
+
+
+def test_a_retired_course_variable_is_refused_not_ignored(monkeypatch):
+    import course
+    from core.errors import UsageError
+
+    monkeypatch.delenv(course.ENVIRONMENT, raising=False)
+    monkeypatch.setenv("COURSE_DATA", "/somewhere/data")
+    with pytest.raises(UsageError, match=r"\$COURSE_DATA is no longer read; set \$COURSE_ROOT"):
+        course.root()
+    monkeypatch.setenv(course.ENVIRONMENT, "/somewhere")
+    assert course.root() == Path("/somewhere")
 
 
 def test_tests_do_not_import_benchmarks():
