@@ -1,7 +1,10 @@
-"""Measurements: render speed, cross-validation, error against time, stress."""
+"""Measurements and reports: render speed, cross-validation, error against time,
+denoising, scale-out, stress; the checks themselves live in :mod:`validation`."""
 from __future__ import annotations
 
 import json
+import os
+import platform
 from pathlib import Path
 
 
@@ -11,3 +14,24 @@ def write_json(path: Path, data) -> None:
 
     with atomic_path(path, ".json") as tmp:
         tmp.write_text(json.dumps(data, indent=2) + "\n")
+
+
+def machine() -> str:
+    """CPU model, cores, OS and Python, for the record of a measurement."""
+    model = platform.processor() or platform.machine()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                model = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    return f"{model}, {os.cpu_count()} cores, {platform.system()} {platform.release()}, Python {platform.python_version()}"
+
+
+def stamp(command: list[str]) -> dict:
+    """Where and when a measurement was taken, and by which command (without --json's path)."""
+    import datetime as dt
+
+    words = [w for k, w in enumerate(command) if w != "--json" and (k == 0 or command[k - 1] != "--json")]
+    return {"command": " ".join(words), "machine": machine(), "date": dt.date.today().isoformat()}

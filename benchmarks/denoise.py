@@ -42,10 +42,9 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks import write_json
-from benchmarks.course import ROOT
-from benchmarks.crossval import relmse
-from benchmarks.error_vs_time import flip_error
+from validation.metrics import flip_error, relmse
 
+ROOT = Path(__file__).resolve().parent.parent
 SEQUENCES = sorted((ROOT / "scenes" / "sequences").glob("*.json"))
 METHODS = ("raw", "bilateral", "atrous", "bilateral+temporal", "atrous+temporal", "demod+outliers+atrous+temporal",
            "svgf", "oidn", "oidn+temporal")

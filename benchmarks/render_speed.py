@@ -39,8 +39,10 @@ import tempfile
 import time
 from pathlib import Path
 
-from benchmarks import write_json
-from benchmarks.course import DEFAULT_COURSE, ROOT, course_runs, machine, outputs_into
+from benchmarks import machine, write_json
+from course import course_runs, outputs_into, root as course_root
+
+ROOT = Path(__file__).resolve().parent.parent
 
 
 def _timed(fn) -> float:
@@ -60,7 +62,6 @@ def measure(course: Path, repeat: int, variant: str | None, peer: Path | None = 
     from converters.course_scene import load_scene
     from converters.description import scene_dict
     from converters.to_mitsuba import load_scene_dict
-    from renderer.cli import build_parser, jobs_from_args
 
     def render(scene):
         image = mi.render(scene)
@@ -74,9 +75,7 @@ def measure(course: Path, repeat: int, variant: str | None, peer: Path | None = 
         tmp = Path(tmp)
         for run in runs:
             args = outputs_into(run.arguments, tmp)
-            (job,) = jobs_from_args(build_parser().parse_args(["-input", str(course / args[args.index("-input") + 1]),
-                                                               *[a for k, a in enumerate(args) if k not in
-                                                                 (args.index("-input"), args.index("-input") + 1)]]))
+            job = run.job(course, outputs=tmp)
             parsed = load_scene(job.scene)
             description = scene_dict(parsed, job.options())
             scene = load_scene_dict(description)
@@ -86,7 +85,7 @@ def measure(course: Path, repeat: int, variant: str | None, peer: Path | None = 
             # native direct vs whitted, same scene and spp, interleaved
             lights = max(1, len(parsed.lights))
             native = dict(description, integrator={"type": "direct", "emitter_samples": lights, "bsdf_samples": 0})
-            ours = dict(description, integrator=dict(description["integrator"], max_depth=0, shadows=True, aovs=""))
+            ours = dict(description, integrator=dict(description["integrator"], bounces=0, shadows=True, aovs=""))
             native_scene, ours_scene = load_scene_dict(native), load_scene_dict(ours)
             render(native_scene), render(ours_scene)
             native_t, ours_t = [], []
@@ -152,7 +151,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--json", type=Path, metavar="PATH", help="also write the numbers as JSON")
     parser.add_argument("--repeat", type=int, default=5, help="timed runs per measurement (default 5)")
     parser.add_argument("--variant", help="variant (default: llvm_ad_rgb where usable)")
-    parser.add_argument("--course", type=Path, default=DEFAULT_COURSE, help="course folder (default ../shared/course)")
+    parser.add_argument("--course", type=Path, default=course_root(),
+                        help="course folder (default: $COURSE_ROOT, else ../shared/course)")
     parser.add_argument("--peer", type=Path, metavar="PATH",
                         help="the course's binary: timed as a whole process beside ours, same arguments")
     parser.add_argument("--only", metavar="SCENE", action="append", help="only these scenes (a quick check)")

@@ -35,8 +35,13 @@ import sys
 import time
 from pathlib import Path
 
-from benchmarks import crossval, error_vs_time, render_speed, write_json
-from benchmarks.course import MAX_BAD_FRACTION, ROOT, machine, record
+from benchmarks import crossval, error_vs_time, machine, render_speed, write_json
+from benchmarks.course import record
+from course import root as course_root
+from validation.crossval import FURNACE_SIGMAS
+from validation.metrics import MAX_BAD_FRACTION
+
+ROOT = Path(__file__).resolve().parent.parent
 
 DOCS = ROOT / "docs" / "validation"
 SPEED = ROOT / "docs" / "render_speed.json"
@@ -103,7 +108,7 @@ def results_section(images: dict | None, speed: dict | None) -> str:
                   f"{100 * MAX_BAD_FRACTION:g} %). `tests/test_course_images.py` fails an image over that bar "
                   "or over twice its count here (+10 pixels). The slow tests compare `scalar_rgb` with "
                   "`llvm_ad_rgb` at 200×200 on all seven scenes; our scenes (`scenes/`) are compared with an "
-                  "independent NumPy implementation of the course's semantics (`benchmarks/reference_tracer.py`).",
+                  "independent NumPy implementation of the course's semantics (`validation/reference_tracer.py`).",
                   ""]
     if speed and "machine" in speed:
         lines += [f"`{speed['command']}`: the course's {len(speed['scenes'])} command lines at their sizes, {speed['scenes'][0]['variant']}, "
@@ -137,7 +142,7 @@ def validation_section(cv: dict, evt: dict | None, suite: dict | None) -> str:
              f"1 % significance): {sum(c['passed'] for c in chi2)}/{len(chi2)} cases pass (kd/ks/shininess "
              f"{materials}; θi ∈ {{{angles}}}); lowest p-value {min(c['p_value'] for c in chi2):.3f}. "
              f"Two-sided white furnace (albedo from the BSDF's own sampling against the model's formula "
-             f"integrated by quadrature, within {crossval.FURNACE_SIGMAS:g} standard errors): "
+             f"integrated by quadrature, within {FURNACE_SIGMAS:g} standard errors): "
              f"{sum(f['passed'] for f in furnace)}/{len(furnace)} pass, largest |z| "
              f"{max(abs(f['z']) for f in furnace):.2f}.", "",
              f"**whitted vs Mitsuba's path tracer** restricted to Whitted's light paths (ambient 0, no "
@@ -209,7 +214,7 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f"unknown steps: {', '.join(sorted(unknown))}")
     os.chdir(ROOT)  # the commands recorded in docs/ name paths relative to the checkout
     if "course_images" in steps:
-        record(crossval.DEFAULT_COURSE, None)
+        record(course_root(), None)
     if "crossval" in steps:
         if crossval.main(["--json", str(DOCS / "crossval.json")]) != 0:
             print("report: crossval criteria failed; the section shows which", file=sys.stderr)

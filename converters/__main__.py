@@ -54,7 +54,7 @@ def build_parser() -> argparse.ArgumentParser:
     flags = parser.add_argument_group("render flags (as render.py's; written into the XML)")
     flags.add_argument("-size", nargs=2, type=int, metavar=("W", "H"),
                        help="image size, the film's width and height (default 800 800)")
-    flags.add_argument("-bounces", type=int, metavar="N", help="mirror bounces, the integrator's max_depth "
+    flags.add_argument("-bounces", type=int, metavar="N", help="mirror bounces, the integrator's bounces "
                                                               "(default 0)")
     flags.add_argument("-shadows", action="store_true", default=None,
                        help="trace shadow rays (default: off)")

@@ -36,9 +36,10 @@ from pathlib import Path
 import numpy as np
 
 from imaging.image_io import CUBE_FACES, read_cube_map
+from mi_plugins.camera_basis import course_camera_basis
 
 from . import transforms
-from .errors import SceneError, describe
+from core.errors import SceneError, describe
 from .model import (Background, Camera, DirectionalLight, Material, Plane, PointLight, Scene,
                     Sphere, Triangle, TriangleMesh)
 from .obj import read_obj
@@ -50,7 +51,7 @@ FLOAT32_MAX = float(np.finfo(np.float32).max)
 
 #: Rendered scenes are float32 (Mitsuba's rays, hits and offsets): a scene
 #: scaled uniformly renders the same from 1e-10 to 1e11 times the size of
-#: benchmarks.stress_cases' scene (about 6 across), not at 1e-12 or 1e12
+#: validation.stress_cases' scene (about 6 across), not at 1e-12 or 1e12
 #: (measured, 2026-11-29). So world coordinates are at most MAX_COORDINATE in
 #: magnitude, and a scene (camera and objects) spans at least MIN_SCENE_SIZE.
 MAX_COORDINATE = 1e12
@@ -72,23 +73,21 @@ def _length_fits_float32(vector) -> bool:
 
 
 def _camera_fits_float32(direction: np.ndarray, up: np.ndarray, angle: float) -> bool:
-    """The course camera's set-up (mi_plugins.course_camera) done in float32: the
-    forward vector D / tan(angle / 2), the horizontal normalize(D x U) and the
-    corner ray D / tan + H + U must all be finite and non-zero."""
+    """The course camera's basis (:func:`mi_plugins.camera_basis.course_camera_basis`,
+    which the sensor rounds to float32) is finite and non-zero in float32: the
+    forward vector, the horizontal, and the corner ray forward + horizontal + up."""
     if not (_length_fits_float32(direction) and _length_fits_float32(up)):
         return False
+    try:
+        basis = course_camera_basis(direction, up, angle)
+    except ValueError:
+        return False
     with np.errstate(all="ignore"):
-        d = np.asarray(direction, np.float32)
-        d = d / np.sqrt(np.sum(d * d, dtype=np.float32))
-        tangent = np.float32(math.tan(math.radians(angle) * 0.5))
-        forward = d / tangent
-        cross = np.cross(d, np.asarray(up, np.float32)).astype(np.float32)
-        cross_length = np.sqrt(np.sum(cross * cross, dtype=np.float32))
-        corner = forward + cross / cross_length + np.asarray(up, np.float32)
-        corner_length = np.sqrt(np.sum(corner * corner, dtype=np.float32))
-    values = np.concatenate([forward, [cross_length, corner_length]])
-    return bool(tangent > 0 and np.all(np.isfinite(values)) and cross_length > np.finfo(np.float32).tiny
-                and corner_length > np.finfo(np.float32).tiny)
+        vectors = np.stack([basis.forward, basis.horizontal, basis.forward + basis.horizontal + basis.up])
+        rounded = vectors.astype(np.float32)
+        lengths = np.sqrt(np.sum(rounded * rounded, axis=1, dtype=np.float32))
+    return bool(basis.tan_half_fov > 0 and np.all(np.isfinite(rounded)) and np.all(np.isfinite(lengths))
+                and np.all(lengths > np.finfo(np.float32).tiny))
 
 
 @dataclass(frozen=True)

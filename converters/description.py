@@ -283,7 +283,7 @@ def _quaternion_xyzw(r: np.ndarray) -> list[float]:
 def scene_dict(scene: Scene, options: RenderOptions = RenderOptions()) -> dict:
     """The description of ``scene`` rendered with ``options`` (see the module's docstring)."""
     camera = scene.camera
-    integrator: dict = {"type": "whitted", "max_depth": int(options.bounces), "shadows": bool(options.shadows)}
+    integrator: dict = {"type": "whitted", "bounces": int(options.bounces), "shadows": bool(options.shadows)}
     if any(v != 0.0 for v in scene.background.ambient):
         integrator["ambient"] = _rgb(scene.background.ambient)
     epsilons = ",".join(f"{e:.9g}" for e in ray_epsilons(scene))
@@ -328,7 +328,7 @@ def scene_dict(scene: Scene, options: RenderOptions = RenderOptions()) -> dict:
 
     background = scene.background
     if background.cube_map is not None:
-        result["background"] = {"type": "course_cubemap", "filename": str(background.cube_map)}
+        result["background"] = {"type": "course_cubemap", "folder": str(background.cube_map)}
     elif any(v != 0.0 for v in background.color):
         result["background"] = {"type": "constant", "radiance": _rgb(background.color)}
 

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import SceneError, describe
+from core.errors import SceneError, describe
 
 #: The renderer stores coordinates as float32
 FLOAT32_MAX = float(np.finfo(np.float32).max)

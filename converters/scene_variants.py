@@ -21,7 +21,7 @@ def with_path_tracer(description: dict) -> dict:
     integrator = description["integrator"]
     if integrator["type"] != "whitted":
         raise ValueError(f"with_path_tracer wants a whitted description, got {integrator['type']!r}")
-    return dict(description, integrator={"type": "path", "max_depth": int(integrator["max_depth"]) + 2,
+    return dict(description, integrator={"type": "path", "max_depth": int(integrator["bounces"]) + 2,
                                          "rr_depth": 1000, "hide_emitters": False})
 
 

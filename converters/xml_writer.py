@@ -63,7 +63,7 @@ class _Writer:
         elif isinstance(value, float):
             self.emit(depth, f'<float {attr} value="{_number(value)}"/>')
         elif isinstance(value, str):
-            if name == "filename" and Path(value).is_absolute():
+            if name in ("filename", "folder") and Path(value).is_absolute():
                 value = os.path.relpath(value, self.path.parent)  # portable: relative to the XML
             self.emit(depth, f"<string {attr} value={quoteattr(value)}/>")
         elif isinstance(value, (list, tuple)) and len(value) == 3:

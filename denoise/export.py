@@ -724,7 +724,7 @@ def sequences_for(specs: list[tuple[str, Spec]], out: Path, data: Path | None = 
     several write ``out/<name>``. Scenes are loaded and checked here, before any work."""
     import mitsuba as mi
 
-    from renderer.cli import course_data_dir, resolve_scene
+    from course import data_dir, resolve_scene
 
     if batch_spp < 1 or batch_spp > MAX_SPP:
         raise SpecError(f"--batch-spp: expected 1..{MAX_SPP}, found {batch_spp}")
@@ -739,7 +739,7 @@ def sequences_for(specs: list[tuple[str, Spec]], out: Path, data: Path | None = 
         if width * height * min(batch_spp, spec.reference_spp // 2) > MAX_SAMPLES_PER_RENDER:
             raise SpecError(f"{name}: {width}x{height} at {batch_spp} spp per batch is more than "
                             f"{MAX_SAMPLES_PER_RENDER} samples in one render; lower --batch-spp")
-        path = resolve_scene(spec.scene, course_data_dir(str(data) if data else None)).resolve()
+        path = resolve_scene(spec.scene, data_dir(data)).resolve()
         spec.check_scene(_course_scene(str(path)), name)
         target = out if len(specs) == 1 else out / name
         result.append(Sequence(name, spec, str(path), str(target), batch_spp, whitted, variant or mi.variant()))

@@ -40,6 +40,7 @@ import numpy as np
 
 from core.errors import FrameError
 from imaging.image_io import atomic_path, read_exr, write_exr
+from mi_plugins.camera_basis import course_camera_basis
 
 BUFFERS = ("beauty", "normal", "position", "depth", "ID")
 
@@ -214,15 +215,10 @@ def camera_matrices(camera, width: int, height: int, near: float, far: float) ->
     """
     if not 0.0 < near < far:
         raise ValueError(f"camera_matrices: expected 0 < near < far, found near {near}, far {far}")
-    direction = np.asarray(camera.direction, np.float64)
-    direction /= np.linalg.norm(direction)
-    up = np.asarray(camera.up, np.float64)
-    horizontal = np.cross(direction, up)
-    horizontal /= np.linalg.norm(horizontal)
-    tan_half = np.tan(np.radians(camera.angle) / 2)
-    basis = np.column_stack([horizontal, up, direction / tan_half])
+    basis = course_camera_basis(camera.direction, camera.up, camera.angle)
     world_to_camera = np.eye(4)
-    world_to_camera[:3, :3] = np.linalg.inv(basis) / tan_half
+    world_to_camera[:3, :3] = (np.linalg.inv(np.column_stack([basis.horizontal, basis.up, basis.forward]))
+                               / basis.tan_half_fov)
     world_to_camera[:3, 3] = -world_to_camera[:3, :3] @ np.asarray(camera.center, np.float64)
     sx, sy = (width - 1) / 2.0, (height - 1) / 2.0
     a, b = far / (far - near), -far * near / (far - near)  # z/w = a + b / depth

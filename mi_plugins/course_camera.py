@@ -2,6 +2,9 @@ from __future__ import annotations
 
 import drjit as dr
 import mitsuba as mi
+import numpy as np
+
+from .camera_basis import course_camera_basis
 
 
 class CourseCamera(mi.Sensor):
@@ -16,20 +19,24 @@ class CourseCamera(mi.Sensor):
      * - origin
        - |point|
        - Centre of projection (Default: 0, 0, 0)
+       - |exposed|
 
      * - direction
        - |vector|
        - Viewing direction; normalised (Default: 0, 0, -1)
+       - |exposed|
 
      * - up
        - |vector|
        - Up vector, used exactly as given: it is neither normalised nor made
          orthogonal to ``direction``, as in the course's solution (Default: 0, 1, 0)
+       - |exposed|
 
      * - fov
        - |float|
        - Full field of view in degrees, applied to *both* image axes, so a
          non-square image is stretched, as in the course (Default: 30)
+       - |exposed|
 
      * - pixel_centers
        - |bool|
@@ -46,6 +53,10 @@ class CourseCamera(mi.Sensor):
     :math:`D` the unit direction, :math:`H = \mathrm{normalize}(D \times U)`
     and :math:`U` the up vector as given. Sub-pixel positions (when
     ``pixel_centers`` is false) extend the same affine map continuously.
+    The basis is :func:`mi_plugins.camera_basis.course_camera_basis` (the
+    one the denoiser's frame matrices use). ``traverse`` exposes ``origin``,
+    ``direction``, ``up`` and ``fov`` as non-differentiable parameters (the
+    basis is computed on the host); ``parameters_changed`` recomputes it.
 
     .. tabs::
 
@@ -59,22 +70,24 @@ class CourseCamera(mi.Sensor):
 
     def __init__(self, props: mi.Properties):
         super().__init__(props)
-        origin = props.get("origin", mi.ScalarPoint3f(0, 0, 0))
-        direction = mi.ScalarVector3f(props.get("direction", mi.ScalarVector3f(0, 0, -1)))
-        up = mi.ScalarVector3f(props.get("up", mi.ScalarVector3f(0, 1, 0)))
-        fov = float(props.get("fov", 30.0))
-        if not 0.0 < fov < 180.0:
-            raise ValueError(f"course_camera: fov must be in (0, 180) degrees, got {fov}")
-        if dr.norm(direction) == 0.0:
-            raise ValueError("course_camera: direction must not be zero")
-        horizontal = dr.cross(direction, up)
-        if dr.norm(horizontal) <= 1e-12 * dr.norm(direction) * dr.norm(up):
-            raise ValueError("course_camera: up must not be parallel to direction")
+        self.origin = mi.Point3f(props.get("origin", mi.ScalarPoint3f(0, 0, 0)))
+        self.direction = mi.Vector3f(props.get("direction", mi.ScalarVector3f(0, 0, -1)))
+        self.up = mi.Vector3f(props.get("up", mi.ScalarVector3f(0, 1, 0)))
+        self.fov = mi.Float(props.get("fov", 30.0))
         self.pixel_centers = bool(props.get("pixel_centers", True))
-        self.origin = mi.ScalarPoint3f(origin)
-        self.forward = dr.normalize(direction) / dr.tan(dr.deg2rad(fov) * 0.5)
-        self.horizontal = dr.normalize(dr.cross(dr.normalize(direction), up))
-        self.up = mi.ScalarVector3f(up)
+        self.parameters_changed()
+
+    def parameters_changed(self, keys: list[str] = []):
+        """Recomputes the ray basis from ``origin``, ``direction``, ``up`` and
+        ``fov``, and the pixel mapping from the film."""
+        def host(value) -> np.ndarray:
+            return np.asarray(value, np.float64).reshape(-1)
+
+        basis = course_camera_basis(host(self.direction)[:3], host(self.up)[:3], float(dr.slice(self.fov, 0)))
+        self.ray_origin = mi.ScalarPoint3f(host(self.origin)[:3])
+        self.forward = mi.ScalarVector3f(basis.forward)
+        self.horizontal = mi.ScalarVector3f(basis.horizontal)
+        self.vertical = mi.ScalarVector3f(basis.up)
         film = self.film()
         size = film.size()
         # position samples span the film's crop window (a band of the image
@@ -92,12 +105,12 @@ class CourseCamera(mi.Sensor):
             pixel = dr.floor(pixel) + 0.5
         ndc_x = (pixel.x - 0.5) * self.ndc_scale.x + self.ndc_bias.x
         ndc_y = -((pixel.y - 0.5) * self.ndc_scale.y + self.ndc_bias.y)
-        return dr.normalize(self.forward + ndc_x * self.horizontal + ndc_y * self.up)
+        return dr.normalize(self.forward + ndc_x * self.horizontal + ndc_y * self.vertical)
 
     def sample_ray(self, time: mi.Float, sample1: mi.Float, sample2: mi.Point2f, sample3: mi.Point2f,
                    active: bool = True) -> tuple[mi.Ray3f, mi.Color3f]:
         wavelengths, weight = self.sample_wavelengths(dr.zeros(mi.SurfaceInteraction3f), sample1, active)
-        ray = mi.Ray3f(mi.Point3f(self.origin), self._direction(sample2), time, wavelengths)
+        ray = mi.Ray3f(mi.Point3f(self.ray_origin), self._direction(sample2), time, wavelengths)
         return ray, weight
 
     def sample_ray_differential(self, time: mi.Float, sample1: mi.Float, sample2: mi.Point2f,
@@ -108,11 +121,17 @@ class CourseCamera(mi.Sensor):
         return ray, weight
 
     def bbox(self) -> mi.ScalarBoundingBox3f:
-        return mi.ScalarBoundingBox3f(self.origin)
+        # (scalar variants name the scalar type without the "Scalar" prefix)
+        box = getattr(mi, "ScalarBoundingBox3f", None) or mi.BoundingBox3f
+        return box(self.ray_origin)
 
     def traverse(self, callback):
-        pass
+        super().traverse(callback)  # the film
+        # the basis is computed on the host (camera_basis.py), so these are
+        # not differentiable: a change recompiles the ray generation
+        for name in ("origin", "direction", "up", "fov"):
+            callback.put(name, getattr(self, name), mi.ParamFlags.NonDifferentiable)
 
     def to_string(self):
-        return (f"CourseCamera[\n  origin = {self.origin},\n  forward = {self.forward},\n"
-                f"  up = {self.up},\n  pixel_centers = {self.pixel_centers}\n]")
+        return (f"CourseCamera[\n  origin = {self.ray_origin},\n  forward = {self.forward},\n"
+                f"  up = {self.vertical},\n  pixel_centers = {self.pixel_centers}\n]")

@@ -1,6 +1,5 @@
 from __future__ import annotations
 
-import math
 from pathlib import Path
 
 import drjit as dr
@@ -17,7 +16,7 @@ class CubeMapEmitter(mi.Emitter):
 
     .. pluginparameters::
 
-     * - filename
+     * - folder
        - |string|
        - Folder holding ``left.png right.png up.png down.png front.png
          back.png``, six square faces of equal size (8-bit RGB, values / 255,
@@ -42,17 +41,14 @@ class CubeMapEmitter(mi.Emitter):
         super().__init__(props)
         from imaging.image_io import read_cube_map
         # relative to the XML file's folder when loaded from XML
-        self.folder = Path(str(mi.file_resolver().resolve(props.get("filename"))))
+        self.folder = Path(str(mi.file_resolver().resolve(props.get("folder"))))
         faces = read_cube_map(self.folder)  # (6, N, N, 4) uint8 RGBX, faces in CUBE_FACES order
         self.size = faces.shape[1]
         self.scale = float(props.get("scale", 1.0))
         # One little-endian 32-bit word per texel (R | G << 8 | B << 16 | X << 24):
-        # one gather per bilinear tap, no copy
-        self.packed = faces.reshape(-1).view("<u4")
-        if dr.is_jit_v(mi.Float):
-            self.texels = mi.UInt32(self.packed)
-        else:  # scalar variants: one Python call per ray; a memoryview indexes fastest
-            self.texels = memoryview(self.packed)
+        # one gather per bilinear tap
+        packed = faces.reshape(-1).view("<u4")
+        self.texels = mi.TensorXu(packed)
         self.m_flags = mi.EmitterFlags.Infinite | mi.EmitterFlags.SpatiallyVarying
         # scalar variants name the scalar type without the "Scalar" prefix
         sphere = getattr(mi, "ScalarBoundingSphere3f", None) or mi.BoundingSphere3f
@@ -66,8 +62,6 @@ class CubeMapEmitter(mi.Emitter):
 
     def lookup(self, d: mi.Vector3f, active: bool = True) -> mi.Color3f:
         """The course's ``CubeMap::getTexel`` for world direction ``d``."""
-        if not dr.is_jit_v(mi.Float):
-            return self._lookup_scalar(float(d.x), float(d.y), float(d.z))
         d = dr.normalize(d)
         ax, ay, az = dr.abs(d.x), dr.abs(d.y), dr.abs(d.z)
         x_major = (ax >= ay) & (ax >= az)
@@ -96,42 +90,12 @@ class CubeMapEmitter(mi.Emitter):
 
         def texel(i, j):
             index = base + mi.UInt32(dr.clip(j, 0, n - 1)) * n + mi.UInt32(dr.clip(i, 0, n - 1))
-            word = dr.gather(mi.UInt32, self.texels, index, active)
+            word = self.texels.array[index]  # a gather (indexing works in scalar variants too)
             return mi.Color3f(mi.Float(word & 0xFF), mi.Float((word >> 8) & 0xFF),
                               mi.Float((word >> 16) & 0xFF)) * unit
 
         return ((1.0 - alpha) * (1.0 - beta) * texel(ix, iy) + alpha * (1.0 - beta) * texel(ix + 1, iy)
                 + (1.0 - alpha) * beta * texel(ix, iy + 1) + alpha * beta * texel(ix + 1, iy + 1))
-
-    def _lookup_scalar(self, x: float, y: float, z: float) -> mi.Color3f:
-        """:meth:`lookup` in plain Python (the same face rules), for scalar variants."""
-        ax, ay, az = abs(x), abs(y), abs(z)
-        if ax >= ay and ax >= az:
-            major, a, b, face, flip_u = x, z, y, (1 if x > 0 else 0), False
-        elif ay >= az:
-            major, a, b, face, flip_u = y, x, z, (2 if y > 0 else 3), y < 0
-        else:
-            major, a, b, face, flip_u = z, x, y, (4 if z > 0 else 5), z > 0
-        if major == 0.0:
-            return mi.Color3f(0.0)
-        u, v = 0.5 * (a / major + 1.0), 0.5 * (b / major + 1.0)
-        u = 1.0 - u if flip_u else u
-        v = 1.0 - v if major < 0 else v
-        n = self.size
-        fx, fy = u * n, (1.0 - v) * n
-        ix, iy = math.floor(fx), math.floor(fy)
-        alpha, beta = fx - ix, fy - iy
-        i0, i1 = min(max(ix, 0), n - 1), min(max(ix + 1, 0), n - 1)
-        j0, j1 = face * n * n + min(max(iy, 0), n - 1) * n, face * n * n + min(max(iy + 1, 0), n - 1) * n
-        r = g = b = 0.0
-        for weight, index in (((1 - alpha) * (1 - beta), j0 + i0), (alpha * (1 - beta), j0 + i1),
-                              ((1 - alpha) * beta, j1 + i0), (alpha * beta, j1 + i1)):
-            word = self.texels[index]
-            r += weight * (word & 0xFF)
-            g += weight * ((word >> 8) & 0xFF)
-            b += weight * ((word >> 16) & 0xFF)
-        unit = self.scale / 255.0
-        return mi.Color3f(r * unit, g * unit, b * unit)
 
     def eval(self, si: mi.SurfaceInteraction3f, active: bool = True) -> mi.Color3f:
         return dr.select(active, self.lookup(-si.wi, active), 0.0)
@@ -163,8 +127,7 @@ class CubeMapEmitter(mi.Emitter):
         return mi.Ray3f(origin, -d, time), dr.select(active, weight, 0.0)
 
     def traverse(self, callback):
-        if dr.is_jit_v(mi.Float):
-            callback.put("data", self.texels, mi.ParamFlags.NonDifferentiable)
+        callback.put("data", self.texels, mi.ParamFlags.NonDifferentiable)
 
     def to_string(self):
-        return f"CubeMapEmitter[filename = {self.folder}, size = {self.size}]"
+        return f"CubeMapEmitter[folder = {self.folder}, size = {self.size}]"

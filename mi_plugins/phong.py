@@ -35,7 +35,10 @@ class PhongBSDF(mi.BSDF):
      * - exponent
        - |float|
        - Phong shininess :math:`s \geq 0` (Default: 0)
-       - |exposed|
+       - |exposed|: not differentiable. The kernels take :math:`s` as a
+         constant (``dr.power`` with a Python float: integer exponents are
+         exact products, and ``0 ** 0 = 1`` is decided when tracing), so the
+         images stay the course's; a new value recompiles them.
 
      * - sampling
        - |string|
@@ -87,9 +90,8 @@ class PhongBSDF(mi.BSDF):
         super().__init__(props)
         self.kd = mi.Color3f(self._color(props, "diffuse_reflectance", 0.5))
         self.ks = mi.Color3f(self._color(props, "specular_reflectance", 0.0))
-        self.exponent = float(props.get("exponent", 0.0))
-        if not self.exponent >= 0.0:
-            raise ValueError(f"phong: exponent must be >= 0, got {self.exponent}")
+        # exposed as "exponent"; the kernels read the host copy self.exponent
+        self.exponent_parameter = mi.Float(props.get("exponent", 0.0))
         self.sampling = str(props.get("sampling", "phong"))
         if self.sampling not in ("phong", "mirror"):
             raise ValueError(f"phong: sampling must be 'phong' or 'mirror', got {self.sampling!r}")
@@ -103,8 +105,10 @@ class PhongBSDF(mi.BSDF):
         return mi.ScalarColor3f(value)
 
     def _update_flags(self):
-        reflective = dr.any(dr.ravel(self.ks) > 0.0)
-        self.reflective = bool(reflective[0] if dr.is_array_v(reflective) else reflective)
+        self.exponent = float(dr.slice(self.exponent_parameter, 0))
+        if not self.exponent >= 0.0:
+            raise ValueError(f"phong: exponent must be >= 0, got {self.exponent}")
+        self.reflective = bool(dr.any(dr.ravel(self.ks) > 0.0))
         glossy = mi.BSDFFlags.GlossyReflection | mi.BSDFFlags.FrontSide
         mirror = mi.BSDFFlags.DeltaReflection | mi.BSDFFlags.FrontSide
         components = [mi.BSDFFlags.DiffuseReflection | mi.BSDFFlags.FrontSide, glossy]
@@ -215,8 +219,10 @@ class PhongBSDF(mi.BSDF):
     def traverse(self, callback):
         callback.put("diffuse_reflectance", self.kd, mi.ParamFlags.Differentiable)
         callback.put("specular_reflectance", self.ks, mi.ParamFlags.Differentiable)
+        callback.put("exponent", self.exponent_parameter, mi.ParamFlags.NonDifferentiable)
 
-    def parameters_changed(self, keys):
+    def parameters_changed(self, keys: list[str] = []):
+        # ks > 0 decides whether there is a mirror lobe; the exponent is read back to the host
         self._update_flags()
 
     def to_string(self):

@@ -44,34 +44,71 @@ class LightTable:
     (Plain classes, not dataclasses: Dr.Jit would take a dataclass's arrays
     for loop state.)"""
 
-    def __init__(self, count: int, kinds: mi.UInt32, vectors: mi.Float, values: mi.Float):
-        self.count = count
-        self.count_opaque = dr.opaque(mi.UInt32, count)
-        self.kinds = kinds  # POINT or DIRECTIONAL
-        self.vectors = vectors  # 3 per light: the position, or the unit direction towards the light
-        self.values = values  # 3 per light: intensity (point) or irradiance (directional)
+    def __init__(self, kinds: list[int], vectors: list[float], values: list[float]):
+        self.count = len(kinds)
+        self.count_opaque = dr.opaque(mi.UInt32, self.count)
+        # flat tensors: indexing ".array[i]" gathers in vectorised variants and reads in scalar ones
+        self.kinds = mi.TensorXu(np.array(kinds, np.uint32))  # POINT or DIRECTIONAL
+        self.vectors = mi.TensorXf(np.array(vectors, np.float32))  # 3 per light: position, or unit direction towards it
+        self.values = mi.TensorXf(np.array(values, np.float32))  # 3 per light: intensity (point) or irradiance
+
+    def vector(self, table: mi.TensorXf, index: mi.UInt32):
+        return mi.Vector3f(table.array[3 * index], table.array[3 * index + 1], table.array[3 * index + 2])
 
 
 class SceneAnalysis:
-    """What the kernel needs to know about one scene, computed once per scene."""
+    """What the kernel needs to know about one scene, kept while the scene holds
+    the same shapes and emitters (never looked up by ``id(scene)``) and, at
+    each render, has the same :func:`scene_state`. The light table's values
+    are read once: a point or directional light changed through
+    ``mi.traverse`` is seen at once when it is unrolled (up to
+    ``max_unrolled_lights``), after :meth:`WhittedIntegrator.forget` in the
+    symbolic light loop."""
 
-    def __init__(self, shapes, emitters, unrolled, table, mirrors, ids, epsilons, scales):
+    def __init__(self, shapes, emitters, unrolled, table, mirrors, slots, tables):
         self.shapes = shapes  # held, so that their identity shows the analysis belongs to a scene
         self.emitters = emitters
         self.unrolled = unrolled  # delta lights shaded one by one (Python loop at trace time)
         self.table: LightTable | None = table  # point and directional lights shaded in a symbolic loop
         self.mirrors = mirrors  # any mirror lobe
-        self.ids = ids  # shape id -> object id             (scalar variants)
-        self.epsilons = epsilons  # shape id -> ray epsilon           (scalar variants)
-        self.scales = scales  # shape id -> coordinate magnitude  (scalar variants)
-        self.id_table = self.epsilon_table = self.scale_table = None  # JIT: the same by registry index
+        self.slots = slots  # shape id -> row of the per-shape tables (scalar variants; 0: no shape)
+        self.tables = tables  # "ids", "epsilons", "scales" -> mi.TensorXf, one row per shape slot
         self.bsphere = (0.0, 0.0, 0.0, 0.0)  # scene's bounding sphere (centre, radius), for directional lights
+        self.state: tuple = ()  # scene_state() when analysed
 
     def belongs_to(self, scene: mi.Scene) -> bool:
         shapes, emitters = scene.shapes(), scene.emitters()
         return (len(shapes) == len(self.shapes) and len(emitters) == len(self.emitters)
                 and all(a is b for a, b in zip(shapes, self.shapes))
                 and all(a is b for a, b in zip(emitters, self.emitters)))
+
+    def shape_slot(self, si: mi.SurfaceInteraction3f) -> mi.UInt32:
+        """Row of the hit shape in :attr:`tables` (0: none). The one place where
+        variants differ: a vectorised shape pointer is its registry index, a
+        scalar one is the shape itself."""
+        if dr.is_jit_v(mi.Float):
+            return dr.reinterpret_array(mi.UInt32, si.shape)
+        return 0 if si.shape is None else self.slots[si.shape.id()]
+
+    def per_shape(self, si: mi.SurfaceInteraction3f, name: str) -> mi.Float:
+        """The hit shape's entry of table ``ids``, ``epsilons`` or ``scales``."""
+        return self.tables[name].array[self.shape_slot(si)]
+
+
+def scene_state(scene: mi.Scene) -> tuple:
+    """What parameter updates may change of an analysis, cheap to read once per
+    render: each shape's BSDF flags (mirror lobes) and the scene's bounding box
+    (the shapes' scales, the directional lights' reach)."""
+    box = scene.bbox()
+    return (tuple(int(s.bsdf().flags()) if s.bsdf() is not None else -1 for s in scene.shapes()),
+            tuple(_vector(box.min)), tuple(_vector(box.max)))
+
+
+def none_active(mask) -> bool:
+    """Dr.Jit's C++ ``dr::none_or<false>(mask)``: true only for a one-lane mask
+    (scalar variants trace one ray per call) that is off, where a miss has no
+    BSDF to call; a vectorised mask never ends the kernel early."""
+    return not dr.is_array_v(mask) and not mask
 
 
 def _light_kind(light: mi.Emitter) -> int | None:
@@ -99,10 +136,11 @@ class WhittedIntegrator(mi.SamplingIntegrator):
 
     .. pluginparameters::
 
-     * - max_depth
+     * - bounces
        - |int|
        - Number of mirror bounces (the course's ``-bounces``); 0 is plain ray
-         casting (Default: 0)
+         casting (Default: 0). Not Mitsuba's ``max_depth`` (path length; a
+         path tracer needs ``bounces + 2``): passing ``max_depth`` is an error
 
      * - shadows
        - |bool|
@@ -158,7 +196,7 @@ class WhittedIntegrator(mi.SamplingIntegrator):
     light times the light's radiance (zero when a shadow ray is blocked); a
     ray that hits nothing returns the scene's environment emitter (a colour or
     a cube map) or black. The ideal mirror direction is then followed with
-    the weight of the BSDF's delta-reflection lobe, up to ``max_depth`` times.
+    the weight of the BSDF's delta-reflection lobe, up to ``bounces`` times.
     Radiance is clamped to :data:`MAX_RADIANCE` (a NaN from ``inf * 0``
     becomes 0), so no output is ever non-finite.
 
@@ -166,21 +204,32 @@ class WhittedIntegrator(mi.SamplingIntegrator):
     by kind, many are a symbolic loop, and no shadow ray, mirror loop,
     environment lookup or AOV is traced unless the flags and the scene need
     it. The mirror loop is a symbolic loop that ends as soon as no lane
-    continues.
+    continues. One code path serves scalar and vectorised variants.
+
+    The image is differentiable (``mi.render(scene, params)``, reverse or
+    forward mode) with respect to what the BSDFs' and emitters' ``eval`` and
+    ``sample`` depend on, e.g. ``phong``'s ``diffuse_reflectance``: Mitsuba's
+    default ``render_backward`` re-renders with the AD graph recorded and the
+    loops evaluated (Whitted paths are short and deterministic, so there is
+    nothing to replay). Visibility (shadow and mirror ray hits) is not
+    differentiated.
 
     .. tabs::
 
         .. code-tab:: python
 
-            'type': 'whitted', 'max_depth': 4, 'shadows': True,
+            'type': 'whitted', 'bounces': 4, 'shadows': True,
             'ambient': {'type': 'rgb', 'value': [0.1, 0.1, 0.1]}, 'aovs': 'depth,normal'
     """
 
     def __init__(self, props: mi.Properties):
         super().__init__(props)
-        self.max_depth = int(props.get("max_depth", 0))
-        if self.max_depth < 0:
-            raise ValueError(f"whitted: max_depth must be >= 0, got {self.max_depth}")
+        if "max_depth" in props:
+            raise ValueError("whitted: no max_depth parameter: use bounces, the number of mirror bounces "
+                             "(0: ray casting; Mitsuba's max_depth would be bounces + 2)")
+        self.bounces = int(props.get("bounces", 0))
+        if self.bounces < 0:
+            raise ValueError(f"whitted: bounces must be >= 0, got {self.bounces}")
         self.shadows = bool(props.get("shadows", False))
         ambient = props.get("ambient", mi.ScalarColor3f(0.0))
         self.ambient = mi.ScalarColor3f(ambient)
@@ -197,51 +246,63 @@ class WhittedIntegrator(mi.SamplingIntegrator):
         self.counters = None
         self._analysed: SceneAnalysis | None = None
 
+    def render(self, scene: mi.Scene, sensor=0, seed=0, spp=0, develop=True, evaluate=True):
+        # parameter updates since the last render that change the analysis (a
+        # phong's ks switching its mirror lobe on, a shape moved) are seen here
+        if self._analysed is not None and self._analysed.state != scene_state(scene):
+            self._analysed = None
+        self.analyse(scene)
+        return super().render(scene, sensor, seed, spp, develop, evaluate)
+
     def aov_names(self) -> list[str]:
         return [channel for name in self.aovs for channel in AOV_CHANNELS[name]]
 
     # -- scene analysis (trace time) ----------------------------------------
     def analyse(self, scene: mi.Scene) -> SceneAnalysis:
-        """Lights, mirrors and per-shape tables of ``scene``, computed once per
-        scene (scalar variants call the integrator once per ray). The analysis
-        holds the scene's shapes and emitters and is reused only while the
-        scene still has exactly those, so a new scene at a freed one's address
-        is never mistaken for it."""
+        """Lights, mirrors and per-shape tables of ``scene``, reused (scalar
+        variants call :meth:`sample` once per ray) while the scene still holds
+        exactly the same shapes and emitters, and renewed by :meth:`render`
+        when its :func:`scene_state` changed. The analysis holds those
+        objects, so a new scene at a freed one's address is never mistaken
+        for it."""
         if self._analysed is not None and self._analysed.belongs_to(scene):
             return self._analysed
         shapes, emitters = scene.shapes(), scene.emitters()
         lights = [e for e in emitters if mi.has_flag(e.flags(), mi.EmitterFlags.Delta)]
-        jit = dr.is_jit_v(mi.Float)
         kinds = [_light_kind(light) for light in lights]
-        looped = jit and sum(k is not None for k in kinds) > self.max_unrolled_lights
+        looped = sum(k is not None for k in kinds) > self.max_unrolled_lights
         unrolled = [light for light, kind in zip(lights, kinds) if not (looped and kind is not None)]
         table = self.light_table([(l, k) for l, k in zip(lights, kinds) if k is not None]) if looped else None
         mirrors = any(s.bsdf() is not None and mi.has_flag(s.bsdf().flags(), mi.BSDFFlags.DeltaReflection)
                       for s in shapes)
-        ids, epsilons, scales = {}, {}, {}
-        for position, shape in enumerate(shapes):
+        # table rows: a vectorised shape pointer is a registry index (0: none), a scalar
+        # one is numbered here
+        if dr.is_jit_v(mi.Float):
+            rows = [int(v) for v in np.array(dr.reinterpret_array(mi.UInt32, scene.shapes_dr())).reshape(-1)]
+        else:
+            rows = list(range(1, len(shapes) + 1))
+        columns = {"ids": np.full(max(rows, default=0) + 1, -1.0, np.float32)}
+        columns["epsilons"] = np.full_like(columns["ids"], self.ray_epsilon)
+        columns["scales"] = np.zeros_like(columns["ids"])
+        for position, (shape, row) in enumerate(zip(shapes, rows)):
             k = object_index(shape, position)
-            ids[shape.id()] = k
-            epsilons[shape.id()] = self.ray_epsilons[k] if k < len(self.ray_epsilons) else self.ray_epsilon
+            columns["ids"][row] = k
+            columns["epsilons"][row] = self.ray_epsilons[k] if k < len(self.ray_epsilons) else self.ray_epsilon
             box = shape.bbox()
-            scales[shape.id()] = float(max(dr.max(dr.abs(box.min)), dr.max(dr.abs(box.max))))
-        analysis = SceneAnalysis(shapes, emitters, unrolled, table, mirrors, ids, epsilons, scales)
+            columns["scales"][row] = float(max(dr.max(dr.abs(box.min)), dr.max(dr.abs(box.max))))
+        tables = {name: mi.TensorXf(values) for name, values in columns.items()}
+        slots = {shape.id(): row for shape, row in zip(shapes, rows)}
+        analysis = SceneAnalysis(shapes, emitters, unrolled, table, mirrors, slots, tables)
+        analysis.state = scene_state(scene)
         if shapes:
-            box = scene.bbox()
-            sphere = box.bounding_sphere()
+            sphere = scene.bbox().bounding_sphere()
             analysis.bsphere = (*_vector(sphere.center), float(sphere.radius))
-        if jit:
-            # shape pointers are registry indices; the tables map them (0: no shape)
-            registry = np.array(dr.reinterpret_array(mi.UInt32, scene.shapes_dr()), np.int64).reshape(-1)
-            size = int(registry.max()) + 1 if len(registry) else 1
-            for name, values, default in (("id_table", ids, -1.0), ("epsilon_table", epsilons, self.ray_epsilon),
-                                          ("scale_table", scales, 0.0)):
-                table_values = np.full(size, default, np.float32)
-                for shape, index in zip(shapes, registry):
-                    table_values[index] = values[shape.id()]
-                setattr(analysis, name, mi.Float(table_values))
         self._analysed = analysis
         return analysis
+
+    def forget(self) -> None:
+        """Drops the scene analysis: the next render or ``sample`` makes a new one."""
+        self._analysed = None
 
     @staticmethod
     def light_table(lights: list) -> LightTable:
@@ -258,47 +319,35 @@ class WhittedIntegrator(mi.SamplingIntegrator):
                 # the directional emitter's travel direction is its to_world's +z
                 vectors += [-v for v in _vector(params["to_world"] @ mi.Vector3f(0.0, 0.0, 1.0))]
                 values += _vector(params["irradiance.value"])
-        return LightTable(len(kinds), mi.UInt32(kinds), mi.Float(vectors), mi.Float(values))
+        return LightTable(kinds, vectors, values)
 
     def delta_lights(self, scene: mi.Scene) -> list[mi.Emitter]:
         """The delta lights unrolled into the kernel (all of them, below the loop threshold)."""
         return self.analyse(scene).unrolled
 
     def recursion_enabled(self, scene: mi.Scene) -> bool:
-        return self.max_depth > 0 and self.analyse(scene).mirrors
-
-    def per_shape(self, analysis: SceneAnalysis, si: mi.SurfaceInteraction3f, name: str) -> mi.Float:
-        """The hit shape's entry of an analysis table: ``ids``, ``epsilons`` or ``scales``."""
-        if dr.is_jit_v(mi.Float):
-            return dr.gather(mi.Float, getattr(analysis, name[:-1] + "_table" if name != "ids" else "id_table"),
-                             dr.reinterpret_array(mi.UInt32, si.shape))
-        default = {"ids": -1.0, "epsilons": self.ray_epsilon, "scales": 0.0}[name]
-        return mi.Float(default if si.shape is None else getattr(analysis, name)[si.shape.id()])
+        return self.bounces > 0 and self.analyse(scene).mirrors
 
     # -- ray statistics ------------------------------------------------------
-    #: counter slots: camera, shadow, environment, then mirror rays of depth 1..max_depth
+    #: counter slots: camera, shadow, environment, then mirror rays of depth 1..bounces
     CAMERA, SHADOW, ENVIRONMENT, MIRROR = 0, 1, 2, 3
 
     def count(self, slot, mask) -> None:
         """Adds the number of active lanes of ``mask`` to counter ``slot`` (if ``stats``)."""
-        if not self.stats:
-            return
-        if dr.is_jit_v(mi.Float):
-            dr.scatter_reduce(dr.ReduceOp.Add, self.counters, mi.UInt32(1), mi.UInt32(slot), mask)
-        elif mask:
-            self.counters[int(slot)] += 1
+        if self.stats:
+            dr.scatter_reduce(dr.ReduceOp.Add, self.counters.array, mi.UInt32(1), mi.UInt32(slot), mask)
 
     def ray_counts(self) -> dict[str, int | list[int]]:
         """Counts of the last render(s) since :meth:`reset_counts` (``stats`` on)."""
-        values = [int(v) for v in (np.array(self.counters) if self.counters is not None else [])]
+        values = [int(v) for v in (np.array(self.counters).reshape(-1) if self.counters is not None else [])]
         if not values:
             return {}
         return {"camera": values[self.CAMERA], "shadow": values[self.SHADOW],
                 "environment": values[self.ENVIRONMENT], "mirror_by_depth": values[self.MIRROR:]}
 
     def reset_counts(self) -> None:
-        size = self.MIRROR + self.max_depth
-        self.counters = dr.zeros(mi.UInt32, size) if dr.is_jit_v(mi.Float) else [0] * size
+        size = self.MIRROR + self.bounces
+        self.counters = dr.zeros(mi.TensorXu, size)
 
     # -- kernels ------------------------------------------------------------
     def spawn(self, si: mi.SurfaceInteraction3f, epsilon: mi.Float, scale: mi.Float,
@@ -342,15 +391,15 @@ class WhittedIntegrator(mi.SamplingIntegrator):
             self.count(self.ENVIRONMENT, miss)
             result = dr.select(miss, environment.eval(si, miss), 0.0)
 
-        if not dr.is_jit_v(mi.Float) and not hit:
-            return result  # scalar variants: a miss has no BSDF to call
+        if none_active(hit):
+            return result
         bsdf = si.bsdf()
         if self.has_ambient:
             result += dr.select(hit, self.ambient * bsdf.eval_diffuse_reflectance(si, hit), 0.0)
         if not analysis.unrolled and analysis.table is None:
             return result
-        epsilon = self.per_shape(analysis, si, "epsilons") if self.shadows else None
-        scale = self.per_shape(analysis, si, "scales") if self.shadows else None
+        epsilon = analysis.per_shape(si, "epsilons") if self.shadows else None
+        scale = analysis.per_shape(si, "scales") if self.shadows else None
         for light in analysis.unrolled:
             ds, radiance = light.sample_direction(si, mi.Point2f(0.5), hit)
             result += self.lit_by(scene, si, bsdf, hit, ds.p, ds.d, ds.dist, ds.pdf > 0.0, radiance,
@@ -393,15 +442,15 @@ class WhittedIntegrator(mi.SamplingIntegrator):
             shadow_rays += dr.select(traced, 1, 0)
             index += 1
         if self.stats and self.shadows:
-            dr.scatter_reduce(dr.ReduceOp.Add, self.counters, shadow_rays, mi.UInt32(self.SHADOW), hit)
+            dr.scatter_reduce(dr.ReduceOp.Add, self.counters.array, shadow_rays, mi.UInt32(self.SHADOW), hit)
         return result
 
     def table_light(self, scene, analysis, si, bsdf, hit, index, epsilon, scale) -> mi.Color3f:
         """Light ``index`` of the table, as Mitsuba's ``point`` and ``directional`` emitters sample it."""
         table = analysis.table
-        kind = dr.gather(mi.UInt32, table.kinds, index)
-        vector = dr.gather(mi.Vector3f, table.vectors, index)
-        value = dr.gather(mi.Color3f, table.values, index)
+        kind = table.kinds.array[index]
+        vector = table.vector(table.vectors, index)
+        value = mi.Color3f(table.vector(table.values, index))
         point = kind == POINT
         # point: towards its position, intensity / distance^2
         to_light = vector - si.p
@@ -420,16 +469,15 @@ class WhittedIntegrator(mi.SamplingIntegrator):
     def sample(self, scene: mi.Scene, sampler: mi.Sampler, ray: mi.RayDifferential3f,
                medium: mi.Medium = None, active: mi.Bool = True) -> tuple[mi.Color3f, mi.Bool, list[mi.Float]]:
         ray = mi.Ray3f(ray)
-        active = mi.Bool(active)
-        if dr.is_jit_v(mi.Float):  # one mask lane per ray (the caller may pass a scalar True)
-            active &= dr.full(mi.Bool, True, dr.width(ray.d.x))
+        # one mask lane per ray (the caller may pass a scalar True)
+        active = mi.Bool(active) & dr.full(mi.Bool, True, dr.width(ray.d.x))
         if self.stats and self.counters is None:
             self.reset_counts()
         analysis = self.analyse(scene)
         self.count(self.CAMERA, active)
         si = scene.ray_intersect(ray, active)
         aovs = self.first_hit_aovs(analysis, si, active)
-        if self.max_depth > 0 and analysis.mirrors:
+        if self.bounces > 0 and analysis.mirrors:
             result = self.trace_mirrors(scene, analysis, si, active)
         else:
             result = self.shade(scene, analysis, si, active)
@@ -438,14 +486,14 @@ class WhittedIntegrator(mi.SamplingIntegrator):
     @dr.syntax
     def trace_mirrors(self, scene: mi.Scene, analysis: SceneAnalysis, si: mi.SurfaceInteraction3f,
                       active: mi.Bool) -> mi.Color3f:
-        """Shades ``si`` and follows the mirror lobe up to ``max_depth`` times."""
+        """Shades ``si`` and follows the mirror lobe up to ``bounces`` times."""
         mirror = mi.BSDFContext(mi.TransportMode.Radiance, +mi.BSDFFlags.DeltaReflection)
         result = mi.Color3f(0.0)
         throughput = mi.Color3f(1.0)
         depth = mi.UInt32(0)
         while dr.hint(active, label="whitted_mirror"):
             result += throughput * self.shade(scene, analysis, si, active)
-            active &= si.is_valid() & (depth < self.max_depth)
+            active &= si.is_valid() & (depth < self.bounces)
             weight, ray = self.mirror(analysis, mirror, si, active)
             throughput *= weight
             active &= dr.max(throughput) > 0.0
@@ -457,11 +505,11 @@ class WhittedIntegrator(mi.SamplingIntegrator):
     def mirror(self, analysis: SceneAnalysis, ctx: mi.BSDFContext, si: mi.SurfaceInteraction3f,
                active: mi.Bool) -> tuple[mi.Color3f, mi.Ray3f]:
         """Weight and ray of the BSDF's mirror lobe at ``si``."""
-        if not dr.is_jit_v(mi.Float) and not active:
-            return mi.Color3f(0.0), dr.zeros(mi.Ray3f)  # scalar variants: no BSDF to call
+        if none_active(active):
+            return mi.Color3f(0.0), dr.zeros(mi.Ray3f)
         bs, weight = si.bsdf().sample(ctx, si, 0.0, mi.Point2f(0.0), active)
-        epsilon = self.per_shape(analysis, si, "epsilons")
-        scale = self.per_shape(analysis, si, "scales")
+        epsilon = analysis.per_shape(si, "epsilons")
+        scale = analysis.per_shape(si, "scales")
         return weight, self.spawn(si, epsilon, scale, direction=si.to_world(bs.wo))
 
     def first_hit_aovs(self, analysis: SceneAnalysis, si: mi.SurfaceInteraction3f,
@@ -479,21 +527,20 @@ class WhittedIntegrator(mi.SamplingIntegrator):
             elif name == "position":
                 values += [dr.select(hit, si.p.x, 0.0), dr.select(hit, si.p.y, 0.0), dr.select(hit, si.p.z, 0.0)]
             elif name == "albedo":
-                if dr.is_jit_v(mi.Float) or hit:  # scalar variants: a miss has no BSDF
+                albedo = mi.Color3f(0.0)
+                if not none_active(hit):
                     albedo = dr.select(hit, si.bsdf().eval_diffuse_reflectance(si, hit), 0.0)
-                else:
-                    albedo = mi.Color3f(0.0)
                 values += [albedo.x, albedo.y, albedo.z]
             elif name == "id":
-                values.append(dr.select(hit, self.per_shape(analysis, si, "ids"), -1.0))
+                values.append(dr.select(hit, analysis.per_shape(si, "ids"), -1.0))
         return values
 
     def object_ids(self, scene: mi.Scene, si: mi.SurfaceInteraction3f) -> mi.Float:
         """Object id of each hit (-1: none)."""
-        return self.per_shape(self.analyse(scene), si, "ids")
+        return self.analyse(scene).per_shape(si, "ids")
 
     def to_string(self):
-        return (f"WhittedIntegrator[\n  max_depth = {self.max_depth},\n  shadows = {self.shadows},\n"
+        return (f"WhittedIntegrator[\n  bounces = {self.bounces},\n  shadows = {self.shadows},\n"
                 f"  ambient = {self.ambient},\n  aovs = {self.aovs}\n]")
 
 

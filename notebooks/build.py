@@ -4,8 +4,9 @@
     python -m notebooks.build --full     # full size, same files (see FULL_RUNTIME: long)
     python -m notebooks.build --check    # run them without writing; fail on a missing figure
 
-The notebooks call library functions only (``benchmarks.crossval``,
-``benchmarks.error_vs_time``); ``NOTEBOOK_QUICK=1`` selects their small
+The notebooks call library functions only (the checks in ``validation.crossval``
+and ``validation.convergence``, the plots and tables in ``benchmarks.crossval``
+and ``benchmarks.error_vs_time``); ``NOTEBOOK_QUICK=1`` selects their small
 settings. Cells tagged ``figure`` must show a plot: after a run each of them
 must hold an ``image/png`` output (a figure shown as the text
 ``<Figure size ...>`` means the inline backend was lost), and every cell
@@ -75,13 +76,15 @@ Two checks that the renderer computes what it claims:
 
 """ + _stored_note("crossval")),
     new_code_cell(SETUP),
-    new_code_cell("""from benchmarks import crossval
+    new_code_cell("""from benchmarks.crossval import plot_agreement, plot_light_paths, summary_table
+from course import root as course_root
+from validation import crossval
 materials, angles = (crossval.QUICK_MATERIALS, crossval.QUICK_ANGLES) if QUICK else (crossval.MATERIALS, crossval.ANGLES)
-scenes = crossval.scene_paths(crossval.DEFAULT_COURSE, quick=QUICK)
+scenes = crossval.scene_paths(course_root(), quick=QUICK)
 steps = 2 * len(materials) * len(angles) + len(scenes) * (3 * 2 if QUICK else 5 * 2)   # bounce counts x spps
 with counting(crossval, ["chi2_case", "furnace_albedo", "agreement"], desc="cross-validation", total=steps):
-    results = crossval.run(crossval.DEFAULT_COURSE, quick=QUICK)
-display(Markdown(crossval.summary_table(results)))
+    results = crossval.run(course_root(), quick=QUICK)
+display(Markdown(summary_table(results)))
 failed = crossval.failures(results)
 # the criteria stated above, on the numbers in the table
 assert not failed, failed
@@ -94,7 +97,7 @@ print(f"all criteria hold: {len(results['chi2'])} chi-square cases, {len(results
 the same thing sample for sample (ratio ≈ 0). With several lights the path
 tracer picks one light per sample, so it is noisier; the ratio is then about
 0.5, since the two path renders carry that noise twice."""),
-    _figure_cell("""figure = crossval.plot_agreement(results)
+    _figure_cell("""figure = plot_agreement(results)
 check_figure(figure, panels=len(results["settings"]["spp"]))
 ratios = [a["relmse_whitted_path"] / a["relmse_path_path"] for a in results["agreement"]]
 assert max(ratios) < 2, max(ratios)   # every point below the red line
@@ -104,8 +107,8 @@ show(figure)"""),
 Whitted follows only mirror reflections and light arriving straight from
 the lights. The full path tracer also samples the Phong lobes (glossy
 inter-reflection, colour bleeding) and lets the background light the scene."""),
-    _figure_cell("""for path in crossval.scene_paths(crossval.DEFAULT_COURSE, quick=True):
-    figure = crossval.plot_light_paths(path, size=64 if QUICK else 200, spp=16 if QUICK else 256)
+    _figure_cell("""for path in crossval.scene_paths(course_root(), quick=True):
+    figure = plot_light_paths(path, size=64 if QUICK else 200, spp=16 if QUICK else 256)
     check_figure(figure, panels=3)
     show(figure)"""),
 ]
@@ -121,13 +124,15 @@ the sampling; the dotted lines mark when each method reaches relMSE 1e-3.
 
 """ + _stored_note("error_vs_time")),
     new_code_cell(SETUP),
-    new_code_cell("""from benchmarks import error_vs_time as evt
-from benchmarks.crossval import scene_paths, DEFAULT_COURSE
-size, spps, reference = evt.settings(QUICK)
-paths = scene_paths(DEFAULT_COURSE, quick=QUICK)
+    new_code_cell("""from benchmarks.error_vs_time import plot_scene, slope_table
+from course import root as course_root
+from validation import convergence
+from validation.crossval import scene_paths
+size, spps, reference = convergence.settings(QUICK)
+paths = scene_paths(course_root(), quick=QUICK)
 renders = len(paths) * sum(len(counts) + 1 for counts in spps.values())   # + 1: the reference
-with counting(evt, ["render_timed"], desc="renders", total=renders):
-    results = evt.measure(paths, size, spps, reference, progress=lambda line: None)
+with counting(convergence, ["render_timed"], desc="renders", total=renders):
+    results = convergence.measure(paths, size, spps, reference, progress=lambda line: None)
 errors = [p["relmse"] for p in results["points"]]
 assert all(0 < e < float("inf") for e in errors)
 # more samples, less error: each curve's last point beats its first by the sample ratio, within 4x
@@ -138,14 +143,14 @@ for scene in dict.fromkeys(p["scene"] for p in results["points"]):
         assert gain > counts[-1] / counts[0] / 4, (scene, method, gain)
 print(f"{len(results['points'])} renders of {len(paths)} scenes at {size}² pixels")"""),
     _figure_cell("""for scene in dict.fromkeys(p["scene"] for p in results["points"]):
-    figure = evt.plot_scene(results, scene)
+    figure = plot_scene(results, scene)
     check_figure(figure, panels=2)
     show(figure)"""),
     new_markdown_cell("""Slopes over time are meaningful only where the sampling, not the fixed
 cost of a render, dominates the time: at the full size. Over the sample
 count they hold at any size: relMSE ∝ 1/spp is slope −1 on a log-log plot."""),
     new_code_cell("""import numpy as np
-display(Markdown(evt.slope_table(results)))
+display(Markdown(slope_table(results)))
 rows = ["| scene | method | slope of log relMSE over log spp |", "|---|---|---|"]
 for s in results["slopes"]:
     curve = [p for p in results["points"] if p["scene"] == s["scene"] and p["method"] == s["method"]]

@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import argparse
 import math
-import os
 import shlex
 import sys
 from concurrent.futures import ThreadPoolExecutor
@@ -23,14 +22,11 @@ from pathlib import Path
 
 from core.entry import hold_signals, one_line, run
 from core.errors import ToolkitError, UsageError, describe
+from course import ENVIRONMENT as COURSE_ENVIRONMENT, data_dir, resolve_scene
 
 from . import checks
 
-ROOT = Path(__file__).resolve().parent.parent
-OUR_SCENES = ROOT / "scenes"
 DEFAULT_SCENE = "showcase"
-#: Where CI and the development machines keep the course's data
-DEFAULT_COURSE_DATA = ROOT.parent / "shared" / "course" / "data"
 #: The course binary's default image size (its -size)
 DEFAULT_SIZE = (800, 800)
 #: Batch lines that are shell, not course command lines: skipped (mkdir also
@@ -81,44 +77,6 @@ class Once(argparse.Action):
         setattr(namespace, self.dest, values)
 
 
-def course_data_dir(explicit: str | None) -> Path | None:
-    value = explicit or os.environ.get("COURSE_DATA")
-    if value:
-        return Path(value)
-    return DEFAULT_COURSE_DATA if DEFAULT_COURSE_DATA.is_dir() else None
-
-
-def resolve_scene(name: str, data: Path | None) -> Path:
-    """A scene by path, or by name in ``scenes/`` then the course data folder.
-
-    A name matches ``<name>.txt`` or, if unique, ``<name>_*.txt`` (so
-    ``scene06`` finds ``scene06_bunny_1k.txt``). A name that looks like a
-    path (a folder part, or ``.txt``) must be an existing file.
-    """
-    path = Path(name)
-    if path.is_dir():
-        raise UsageError(f"scene {name} is a folder, not a scene file")
-    if path.suffix == ".txt" or path.parent != Path(".") or path.is_absolute():
-        if path.is_file():
-            return path
-        why = "is a folder" if path.is_dir() else "does not exist"
-        raise UsageError(f"scene file {name} {why}")
-    folders = [OUR_SCENES] + ([data] if data else [])
-    for folder in folders:
-        exact = folder / f"{name}.txt"
-        if exact.exists():
-            return exact
-        matches = sorted(folder.glob(f"{name}_*.txt"))
-        if len(matches) == 1:
-            return matches[0]
-        if len(matches) > 1:
-            raise UsageError(f"scene name {name!r} is ambiguous in {folder}: "
-                             + ", ".join(m.name for m in matches))
-    where = ", ".join(str(f) for f in folders)
-    hint = "" if data else " (set --data or COURSE_DATA to the course's data folder)"
-    raise UsageError(f"no scene {name!r} in {where}{hint}")
-
-
 def build_parser() -> argparse.ArgumentParser:
     parser = ArgumentParser(
         prog="render.py", allow_abbrev=False, formatter_class=argparse.RawDescriptionHelpFormatter,
@@ -149,7 +107,7 @@ def build_parser() -> argparse.ArgumentParser:
     ours.add_argument("--variant", action=Once, help="Mitsuba variant (default: llvm_ad_rgb if a usable LLVM exists, "
                                         "else scalar_rgb with one line saying why)")
     ours.add_argument("--data", action=Once, metavar="DIR", help="course data folder for scene names "
-                                                    "(default: $COURSE_DATA, else ../shared/course/data)")
+                                                    f"(default: ${COURSE_ENVIRONMENT}/data, else ../shared/course/data)")
     ours.add_argument("--out", action=Once, metavar="DIR", default="out",
                       help="output folder for named scenes: <out>/<scene>.png (default: out)")
     ours.add_argument("--exr", action=Once, nargs="?", const=True, metavar="FILE",
@@ -206,7 +164,7 @@ def jobs_from_args(args: argparse.Namespace) -> list:
             raise UsageError("--exr with -input needs a FILE name (--exr out.exr)")
         return [RenderJob(scene=Path(args.input), **base, **single_outputs)]
 
-    data = course_data_dir(args.data)
+    data = data_dir(args.data)
     scenes = [resolve_scene(name, data) for name in (args.scenes or [DEFAULT_SCENE])]
     from .scene_flags import with_scene_flags  # a scene's "# render:" header, where no flag overrides it
     if len(scenes) == 1 and any(single_outputs.values()):

@@ -7,7 +7,10 @@ instead of skipping (:data:`SCALAR_FALLBACK` tells a test to render smaller);
 ``variants_all_rgb`` runs a test once per variant, and ``variant_vectorised_rgb``
 sets ``llvm_ad_rgb`` for checks that need vectorised kernels (both skip the LLVM
 variant, with the reason, where no usable libLLVM exists). Every fixture
-registers our plugins.
+registers our plugins and, after the test, cleans up as Mitsuba's own
+``src/conftest.py`` does (waits for running kernels, drops the kernel and
+allocation caches and the instance registry, resets the JIT flags) and
+restores the variant that was active before the test.
 
 Tests that use ``variant_rgb``/``variant_llvm_ad_rgb``/``variant_scalar_rgb``
 are marked ``required``: if one of them is skipped, the session fails (and the
@@ -25,6 +28,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
+from course import ENVIRONMENT as COURSE_ENVIRONMENT, root as course_root  # noqa: E402
 from renderer import variants  # noqa: E402
 
 # Point Dr.Jit at a usable LLVM before anything initialises its LLVM backend
@@ -35,7 +39,7 @@ if _LIBLLVM:
 #: no usable LLVM: image tests run on scalar_rgb (Python plugins, one ray at a
 #: time), at the smaller sizes they choose with this flag
 SCALAR_FALLBACK = _LIBLLVM is None
-COURSE = Path(os.environ.get("COURSE_ROOT", ROOT.parent / "shared" / "course"))
+COURSE = course_root()  # $COURSE_ROOT, else ../shared/course
 #: fixtures whose tests must not be skipped
 REQUIRED_FIXTURES = {"variant_rgb", "variant_llvm_ad_rgb", "variant_scalar_rgb"}
 #: tests of Dr.Jit kernels that have no scalar form (the denoiser): for these
@@ -58,43 +62,69 @@ def _set(variant: str) -> str:
     return variant
 
 
+def _active_variant() -> str | None:
+    if "mitsuba" not in sys.modules:
+        return None
+    return sys.modules["mitsuba"].variant()
+
+
+def _clean_up(previous: str | None) -> None:
+    """After a test: Mitsuba's ``src/conftest.py`` teardown, then the variant from before the test."""
+    import drjit as dr
+
+    dr.sync_thread()  # kernels still running
+    dr.flush_kernel_cache()
+    dr.kernel_history_clear()
+    dr.flush_malloc_cache()
+    dr.detail.malloc_clear_statistics()
+    dr.detail.clear_registry()  # instances kept alive by a failed test's traceback
+    dr.set_flag(dr.JitFlag.Default, True)
+    if previous is not None and previous != _active_variant():
+        variants.set_variant(previous, quiet=True)
+
+
+def _variant_fixture(variant: str):
+    previous = _active_variant()
+    yield _set(variant)
+    _clean_up(previous)
+
+
 @pytest.fixture
 def variant_scalar_rgb():
-    return _set("scalar_rgb")
+    yield from _variant_fixture("scalar_rgb")
 
 
 @pytest.fixture
 def variant_rgb():
     """The best usable variant (see :func:`best_variant`); never skips."""
-    return _set(best_variant())
+    yield from _variant_fixture(best_variant())
 
 
 @pytest.fixture
 def variant_llvm_ad_rgb(request):
     """Older name of :func:`variant_rgb`: ``llvm_ad_rgb``, or ``scalar_rgb`` without a usable LLVM
     (except for :data:`VECTORISED_TESTS`, which get ``llvm_ad_rgb`` or skip)."""
-    if request.node.get_closest_marker("vectorised"):
-        return _set("llvm_ad_rgb")
-    return _set(best_variant())
+    vectorised = request.node.get_closest_marker("vectorised")
+    yield from _variant_fixture("llvm_ad_rgb" if vectorised else best_variant())
 
 
 @pytest.fixture
 def variant_vectorised_rgb():
     """``llvm_ad_rgb`` exactly, for checks that need vectorised kernels (``mitsuba.chi2``);
     skips, with the reason, without a usable LLVM (such a test is not required)."""
-    return _set("llvm_ad_rgb")
+    yield from _variant_fixture("llvm_ad_rgb")
 
 
 @pytest.fixture(params=["scalar_rgb", "llvm_ad_rgb"])
 def variants_all_rgb(request):
-    return _set(request.param)
+    yield from _variant_fixture(request.param)
 
 
 @pytest.fixture(scope="session")
 def course() -> Path:
     """The course's data folder (``../shared/course``); tests needing it skip without it."""
     if not (COURSE / "data").is_dir() or not (COURSE / "sample_out").is_dir():
-        pytest.skip(f"course data not found at {COURSE} (set COURSE_ROOT)")
+        pytest.skip(f"course data not found at {COURSE} (set {COURSE_ENVIRONMENT})")
     return COURSE
 
 

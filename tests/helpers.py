@@ -3,19 +3,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from benchmarks.course import MAX_BAD_FRACTION, bad_pixels  # noqa: F401 (the issue's bar, re-exported)
 from converters.model import Scene
 from converters.description import RenderOptions, scene_dict
 from converters.scene_variants import apply
 from converters.to_mitsuba import load_scene_dict
 from imaging.colour import to_course_8bit
-
-
-def bad_fraction(a: np.ndarray, b: np.ndarray, tolerance: int = 2) -> float:
-    """Fraction of pixels whose 8-bit values differ by more than ``tolerance`` in any channel."""
-    a = np.asarray(a)
-    assert a.shape == np.shape(b), (a.shape, np.shape(b))
-    return bad_pixels(a, b, tolerance) / float(a.shape[0] * a.shape[1])
+from validation.metrics import MAX_BAD_FRACTION, bad_fraction, bad_pixels  # noqa: F401 (the course's bar, re-exported)
 
 
 def render_layers(scene: Scene, variants=(), **options) -> dict[str, np.ndarray]:

@@ -8,8 +8,9 @@ from pathlib import Path
 
 import numpy as np
 
+from course import resolve_scene
 from imaging.image_io import read_exr, read_png
-from renderer.cli import build_parser, jobs_from_args, main, resolve_scene
+from renderer.cli import build_parser, jobs_from_args, main
 
 ROOT = Path(__file__).resolve().parent.parent
 

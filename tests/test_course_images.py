@@ -3,22 +3,24 @@
 Two bars per image: the course's (at most 0.5 % of pixels more than 2/255
 off) and a regression bar: at most twice the bad pixels recorded in
 ``docs/validation/course_images.json`` (+10), which
-``python -m benchmarks.course --record`` rewrites after an intended change.
+``python -m benchmarks.course --record`` rewrites after an intended change
+(:mod:`validation.course_images`).
 """
 from __future__ import annotations
 
 import json
-import shlex
+from pathlib import Path
 
 import numpy as np
 import pytest
 
-from benchmarks.course import (RECORD, allowed_bad_pixels, bad_pixels, grading_lines, image_counts, outputs_into,
-                               render_grading_images)
 from conftest import SCALAR_FALLBACK
 from converters.course_scene import load_scene
+from course import CourseRun, course_runs, grading_lines
 from helpers import MAX_BAD_FRACTION, bad_fraction, encode, render_layers
 from imaging.image_io import read_png
+from validation.course_images import RECORD, allowed_bad_pixels, image_counts, render_grading_images
+from validation.metrics import bad_pixels
 
 SCENES = ["scene01_plane", "scene02_cube", "scene03_sphere", "scene04_axes", "scene05_bunny_200",
           "scene06_bunny_1k", "scene07_arch"]
@@ -56,6 +58,25 @@ def test_regression_bar_catches_a_doubling():
     assert allowed_bad_pixels(10_000, 640_000) == int(MAX_BAD_FRACTION * 640_000)
 
 
+def test_grading_lines_become_the_jobs_render_py_makes(course, monkeypatch):
+    """The course module's jobs (used by the benchmarks and the scalar band check) are
+    exactly the jobs ``render.py`` makes of the same command lines, run in the course folder."""
+    from renderer.cli import build_parser, jobs_from_args
+
+    monkeypatch.chdir(course)
+    runs = course_runs(course)
+    assert len(runs) == 7 and {"-shadows", "-depth", "-normals", "-bounces"} <= {w for r in runs for w in r.arguments}
+    every_flag = CourseRun("x", ["-size", "320", "180", "-input", "data/x.txt", "-output", "a.png", "-normals", "n.png",
+                                 "-depth", "8", "18", "d.png", "-bounces", "4", "-shadows", "-jitter", "-filter"])
+    for run in runs + [every_flag]:
+        (expected,) = jobs_from_args(build_parser().parse_args(run.arguments))
+        job = run.job(Path("."))
+        assert job == expected, run.arguments
+        assert run.job(course).scene == course / expected.scene
+    with pytest.raises(ValueError, match="-fast"):
+        CourseRun("x", ["-input", "x.txt", "-fast"]).flags()
+
+
 def check_band_on_scalar(course):
     """Every grading line, rows SCALAR_BAND only, through the job's own options, filter and encodings."""
     import mitsuba as mi
@@ -64,14 +85,11 @@ def check_band_on_scalar(course):
     from converters.to_mitsuba import load_scene_dict
     from imaging import colour
     from imaging.filters import downsample_3x
-    from renderer.cli import build_parser, jobs_from_args
     from renderer.job import FILTER_SCALE, split_layers
 
     y0, y1 = SCALAR_BAND
-    for line in grading_lines(course):
-        words = outputs_into(shlex.split(line)[1:], course / "sample_out")
-        (job,) = jobs_from_args(build_parser().parse_args(
-            [str(course / w) if k and words[k - 1] == "-input" else w for k, w in enumerate(words)]))
+    for run in course_runs(course):
+        job = run.job(course, outputs=course / "sample_out")  # the outputs name the reference images
         options = job.options()
         scale = FILTER_SCALE if job.filter else 1
         description = scene_dict(load_scene(job.scene), options)

@@ -21,11 +21,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from benchmarks import crossval, error_vs_time
 from conftest import SCALAR_FALLBACK
 from converters.course_scene import load_scene
 from helpers import render_layers
 from imaging.image_io import read_exr
+from validation import convergence, crossval
 
 ROOT = Path(__file__).resolve().parent.parent
 TRANSFORMS = ROOT / "scenes" / "transforms.txt"
@@ -213,7 +213,7 @@ def evt_slopes(paths: list[Path]) -> list[dict]:
     size = 12 if SCALAR_FALLBACK else 32
     spps = {"whitted": [1, 4, 16], "path": [4, 16, 64]} if SCALAR_FALLBACK else \
         {"whitted": [1, 4, 16, 64], "path": [4, 16, 64, 256]}
-    return error_vs_time.measure(paths, size, spps, 256 if SCALAR_FALLBACK else 2048, progress=lambda _: None)["slopes"]
+    return convergence.measure(paths, size, spps, 256 if SCALAR_FALLBACK else 2048, progress=lambda _: None)["slopes"]
 
 
 def test_error_vs_time_slopes_are_monte_carlo(variant_rgb, monkeypatch):
@@ -222,8 +222,8 @@ def test_error_vs_time_slopes_are_monte_carlo(variant_rgb, monkeypatch):
     paths = [ROOT / "scenes" / "mirrors.txt", ROOT / "scenes" / "lamps.txt"]
     for s in evt_slopes(paths):  # (the slope per second depends on the machine's load: reported only)
         assert -1.3 <= s["spp_slope"] <= -0.7, s
-    original = error_vs_time.render_timed
-    monkeypatch.setattr(error_vs_time, "render_timed",
+    original = convergence.render_timed
+    monkeypatch.setattr(convergence, "render_timed",
                         lambda path, size, spp, seed, options: original(path, size, 1, seed, options))
     assert all(not -1.3 <= s["spp_slope"] <= -0.7 for s in evt_slopes(paths[:1]))
 

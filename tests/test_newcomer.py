@@ -14,10 +14,11 @@ import numpy as np
 import pytest
 
 from core.errors import SceneError
+from course import root as course_root
 from helpers import MAX_BAD_FRACTION, bad_fraction, encode
 
 ROOT = Path(__file__).resolve().parent.parent
-COURSE_DATA = ROOT.parent / "shared" / "course" / "data"
+COURSE_SCENES = course_root() / "data"
 
 
 def _system_python() -> Path:
@@ -65,7 +66,7 @@ def test_readme_commands_in_a_fresh_shell(fresh_shell, tmp_path):
     """`python render.py scene06 --variant scalar_rgb`, `python -m converters`,
     `python -m denoise.export` and `python -m denoise` as the README writes them,
     with the system Python first on PATH (tiny sizes)."""
-    if COURSE_DATA.is_dir():
+    if COURSE_SCENES.is_dir():
         result = fresh_shell("python", "render.py", "scene06", "--variant", "scalar_rgb", "-size", "16", "16",
                              "--out", str(tmp_path / "out"))
         assert result.returncode == 0, result.stderr
@@ -218,14 +219,14 @@ def test_converter_writes_the_render_flags(variant_scalar_rgb, tmp_path):
     assert main([str(ROOT / "scenes" / "transforms.txt"), "-o", str(target), "-size", "32", "24", "-bounces",
                  "2", "-shadows", "-jitter"]) == 0
     values = _xml_values(target)
-    assert values["integrator.max_depth"] == "2" and values["integrator.shadows"] == "true"
+    assert values["integrator.bounces"] == "2" and values["integrator.shadows"] == "true"
     assert (values["film.width"], values["film.height"]) == ("32", "24")
     assert values["sampler.sample_count"] == "16" and values["sensor.pixel_centers"] == "false"
     assert main([str(ROOT / "scenes" / "transforms.txt"), "-o", str(target), "-size", "32", "24", "-filter"]) == 0
     assert (_xml_values(target)["film.width"], _xml_values(target)["film.height"]) == ("96", "72")
     # the scene's header fills in what the command line leaves out
     assert main([str(ROOT / "scenes" / "mirrors.txt"), "-o", str(target)]) == 0
-    assert _xml_values(target)["integrator.max_depth"] == "4"
+    assert _xml_values(target)["integrator.bounces"] == "4"
 
 
 def _render_xml(path: Path, seed: int = 0) -> np.ndarray:

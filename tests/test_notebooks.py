@@ -65,10 +65,10 @@ def test_a_figure_shown_as_text_is_caught():
 def test_the_notebook_asserts_catch_errors_that_do_not_converge():
     """The error-against-time notebook's own checks, on a tiny version: they
     pass as is, and fail when the error no longer falls with the sample count."""
-    shrink = ("from pathlib import Path\nimport benchmarks.crossval as cv, benchmarks.error_vs_time as evt\n"
+    shrink = ("from pathlib import Path\nimport validation.crossval as cv, validation.convergence as convergence\n"
               "cv.scene_paths = lambda course, quick: [Path('scenes/lamps.txt')]\n"
-              "evt.settings = lambda quick: (16, {'whitted': [1, 4, 16], 'path': [1, 4, 16]}, 256)\n")
-    for broken, expected in (("", []), ("evt.relmse = lambda image, reference: 0.01\n", ["AssertionError"])):
+              "convergence.settings = lambda quick: (16, {'whitted': [1, 4, 16], 'path': [1, 4, 16]}, 256)\n")
+    for broken, expected in (("", []), ("convergence.relmse = lambda image, reference: 0.01\n", ["AssertionError"])):
         notebook = build.make("error_vs_time")
         notebook.cells.insert(2, new_code_cell(shrink + broken))
         found = build.problems(build.execute(notebook, quick=True, timeout=600))

@@ -45,7 +45,7 @@ def _xml_differences(fresh: Path, committed: Path) -> list[str]:
             return
         for key, value in a.attrib.items():
             other = b.attrib[key]
-            if a.attrib.get("name") == "filename" and key == "value":
+            if a.attrib.get("name") in ("filename", "folder") and key == "value":
                 value = str((fresh.parent / value).resolve()).replace(str(fresh.parent), str(committed.parent))
                 other = str((committed.parent / other).resolve())
                 if value != other:

@@ -9,7 +9,7 @@ import pytest
 from converters.course_scene import load_scene
 from helpers import MAX_BAD_FRACTION, bad_fraction, encode, render_layers
 from imaging.colour import depth_to_grey, normals_to_rgb
-from benchmarks.reference_tracer import ReferenceTracer
+from validation.reference_tracer import ReferenceTracer
 
 SCENES = sorted((Path(__file__).resolve().parent.parent / "scenes").glob("*.txt"))
 FLAGS = dict(bounces=3, shadows=True)

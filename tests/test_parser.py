@@ -4,11 +4,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from converters import transforms
 from converters.course_scene import load_scene, parse_scene
-from converters.errors import SceneError
 from converters.model import DirectionalLight, Plane, PointLight, Sphere, Triangle, TriangleMesh
 from converters.obj import read_obj
-from converters import transforms
+from core.errors import SceneError
 
 HEADER = """
 PerspectiveCamera { center 0 0 10 direction 0 0 -1 up 0 1 0 angle 30 }

@@ -23,13 +23,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from benchmarks.stress import scaled
-from benchmarks.stress_cases import DEFAULTS, scene as scene_text
 from converters.course_scene import parse_scene
 from converters.description import RenderOptions, scene_dict
 from converters.to_mitsuba import load_scene_dict
 from helpers import MAX_BAD_FRACTION, bad_fraction, encode
 from renderer.job import RenderJob, render, render_in_launches
+from validation.stress import scaled
+from validation.stress_cases import DEFAULTS, scene as scene_text
 
 ROOT = Path(__file__).resolve().parent.parent
 SIZE = (96, 72)

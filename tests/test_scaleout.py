@@ -174,11 +174,14 @@ def test_dataset_of_two_specs_and_the_cli(tmp_path, capsys):
 
 @pytest.mark.slow
 def test_scaleout_benchmark_reports_its_figures(tmp_path):
-    from benchmarks.scaleout import main
+    import subprocess
+    import sys
 
     path = tmp_path / "scaleout.json"
-    assert main(["--json", str(path), "--frames", "1", "--size", "16", "12", "--reference-spp", "4",
-                 "--batch-spp", "1"]) == 0
+    finished = subprocess.run([sys.executable, "-m", "benchmarks.scaleout", "--json", str(path), "--frames", "1",
+                               "--size", "16", "12", "--reference-spp", "4", "--batch-spp", "1"],
+                              cwd=Path(__file__).resolve().parent.parent, capture_output=True, text=True, timeout=1800)
+    assert finished.returncode == 0, finished.stderr[-3000:]
     result = json.loads(path.read_text())
     assert result["identical"] is True
     assert result["tasks"] == 2 * (1 + 4)

@@ -3,9 +3,9 @@ from __future__ import annotations
 
 import pytest
 
-from benchmarks.stress import fuzz, run_case
-from benchmarks.stress_cases import all_cases
-from benchmarks.stress_denoise import denoise_cases
+from validation.stress import fuzz, run_case
+from validation.stress_cases import all_cases
+from validation.stress_denoise import denoise_cases
 
 CASES = [c for c in all_cases() if c.fast]
 DENOISE_CASES = [c for c in denoise_cases() if c.fast]
@@ -35,7 +35,7 @@ def test_fuzzer_finds_only_located_scene_errors():
 def test_a_case_can_fail(variant_llvm_ad_rgb):
     """The checks bite: an error case whose scene is fine fails, and so does a
     render case whose 'equivalent' differs."""
-    from benchmarks.stress_cases import Case, scene
+    from validation.stress_cases import Case, scene
 
     assert not run_case(Case("not an error", scene(), "error", expect="anything"))[0]
     assert not run_case(Case("wrong equivalent", scene(), "render", match=scene(angle="60")))[0]

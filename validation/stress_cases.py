@@ -193,6 +193,6 @@ def error_cases() -> list[Case]:
 
 
 def all_cases() -> list[Case]:
-    from benchmarks.stress_cases_inputs import all_input_cases  # inputs, CLI, files, batches (issue 14)
-    from benchmarks.stress_cases_scale import scale_cases  # far lights and objects, many lights (issue 14)
+    from validation.stress_cases_inputs import all_input_cases  # inputs, CLI, files, batches (issue 14)
+    from validation.stress_cases_scale import scale_cases  # far lights and objects, many lights (issue 14)
     return render_cases() + error_cases() + scale_cases() + all_input_cases()

@@ -3,8 +3,9 @@
 Independent of Mitsuba and of our plugins: it follows the course's README
 (camera, Phong, falloff, shadows, mirror recursion, cube map, normal and depth
 images) the way the course's C++ solution does it, in float64, brute force
-over all primitives. Only the scene parser (tested on its own) and the
-secondary-ray epsilon are shared with the code under test.
+over all primitives. Shared with the code under test: the scene parser
+(tested on its own), the secondary-ray epsilon and the camera basis (one
+place, ``mi_plugins/camera_basis.py``; the course's own images check it).
 """
 from __future__ import annotations
 
@@ -15,6 +16,7 @@ import numpy as np
 from converters.model import DirectionalLight, Plane, Scene, Sphere, Triangle, TriangleMesh
 from converters.description import ray_epsilons
 from imaging.image_io import CUBE_FACES as FACES, read_png
+from mi_plugins.camera_basis import course_camera_basis
 
 
 def normalize(v: np.ndarray) -> np.ndarray:
@@ -42,13 +44,11 @@ class ReferenceTracer:
     # -- camera ---------------------------------------------------------------
     def camera_rays(self, width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
         cam = self.scene.camera
-        d = normalize(np.asarray(cam.direction, np.float64))
-        up = np.asarray(cam.up, np.float64)
-        h = normalize(np.cross(d, up))
+        basis = course_camera_basis(cam.direction, cam.up, cam.angle)
         xs = 2 * np.arange(width) / (width - 1) - 1 if width > 1 else np.zeros(1)
         ys = 1 - 2 * np.arange(height) / (height - 1) if height > 1 else np.zeros(1)
         x, y = np.meshgrid(xs, ys)
-        dirs = normalize(d / np.tan(np.radians(cam.angle) / 2) + x[..., None] * h + y[..., None] * up)
+        dirs = normalize(basis.forward + x[..., None] * basis.horizontal + y[..., None] * basis.up)
         origins = np.broadcast_to(np.asarray(cam.center, np.float64), dirs.shape)
         return origins.reshape(-1, 3), dirs.reshape(-1, 3)
 

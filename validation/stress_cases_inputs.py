@@ -2,7 +2,7 @@
 
 Two kinds:
 
-- :class:`~benchmarks.stress_cases.Case` scenes: numbers that are legal text
+- :class:`~validation.stress_cases.Case` scenes: numbers that are legal text
   but not float32 values (or give non-finite derived values), negative
   shininess, deep nesting, damaged and non-square cube-map faces: each must be
   one located ``file:line:col`` error; deep but allowed nesting must render
@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks.stress_cases import DEFAULTS, Case, material, scene
+from validation.stress_cases import DEFAULTS, Case, material, scene
 
 
 def run_render_cli(folder: Path, argv: list[str]) -> tuple[int, str]:

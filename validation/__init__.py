@@ -1,0 +1,12 @@
+"""Validation: the checks the tests and the benchmarks share.
+
+- :mod:`validation.metrics`: relMSE, FLIP, the course's "pixels off by > N/255";
+- :mod:`validation.reference_tracer`: the course's semantics in NumPy (the tests' oracle);
+- :mod:`validation.crossval`: the phong BSDF's chi-square and furnace tests, whitted
+  against Mitsuba's path tracer (z-scores per tile);
+- :mod:`validation.convergence`: relMSE against spp and time (Monte Carlo rate);
+- :mod:`validation.course_images`: the course's reference images and their regression bar;
+- :mod:`validation.stress`, ``stress_cases*``, ``stress_denoise``: named stress cases and fuzzers.
+
+``benchmarks/`` runs them at full size, times them and writes the reports.
+"""
