@@ -151,6 +151,18 @@ def _coefficients(p: EdgeWeights, sigma_color: float) -> tuple[float, float, flo
     return _inv_two_sigma_sq(sigma_color), _inv_two_sigma_sq(p.sigma_normal), _inv_two_sigma_sq(p.sigma_plane)
 
 
+#: floats per pixel of the packed guides: a power of two, so a tap reads them in one packet gather
+GUIDE_FLOATS = 8
+
+
+def pack_guides(normal: mi.Vector3f, position: mi.Vector3f) -> mi.Float:
+    """Normal and position per pixel as consecutive 8-float records."""
+    zero = dr.zeros(mi.Float, dr.width(normal))
+    packed = dr.ravel(mi.ArrayXf(normal.x, normal.y, normal.z, position.x, position.y, position.z, zero, zero))
+    dr.eval(packed)
+    return packed
+
+
 class Frame:
     """One frame's buffers as flat Dr.Jit arrays (colour, normal, position).
 
@@ -164,8 +176,9 @@ class Frame:
         self.normal = _safe_normalize(dr.unravel(mi.Vector3f, normal.array))
         q = dr.unravel(mi.Vector3f, position.array)
         self.position = dr.select(dr.isfinite(q), q, 0.0)
-        # neighbours are read as one aligned 4-float record each (a packet gather)
-        self.normal4, self.position4 = pack(self.normal), pack(self.position)
+        # a neighbour's guides are one 8-float record (normal, position, 2 floats
+        # of padding), read with one packet gather per tap instead of two
+        self.guides = pack_guides(self.normal, self.position)
         index = dr.arange(mi.UInt32, self.width * self.height)
         self.x = mi.Int32(index % self.width)
         self.y = mi.Int32(index // self.width)
@@ -178,6 +191,13 @@ class Frame:
         y = dr.clip(y, 0, self.height - 1)
         v = dr.gather(mi.Vector4f, packed, mi.UInt32(y * self.width + x))
         return mi.Vector3f(v.x, v.y, v.z)
+
+    def gather_guides(self, x: mi.Int32, y: mi.Int32) -> tuple[mi.Vector3f, mi.Vector3f]:
+        """(normal, position) at (x, y) clamped to the image, as :meth:`gather`."""
+        x = dr.clip(x, 0, self.width - 1)
+        y = dr.clip(y, 0, self.height - 1)
+        g = dr.gather(mi.ArrayXf, self.guides, mi.UInt32(y * self.width + x), shape=(GUIDE_FLOATS, dr.width(x)))
+        return mi.Vector3f(g[0], g[1], g[2]), mi.Vector3f(g[3], g[4], g[5])
 
     def tensor(self, color: mi.Vector3f) -> mi.TensorXf:
         return mi.TensorXf(dr.ravel(color), shape=(self.height, self.width, 3))
@@ -202,8 +222,7 @@ def joint_bilateral(frame: Frame, p: EdgeWeights = EdgeWeights(), window: Bilate
         color_j = frame.gather(color4, x, y, inside)
         log_w = (mi.Float(dx * dx + dy * dy) * k_coord
                  + edge_log_weight(coefficients, frame.color, frame.normal, frame.position, color_j,
-                                   frame.gather(frame.normal4, x, y, inside),
-                                   frame.gather(frame.position4, x, y, inside)))
+                                   *frame.gather_guides(x, y)))
         w = dr.select(inside, neg_exp(log_w), 0.0)
         total += w * color_j
         weights += w
@@ -232,8 +251,7 @@ def atrous(frame: Frame, p: EdgeWeights = EdgeWeights(), levels: AtrousLevels | 
                     w = mi.Float(hx * hy)
                 else:
                     log_w = edge_log_weight(coefficients, color, frame.normal, frame.position, color_j,
-                                            frame.gather(frame.normal4, x, y, inside),
-                                            frame.gather(frame.position4, x, y, inside))
+                                            *frame.gather_guides(x, y))
                     w = dr.select(inside, hx * hy * neg_exp(log_w), 0.0)
                 total += w * color_j
                 weights += w

@@ -131,8 +131,7 @@ def estimate_variance(frame: Frame, moments: mi.Vector2f, length: mi.Float, p: S
             if dx == 0 and dy == 0:
                 w = mi.Float(1.0)
             else:
-                n_q = frame.gather(frame.normal4, x, y, inside)
-                x_q = frame.gather(frame.position4, x, y, inside)
+                n_q, x_q = frame.gather_guides(x, y)
                 w = normal_power(dr.dot(normal, n_q), p.sigma_normal) * neg_exp(
                     plane_log_weight(k_plane, normal, position, x_q))
                 w = dr.select(inside, w, 0.0)
@@ -174,8 +173,7 @@ def atrous_level(frame: Frame, color: mi.Vector3f, variance: mi.Float, step: int
             if dx == 0 and dy == 0:
                 w = mi.Float(hx * hy)
             else:
-                n_q = frame.gather(frame.normal4, x, y, inside)
-                x_q = frame.gather(frame.position4, x, y, inside)
+                n_q, x_q = frame.gather_guides(x, y)
                 log_w = dr.abs(lum_p - luminance(c_q)) * scale - plane_log_weight(
                     k_plane, frame.normal, frame.position, x_q)
                 w = hx * hy * normal_power(dr.dot(frame.normal, n_q), p.sigma_normal) * neg_exp(-log_w)
