@@ -11,7 +11,9 @@ Per frame, on the (demodulated) colour ``c`` with luminance ``l``:
    history is shorter than ``variance_frames`` (4) frames, from moments
    averaged over a 7x7 neighbourhood with the normal and plane weights
    instead, boosted by ``4/n`` (as the authors' code does).
-3. **À-Trous levels** (5x5 B3 kernel, holes 2^i), each tap weighted by
+3. **À-Trous levels** (5x5 B3 kernel, holes 2^i; by default as many as keep
+   the paper's footprint, 5 levels or ±62 pixels at 1280 pixels wide, the
+   same fraction of the image: see :func:`levels_for`), each tap weighted by
    ``exp(-|l_p - l_q| / (sigma_luminance · sqrt(g(var)_p) + ε))`` (``g``: the
    3x3 Gaussian blur of the variance), ``max(0, n_p·n_q)^sigma_normal`` and the
    assignment's plane weight ``exp(-(n_p · (x_q - x_p)/|x_q - x_p|)² / (2 sigma_plane²))``;
@@ -23,6 +25,7 @@ tap, the normal and position as packed records made once per frame.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import drjit as dr
@@ -37,7 +40,7 @@ EPSILON = 1e-10
 @dataclass(frozen=True)
 class SVGFParams:
     """SVGF's parameters, with the paper's defaults."""
-    levels: int = 5
+    levels: int | None = None  # None: levels_for(width), the paper's 5 at 1280 pixels wide
     sigma_luminance: float = 4.0
     sigma_normal: float = 128.0  # exponent of max(0, n·n')
     sigma_plane: float = 0.1
@@ -48,7 +51,8 @@ class SVGFParams:
     feedback_level: int = 0  # the level whose output becomes the next frame's history
 
     def __post_init__(self):
-        _whole("svgf", "levels", self.levels, 1, 12)
+        if self.levels is not None:
+            _whole("svgf", "levels", self.levels, 1, 12)
         _positive("svgf", sigma_luminance=self.sigma_luminance, sigma_normal=self.sigma_normal,
                   sigma_plane=self.sigma_plane)
         for name in ("alpha_color", "alpha_moments"):
@@ -59,7 +63,20 @@ class SVGFParams:
                 raise UsageError(f"svgf: {name} must be in (0, 1], got {value!r}")
         _whole("svgf", "variance_frames", self.variance_frames, 1, 64)
         _whole("svgf", "spatial_radius", self.spatial_radius, 1, 16)
-        _whole("svgf", "feedback_level", self.feedback_level, 0, self.levels - 1)
+        _whole("svgf", "feedback_level", self.feedback_level, 0, (self.levels or 12) - 1)
+
+
+#: the paper's setting: 5 levels on 1280x720 frames
+PAPER_LEVELS, PAPER_WIDTH = 5, 1280
+
+
+def levels_for(width: int) -> int:
+    """À-Trous levels whose footprint is the same fraction of the image as the
+    paper's 5 levels at 1280 pixels wide: one level fewer per halving of the
+    width (3 at 320 wide). A footprint fixed in pixels reaches across a small
+    image's shadows and silhouettes: on dolly_lamps at 160x90, 5 levels gave
+    a last-frame relMSE of 0.0154 and 2 levels 0.0105."""
+    return max(1, min(12, PAPER_LEVELS + round(math.log2(width / PAPER_WIDTH))))
 
 
 @dataclass
@@ -193,9 +210,10 @@ def svgf(frame: Frame, p: SVGFParams, history: SVGFHistory | None = None, index:
     dr.eval(color, moments, length)
     variance = estimate_variance(frame, moments, length, p)
     feedback = color
-    for level in range(p.levels):
+    levels = p.levels if p.levels is not None else levels_for(frame.width)
+    for level in range(levels):
         color, variance = atrous_level(frame, color, variance, 1 << level, p)
         dr.eval(color, variance)
-        if level == p.feedback_level:
+        if level == min(p.feedback_level, levels - 1):
             feedback = color
     return frame.tensor(color), SVGFHistory(feedback, moments, length), variance
