@@ -12,7 +12,9 @@ assignment's ``bilateral``, ``atrous``, ``bilateral+temporal``,
 (albedo demodulation and outlier removal around the assignment's filter) and
 ``svgf``, and Intel Open Image Denoise (HDR mode, albedo and normals as clean
 auxiliary images, one committed filter per sequence) alone (``oidn``) and
-after our temporal accumulation (``oidn+temporal``). Per frame: relMSE and
+after our temporal accumulation (``oidn+temporal``), and ``oidn-guided`` (the
+accumulation's history clamped to the neighbourhood of OIDN's output on the
+frame alone, then OIDN on the accumulated input). Per frame: relMSE and
 FLIP against the ground truth, milliseconds, and ``temporal``: the relMSE
 between the output and the previous output back-projected onto it.
 
@@ -48,7 +50,7 @@ from benchmarks.error_vs_time import flip_error
 
 SEQUENCES = sorted((ROOT / "scenes" / "sequences").glob("*.json"))
 METHODS = ("raw", "bilateral", "atrous", "bilateral+temporal", "atrous+temporal", "demod+outliers+atrous+temporal",
-           "svgf", "oidn", "oidn+temporal")
+           "svgf", "oidn", "oidn+temporal", "oidn-guided")
 #: the hard sequence: the README's still and video
 HARD = "glossy_shadow"
 STILL_METHODS = ("raw", "atrous+temporal", "svgf", "oidn")

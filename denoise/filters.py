@@ -349,14 +349,15 @@ def clamp_box(color: mi.TensorXf, radius: int = 3) -> tuple[mi.Vector3f, mi.Vect
 
 
 def accumulate(current: mi.TensorXf, previous: mi.TensorXf | None, index: mi.UInt32 | None, valid: mi.Bool | None,
-               p: TemporalParams = TemporalParams()) -> mi.TensorXf:
+               p: TemporalParams = TemporalParams(), bounds: mi.TensorXf | None = None) -> mi.TensorXf:
     """``α·C_i + (1-α)·clamp(C̄_{i-1})`` with the history clamped to mean ± k·σ of
-    the current neighbourhood; α = 1 where the history is invalid."""
+    the current neighbourhood (of ``bounds`` where given: an estimate of the
+    current frame less noisy than ``current``); α = 1 where the history is invalid."""
     c = dr.unravel(mi.Vector3f, current.array)
     if previous is None:
         return current
     history = dr.gather(mi.Vector3f, dr.unravel(mi.Vector3f, previous.array), index, valid)
-    mean, sigma = clamp_box(current, p.clamp_radius)
+    mean, sigma = clamp_box(current if bounds is None else bounds, p.clamp_radius)
     history = dr.clip(history, mean - p.k * sigma, mean + p.k * sigma)
     alpha = dr.select(valid & dr.all(dr.isfinite(history)), p.alpha, 1.0)
     out = alpha * c + (1.0 - alpha) * history

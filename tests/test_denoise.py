@@ -76,14 +76,14 @@ def np_atrous(c, n, x, levels, sc, sn, sp):
     return c
 
 
-def np_accumulate(current, previous, index, valid, alpha, k, r):
+def np_accumulate(current, previous, index, valid, alpha, k, r, bounds=None):
     h, w = current.shape[:2]
     flat = previous.reshape(-1, 3)
     history = np.where(valid.reshape(h, w, 1), flat[index].reshape(h, w, 3), 0)
     mean, count, square = np.zeros_like(current), np.zeros((h, w, 1)), np.zeros_like(current)
     for dy in range(-r, r + 1):
         for dx in range(-r, r + 1):
-            cj, inside = shifted(current, dx, dy)
+            cj, inside = shifted(current if bounds is None else bounds, dx, dy)
             mean += np.where(inside[..., None], cj, 0)
             square += np.where(inside[..., None], cj * cj, 0)
             count += inside[..., None]
@@ -154,6 +154,12 @@ def test_accumulate_matches_numpy(variant_llvm_ad_rgb, buffers):
     ours = np.array(accumulate(current, prev, mi.UInt32(index.astype(np.uint32)), mi.Bool(valid),
                                TemporalParams(alpha=0.2, k=1.0, clamp_radius=3)))
     assert close(ours, np_accumulate(c, previous, index, valid, 0.2, 1.0, 3)) < 1e-4
+    # the clamp's neighbourhood taken from another image (oidn-guided's guide)
+    guide = c * 0.5 + 0.05
+    ours = np.array(accumulate(current, prev, mi.UInt32(index.astype(np.uint32)), mi.Bool(valid),
+                               TemporalParams(alpha=0.5, k=1.0, clamp_radius=1), bounds=tensors(guide)[0]))
+    assert close(ours, np_accumulate(c, previous, index, valid, 0.5, 1.0, 1, bounds=guide)) < 1e-4
+    assert close(ours, np_accumulate(c, previous, index, valid, 0.5, 1.0, 1)) > 1e-2  # the bounds matter
 
 
 def test_screen_matrix_and_static_reprojection(variant_llvm_ad_rgb, buffers):
