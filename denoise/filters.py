@@ -163,8 +163,10 @@ def pack_guides(normal: mi.Vector3f, position: mi.Vector3f) -> mi.Float:
     return packed
 
 
-class Frame:
-    """One frame's buffers as flat Dr.Jit arrays (colour, normal, position).
+class FrameArrays:
+    """One frame's buffers as flat Dr.Jit arrays (colour, normal, position),
+    uploaded once per frame; :class:`denoise.frames.FrameData` is the same
+    frame as NumPy arrays, as read from its folder.
 
     Non-finite colours become 0 and normals are normalised (zero-length ones
     stay 0), so no NaN can spread through the weights."""
@@ -204,7 +206,7 @@ class Frame:
 
 
 @dr.syntax
-def joint_bilateral(frame: Frame, p: EdgeWeights = EdgeWeights(), window: BilateralWindow = BilateralWindow()
+def joint_bilateral(frame: FrameArrays, p: EdgeWeights = EdgeWeights(), window: BilateralWindow = BilateralWindow()
                     ) -> mi.TensorXf:
     """The assignment's joint bilateral filter over a (2r+1)^2 window."""
     r = window.radius
@@ -230,7 +232,7 @@ def joint_bilateral(frame: Frame, p: EdgeWeights = EdgeWeights(), window: Bilate
     return frame.tensor(total / weights)
 
 
-def atrous(frame: Frame, p: EdgeWeights = EdgeWeights(), levels: AtrousLevels | int = AtrousLevels()) -> mi.TensorXf:
+def atrous(frame: FrameArrays, p: EdgeWeights = EdgeWeights(), levels: AtrousLevels | int = AtrousLevels()) -> mi.TensorXf:
     """The À-Trous wavelet: ``levels`` passes of a 5x5 B3-spline kernel with
     holes (step 2^i), each with the bilateral edge-stopping weights; the
     colour sigma halves from one level to the next."""

@@ -33,8 +33,8 @@ from tqdm import tqdm
 from core.errors import FrameError, UsageError
 from imaging.image_io import write_exr
 
-from .filters import (AtrousLevels, BilateralWindow, EdgeWeights, Frame, OutlierParams, TemporalParams, accumulate,
-                      atrous, demodulate, joint_bilateral, remodulate, remove_outliers, reproject)
+from .filters import (AtrousLevels, BilateralWindow, EdgeWeights, FrameArrays, OutlierParams, TemporalParams,
+                      accumulate, atrous, demodulate, joint_bilateral, remodulate, remove_outliers, reproject)
 from .frames import FrameData, frame_indices, read_frame
 from .oidn import OIDNParams
 from .svgf import SVGFParams, svgf
@@ -97,6 +97,7 @@ class Denoiser:
 
             self.oidn = OIDN(options.oidn)
         self.last_execute_s = 0.0  # OIDN's execute time of the last frame (both runs for oidn-guided)
+        self.last_execute_cpu_s = 0.0  # the same as this process's CPU time (all threads)
 
     def _oidn(self, color, frame: FrameData):
         """OIDN on ``color`` with the frame's albedo and normals; adds its execute time."""
@@ -105,9 +106,10 @@ class Denoiser:
         import mitsuba as mi
 
         self.oidn.set_inputs(np.array(color, np.float32), frame.albedo, frame.normal)
-        start = time.perf_counter()
+        start, cpu = time.perf_counter(), time.process_time()
         self.oidn.execute()
         self.last_execute_s += time.perf_counter() - start
+        self.last_execute_cpu_s += time.process_time() - cpu
         return mi.TensorXf(self.oidn.output())
 
     def step(self, frame: FrameData) -> np.ndarray:
@@ -134,18 +136,18 @@ class Denoiser:
         if o.temporal and self.previous is not None:
             index, valid = reproject(position, ids, self.previous_ids, frame.object_to_world,
                                      self.previous.object_to_world, self.previous.world_to_screen)
-        buffers = Frame(color, tensor(frame.normal), position)
+        buffers = FrameArrays(color, tensor(frame.normal), position)
         if o.method == "svgf":
             result, self.history, _ = svgf(buffers, o.svgf, self.history if index is not None else None, index, valid)
         elif o.method == "oidn":
-            self.last_execute_s = 0.0
+            self.last_execute_s = self.last_execute_cpu_s = 0.0
             accumulated = color
             if index is not None:
                 accumulated = accumulate(color, self.history, index, valid, o.oidn_temporal)
             self.history = accumulated
             result = self._oidn(accumulated, frame)
         elif o.method == "oidn-guided":
-            self.last_execute_s = 0.0
+            self.last_execute_s = self.last_execute_cpu_s = 0.0
             accumulated = color
             if index is not None:
                 guide = self._oidn(color, frame)

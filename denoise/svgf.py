@@ -31,7 +31,7 @@ from dataclasses import dataclass
 import drjit as dr
 import mitsuba as mi
 
-from .filters import B3, Frame, _inv_two_sigma_sq, _positive, _whole, luminance, neg_exp, plane_distance_sq
+from .filters import B3, FrameArrays, _inv_two_sigma_sq, _positive, _whole, luminance, neg_exp, plane_distance_sq
 
 GAUSS3 = (0.25, 0.5, 0.25)
 EPSILON = 1e-10
@@ -128,7 +128,7 @@ def temporal_accumulation(color: mi.Vector3f, history: SVGFHistory | None, index
     return integrated, moments, length
 
 
-def estimate_variance(frame: Frame, moments: mi.Vector2f, length: mi.Float, p: SVGFParams) -> mi.Float:
+def estimate_variance(frame: FrameArrays, moments: mi.Vector2f, length: mi.Float, p: SVGFParams) -> mi.Float:
     """Variance from the temporal moments, or from 7x7 spatial moments while
     the history is short. The spatial estimate runs only on the pixels that
     need it (compressed to a list: after the first frames, disocclusions)."""
@@ -168,7 +168,7 @@ def estimate_variance(frame: Frame, moments: mi.Vector2f, length: mi.Float, p: S
     return dr.select(length < p.variance_frames, spread, temporal)
 
 
-def atrous_level(frame: Frame, color: mi.Vector3f, variance: mi.Float, step: int, p: SVGFParams
+def atrous_level(frame: FrameArrays, color: mi.Vector3f, variance: mi.Float, step: int, p: SVGFParams
                  ) -> tuple[mi.Vector3f, mi.Float]:
     """One SVGF À-Trous level with holes ``step``."""
     packed = dr.ravel(mi.Vector4f(color.x, color.y, color.z, variance))
@@ -206,7 +206,7 @@ def atrous_level(frame: Frame, color: mi.Vector3f, variance: mi.Float, step: int
     return total / weights, total_var / (weights * weights)
 
 
-def svgf(frame: Frame, p: SVGFParams, history: SVGFHistory | None = None, index: mi.UInt32 | None = None,
+def svgf(frame: FrameArrays, p: SVGFParams, history: SVGFHistory | None = None, index: mi.UInt32 | None = None,
          valid: mi.Bool | None = None) -> tuple[mi.TensorXf, SVGFHistory, mi.Float]:
     """One frame of SVGF on ``frame.color``; ``index``/``valid`` are the back
     projection onto the frame that ``history`` belongs to. Returns (the

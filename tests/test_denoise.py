@@ -121,22 +121,22 @@ def close(ours, reference):
 
 # -- tests ---------------------------------------------------------------------------
 def test_joint_bilateral_matches_numpy(variant_llvm_ad_rgb, buffers):
-    from denoise.filters import BilateralWindow, EdgeWeights, Frame, joint_bilateral
+    from denoise.filters import BilateralWindow, EdgeWeights, FrameArrays, joint_bilateral
 
     c, n, x, _ = buffers
     p = EdgeWeights(sigma_color=0.6, sigma_normal=0.3, sigma_plane=0.3)
-    ours = np.array(joint_bilateral(Frame(*tensors(c, n, x)), p, BilateralWindow(radius=4, sigma_coord=3.0)))
+    ours = np.array(joint_bilateral(FrameArrays(*tensors(c, n, x)), p, BilateralWindow(radius=4, sigma_coord=3.0)))
     reference = np_bilateral(c, n, x, 4, 3.0, 0.6, 0.3, 0.3)
     assert close(ours, reference) < 1e-4
     assert np.abs(np.diff(ours, axis=1)).mean() < np.abs(np.diff(c, axis=1)).mean()  # it smooths
 
 
 def test_atrous_matches_numpy(variant_llvm_ad_rgb, buffers):
-    from denoise.filters import EdgeWeights, Frame, atrous
+    from denoise.filters import EdgeWeights, FrameArrays, atrous
 
     c, n, x, _ = buffers
     p = EdgeWeights(sigma_color=0.6, sigma_normal=0.3, sigma_plane=0.3)
-    ours = np.array(atrous(Frame(*tensors(c, n, x)), p, levels=3))
+    ours = np.array(atrous(FrameArrays(*tensors(c, n, x)), p, levels=3))
     assert close(ours, np_atrous(c, n, x, 3, 0.6, 0.3, 0.3)) < 1e-4
 
 
@@ -333,7 +333,8 @@ def test_denoise_command_and_benchmark_quick(variant_llvm_ad_rgb, tmp_path):
     sequence = results["sequences"][0]
     assert np.isfinite(sequence["reference_noise"]) and sequence["reference_noise"] > 0
     assert set(sequence["stability"]) == set(bench.METHODS)
-    assert set(results["timing"]["ms"]) == set(bench.TIMED)
+    assert set(results["timing"]["ms"]) == set(results["timing"]["cpu_ms"]) == set(bench.TIMED)
+    assert all(v > 0 for v in results["timing"]["cpu_ms"].values())
     last = {r["method"]: r["relmse"] for r in results["results"] if r["frame"] == 3}
     assert last["atrous+temporal"] < last["raw"] / 2  # it denoises
     folder = tmp_path / "work" / "glossy_shadow_96x54_16spp_quick"
@@ -347,6 +348,9 @@ def test_denoise_command_and_benchmark_quick(variant_llvm_ad_rgb, tmp_path):
 
     frames = imageio.mimread(video)
     assert len(frames) == 4 and frames[0].shape[1] == 3 * 96  # input | output | reference
+    # our OIDN-guided accumulation is a method of the command too
+    assert denoise_main([str(folder), str(tmp_path / "guided"), "--method", "oidn-guided"]) == 0
+    assert len(list((tmp_path / "guided").glob("result_*.exr"))) == 4
 
 
 @pytest.mark.parametrize("flags, message", [

@@ -105,10 +105,10 @@ def np_svgf(c, n, x, p, history=None, index=None, valid=None):
 def svgf_ours(c, n, x, p, history=None, index=None, valid=None):
     import mitsuba as mi
 
-    from denoise.filters import Frame
+    from denoise.filters import FrameArrays
     from denoise.svgf import svgf
 
-    frame = Frame(*tensors(c, n, x))
+    frame = FrameArrays(*tensors(c, n, x))
     if index is not None:
         index, valid = mi.UInt32(index.astype(np.uint32)), mi.Bool(valid)
     result, state, var = svgf(frame, p, history, index, valid)
