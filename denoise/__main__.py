@@ -22,6 +22,9 @@ EXAMPLE = """methods:
   svgf       spatiotemporal variance-guided filtering (Schied et al. 2017)
   oidn       Intel Open Image Denoise (HDR, albedo and normals); with temporal
              accumulation first unless --no-temporal
+  oidn-guided  OIDN on the input accumulated over time, its history clamped to
+             the neighbourhood of OIDN's output on the frame alone (two OIDN
+             runs per frame)
 bilateral and atrous blend each filtered frame with the back-projected,
 clamped previous result unless --no-temporal.
 
@@ -61,15 +64,16 @@ def _parser() -> argparse.ArgumentParser:
                        help=f"pixels (default {window.sigma_coord})")
     group = parser.add_argument_group("a-trous and svgf")
     group.add_argument("--levels", type=int, default=None,
-                       help=f"passes, 1..12 (default {levels.levels} for atrous, {svgf.levels} for svgf)")
-    group = parser.add_argument_group("temporal accumulation (bilateral, atrous, oidn)")
-    oidn_temporal = DenoiseOptions().oidn_temporal
+                       help=f"passes, 1..12 (default {levels.levels} for atrous; for svgf the paper's 5 at 1280 "
+                            "pixels wide, one fewer per halving of the width)")
+    group = parser.add_argument_group("temporal accumulation (bilateral, atrous, oidn, oidn-guided)")
+    oidn_temporal, oidn_guided = DenoiseOptions().oidn_temporal, DenoiseOptions().oidn_guided
     group.add_argument("--alpha", type=float, default=None,
                        help=f"weight of the current frame, in (0, 1] (default {temporal.alpha}; "
-                            f"{oidn_temporal.alpha} for oidn)")
+                            f"{oidn_temporal.alpha} for oidn, {oidn_guided.alpha} for oidn-guided)")
     group.add_argument("--k", type=float, default=None,
                        help=f"clamp the history to the 7x7 mean +- k sigma, k >= 0 (default {temporal.k}; "
-                            f"{oidn_temporal.k} for oidn)")
+                            f"{oidn_temporal.k} for oidn; oidn-guided: the guide's 3x3, {oidn_guided.k})")
     group = parser.add_argument_group("svgf")
     group.add_argument("--sigma-luminance", type=float, default=svgf.sigma_luminance,
                        help=f"luminance weight, in standard deviations (default {svgf.sigma_luminance})")
@@ -98,15 +102,16 @@ def options_from(args):
     window = BilateralWindow(args.radius, args.sigma_coord)
     atrous = AtrousLevels(args.levels if args.levels is not None else AtrousLevels().levels)
     defaults = DenoiseOptions()
-    base = defaults.oidn_temporal if args.method == "oidn" else defaults.temporal_params
+    base = {"oidn": defaults.oidn_temporal, "oidn-guided": defaults.oidn_guided}.get(args.method,
+                                                                                     defaults.temporal_params)
     temporal = TemporalParams(alpha=base.alpha if args.alpha is None else args.alpha,
-                              k=base.k if args.k is None else args.k)
+                              k=base.k if args.k is None else args.k, clamp_radius=base.clamp_radius)
     svgf = SVGFParams(sigma_luminance=args.sigma_luminance, sigma_normal=args.normal_exponent)
     if args.levels is not None:
         svgf = replace(svgf, levels=args.levels)
     return DenoiseOptions(
         method=args.method, temporal=not args.no_temporal, edges=edges, window=window, atrous=atrous,
-        temporal_params=temporal, oidn_temporal=temporal, svgf=svgf,
+        temporal_params=temporal, oidn_temporal=temporal, oidn_guided=temporal, svgf=svgf,
         outliers=OutlierParams(k=args.outliers) if args.outliers is not None else None,
         demodulate=args.demodulate or args.method == "svgf")
 
@@ -132,17 +137,18 @@ def _main(argv: list[str] | None) -> int:
     panels: list[list] = []
 
     def on_frame(index, frame, result):
-        from benchmarks.denoise import read_rgb, tone_map, write_png
+        from imaging.colour import tone_map
+        from imaging.image_io import read_exr_rgb, write_image
 
         if args.png:
-            write_png(args.target / f"result_{index}.png", tone_map(result))
+            write_image(args.target / f"result_{index}.png", tone_map(result))
         if args.video is not None:
             row = [frame.beauty, result]
             if args.reference is not None:
                 path = args.reference / f"beauty_{index}.exr"
                 if not path.exists():
                     raise FrameError(f"{path}: missing (the reference folder lacks frame {index})")
-                truth = read_rgb(path)
+                truth = read_exr_rgb(path)
                 if truth.shape != result.shape:
                     raise FrameError(f"{path}: {truth.shape[1]}x{truth.shape[0]} pixels, the frames have "
                                      f"{result.shape[1]}x{result.shape[0]}")
@@ -151,9 +157,10 @@ def _main(argv: list[str] | None) -> int:
 
     written = denoise_folder(args.source, args.target, options, on_frame)
     if args.video is not None:
-        from benchmarks.denoise import write_video
+        from imaging.colour import side_by_side
+        from imaging.image_io import write_video
 
-        write_video(args.video, [list(column) for column in zip(*panels)], fps=args.fps)
+        write_video(args.video, [side_by_side(row) for row in panels], fps=args.fps)
     extra = (" with PNG previews" if args.png else "") + (f", video {args.video}" if args.video else "")
     print(f"{len(written)} frames -> {args.target}{extra}")
     return 0

@@ -316,7 +316,8 @@ class Sequence:
                 "batch_spp": self.batch_spp, "batches": [spp for _, spp in self.batches()],
                 "noisy_integrator": "whitted" if self.whitted else "path", "gbuffer": "whitted AOVs at pixel centres",
                 "variant": self.variant, "versions": versions(), "render_threads": RENDER_THREADS,
-                "seeds": "sha256(key/frame/pass/batch) -> uint31; key = sha256 of this file's other settings"}
+                "seeds": "sha256(key/frame/pass/batch) -> uint31; key = sha256 of this file's other settings",
+                "scene_sha256": hashlib.sha256(Path(self.scene_path).read_bytes()).hexdigest()}
 
     @property
     def key(self) -> str:
@@ -325,6 +326,7 @@ class Sequence:
         settings.pop("versions")
         settings.pop("seeds")
         settings.pop("scene_file")  # the same scene moved elsewhere renders the same noise
+        settings.pop("scene_sha256")  # (recorded after the first folders were made: not part of their seeds)
         return hashlib.sha256(json.dumps(settings, sort_keys=True).encode()).hexdigest()
 
     def batches(self) -> list[tuple[str, int]]:
@@ -557,6 +559,16 @@ def _differences(old: dict, new: dict, prefix: str = "") -> list[str]:
     return found
 
 
+def _comparable(settings: dict, other: dict) -> dict:
+    """``settings`` as compared with ``other``: without the scene's path (a
+    checkout elsewhere, e.g. another git worktree, holds the same scene under
+    another path) but with its content's hash where both record one."""
+    settings = {k: v for k, v in settings.items() if k != "scene_file"}
+    if "scene_sha256" not in other:
+        settings.pop("scene_sha256", None)
+    return settings
+
+
 def claim_folder(sequence: Sequence, force: bool = False) -> None:
     """Checks that ``sequence`` may write into its folders (the same settings
     as before, or a fresh folder) and records its settings there."""
@@ -570,8 +582,8 @@ def claim_folder(sequence: Sequence, force: bool = False) -> None:
             old = json.loads(record.read_text())
         except json.JSONDecodeError:
             old = {"unreadable": True}
-        if old != settings:
-            changed = _differences(old, settings)
+        if _comparable(old, settings) != _comparable(settings, old):
+            changed = _differences(_comparable(old, settings), _comparable(settings, old))
             raise SpecError(f"{target}: made with other settings ({'; '.join(changed[:4])}"
                             f"{'; ...' if len(changed) > 4 else ''}); use --force to start over, or another folder")
     elif _our_files(sequence):

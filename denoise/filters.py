@@ -151,8 +151,22 @@ def _coefficients(p: EdgeWeights, sigma_color: float) -> tuple[float, float, flo
     return _inv_two_sigma_sq(sigma_color), _inv_two_sigma_sq(p.sigma_normal), _inv_two_sigma_sq(p.sigma_plane)
 
 
-class Frame:
-    """One frame's buffers as flat Dr.Jit arrays (colour, normal, position).
+#: floats per pixel of the packed guides: a power of two, so a tap reads them in one packet gather
+GUIDE_FLOATS = 8
+
+
+def pack_guides(normal: mi.Vector3f, position: mi.Vector3f) -> mi.Float:
+    """Normal and position per pixel as consecutive 8-float records."""
+    zero = dr.zeros(mi.Float, dr.width(normal))
+    packed = dr.ravel(mi.ArrayXf(normal.x, normal.y, normal.z, position.x, position.y, position.z, zero, zero))
+    dr.eval(packed)
+    return packed
+
+
+class FrameArrays:
+    """One frame's buffers as flat Dr.Jit arrays (colour, normal, position),
+    uploaded once per frame; :class:`denoise.frames.FrameData` is the same
+    frame as NumPy arrays, as read from its folder.
 
     Non-finite colours become 0 and normals are normalised (zero-length ones
     stay 0), so no NaN can spread through the weights."""
@@ -164,8 +178,9 @@ class Frame:
         self.normal = _safe_normalize(dr.unravel(mi.Vector3f, normal.array))
         q = dr.unravel(mi.Vector3f, position.array)
         self.position = dr.select(dr.isfinite(q), q, 0.0)
-        # neighbours are read as one aligned 4-float record each (a packet gather)
-        self.normal4, self.position4 = pack(self.normal), pack(self.position)
+        # a neighbour's guides are one 8-float record (normal, position, 2 floats
+        # of padding), read with one packet gather per tap instead of two
+        self.guides = pack_guides(self.normal, self.position)
         index = dr.arange(mi.UInt32, self.width * self.height)
         self.x = mi.Int32(index % self.width)
         self.y = mi.Int32(index // self.width)
@@ -179,12 +194,19 @@ class Frame:
         v = dr.gather(mi.Vector4f, packed, mi.UInt32(y * self.width + x))
         return mi.Vector3f(v.x, v.y, v.z)
 
+    def gather_guides(self, x: mi.Int32, y: mi.Int32) -> tuple[mi.Vector3f, mi.Vector3f]:
+        """(normal, position) at (x, y) clamped to the image, as :meth:`gather`."""
+        x = dr.clip(x, 0, self.width - 1)
+        y = dr.clip(y, 0, self.height - 1)
+        g = dr.gather(mi.ArrayXf, self.guides, mi.UInt32(y * self.width + x), shape=(GUIDE_FLOATS, dr.width(x)))
+        return mi.Vector3f(g[0], g[1], g[2]), mi.Vector3f(g[3], g[4], g[5])
+
     def tensor(self, color: mi.Vector3f) -> mi.TensorXf:
         return mi.TensorXf(dr.ravel(color), shape=(self.height, self.width, 3))
 
 
 @dr.syntax
-def joint_bilateral(frame: Frame, p: EdgeWeights = EdgeWeights(), window: BilateralWindow = BilateralWindow()
+def joint_bilateral(frame: FrameArrays, p: EdgeWeights = EdgeWeights(), window: BilateralWindow = BilateralWindow()
                     ) -> mi.TensorXf:
     """The assignment's joint bilateral filter over a (2r+1)^2 window."""
     r = window.radius
@@ -202,8 +224,7 @@ def joint_bilateral(frame: Frame, p: EdgeWeights = EdgeWeights(), window: Bilate
         color_j = frame.gather(color4, x, y, inside)
         log_w = (mi.Float(dx * dx + dy * dy) * k_coord
                  + edge_log_weight(coefficients, frame.color, frame.normal, frame.position, color_j,
-                                   frame.gather(frame.normal4, x, y, inside),
-                                   frame.gather(frame.position4, x, y, inside)))
+                                   *frame.gather_guides(x, y)))
         w = dr.select(inside, neg_exp(log_w), 0.0)
         total += w * color_j
         weights += w
@@ -211,7 +232,7 @@ def joint_bilateral(frame: Frame, p: EdgeWeights = EdgeWeights(), window: Bilate
     return frame.tensor(total / weights)
 
 
-def atrous(frame: Frame, p: EdgeWeights = EdgeWeights(), levels: AtrousLevels | int = AtrousLevels()) -> mi.TensorXf:
+def atrous(frame: FrameArrays, p: EdgeWeights = EdgeWeights(), levels: AtrousLevels | int = AtrousLevels()) -> mi.TensorXf:
     """The À-Trous wavelet: ``levels`` passes of a 5x5 B3-spline kernel with
     holes (step 2^i), each with the bilateral edge-stopping weights; the
     colour sigma halves from one level to the next."""
@@ -232,8 +253,7 @@ def atrous(frame: Frame, p: EdgeWeights = EdgeWeights(), levels: AtrousLevels | 
                     w = mi.Float(hx * hy)
                 else:
                     log_w = edge_log_weight(coefficients, color, frame.normal, frame.position, color_j,
-                                            frame.gather(frame.normal4, x, y, inside),
-                                            frame.gather(frame.position4, x, y, inside))
+                                            *frame.gather_guides(x, y))
                     w = dr.select(inside, hx * hy * neg_exp(log_w), 0.0)
                 total += w * color_j
                 weights += w
@@ -331,14 +351,15 @@ def clamp_box(color: mi.TensorXf, radius: int = 3) -> tuple[mi.Vector3f, mi.Vect
 
 
 def accumulate(current: mi.TensorXf, previous: mi.TensorXf | None, index: mi.UInt32 | None, valid: mi.Bool | None,
-               p: TemporalParams = TemporalParams()) -> mi.TensorXf:
+               p: TemporalParams = TemporalParams(), bounds: mi.TensorXf | None = None) -> mi.TensorXf:
     """``α·C_i + (1-α)·clamp(C̄_{i-1})`` with the history clamped to mean ± k·σ of
-    the current neighbourhood; α = 1 where the history is invalid."""
+    the current neighbourhood (of ``bounds`` where given: an estimate of the
+    current frame less noisy than ``current``); α = 1 where the history is invalid."""
     c = dr.unravel(mi.Vector3f, current.array)
     if previous is None:
         return current
     history = dr.gather(mi.Vector3f, dr.unravel(mi.Vector3f, previous.array), index, valid)
-    mean, sigma = clamp_box(current, p.clamp_radius)
+    mean, sigma = clamp_box(current if bounds is None else bounds, p.clamp_radius)
     history = dr.clip(history, mean - p.k * sigma, mean + p.k * sigma)
     alpha = dr.select(valid & dr.all(dr.isfinite(history)), p.alpha, 1.0)
     out = alpha * c + (1.0 - alpha) * history

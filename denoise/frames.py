@@ -47,6 +47,8 @@ BUFFERS = ("beauty", "normal", "position", "depth", "ID")
 
 @dataclass
 class FrameData:
+    """One frame as NumPy arrays, as stored in its folder; the denoiser uploads
+    it once per step into :class:`denoise.filters.FrameArrays`."""
     beauty: np.ndarray    # (H, W, 3)
     normal: np.ndarray    # (H, W, 3)
     position: np.ndarray  # (H, W, 3)

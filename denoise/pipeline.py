@@ -9,7 +9,14 @@ Methods (``DenoiseOptions.method``):
   off means no history);
 - ``oidn``: Intel Open Image Denoise (:mod:`denoise.oidn`); with
   ``temporal``, our back projection and clamped accumulation on the input
-  first, then OIDN on the accumulated colour (``oidn+temporal``).
+  first, then OIDN on the accumulated colour (``oidn+temporal``);
+- ``oidn-guided``: OIDN twice per frame. First on the frame alone: that
+  output (the guide) is a low-noise estimate of the current frame, whose 3x3
+  neighbourhood (mean ± kσ) clamps the back-projected history of the
+  accumulated input; then on the input accumulated with that clamped
+  history. A clamp from the 1-spp input's own neighbourhood is too wide to
+  stop a moving shadow or highlight from lagging (``oidn+temporal`` on
+  glossy_shadow); the guide's is tight.
 
 ``outliers`` clamps each pixel's luminance to its neighbourhood's mean ± kσ
 before filtering; ``demodulate`` filters ``beauty / albedo`` and multiplies
@@ -26,13 +33,15 @@ from tqdm import tqdm
 from core.errors import FrameError, UsageError
 from imaging.image_io import write_exr
 
-from .filters import (AtrousLevels, BilateralWindow, EdgeWeights, Frame, OutlierParams, TemporalParams, accumulate,
-                      atrous, demodulate, joint_bilateral, remodulate, remove_outliers, reproject)
+from .filters import (AtrousLevels, BilateralWindow, EdgeWeights, FrameArrays, OutlierParams, TemporalParams,
+                      accumulate, atrous, demodulate, joint_bilateral, remodulate, remove_outliers, reproject)
 from .frames import FrameData, frame_indices, read_frame
 from .oidn import OIDNParams
 from .svgf import SVGFParams, svgf
 
-METHODS = ("bilateral", "atrous", "svgf", "oidn")
+METHODS = ("bilateral", "atrous", "svgf", "oidn", "oidn-guided")
+#: methods that carry their own temporal accumulation
+TEMPORAL_BY_NATURE = ("svgf", "oidn-guided")
 
 
 @dataclass(frozen=True)
@@ -48,6 +57,9 @@ class DenoiseOptions:
     #: the accumulation before OIDN: a larger current weight and a looser clamp than after a
     #: spatial filter (chosen on dolly_lamps, frames 0-5: relMSE 0.0027 against 0.0053 with 0.2 and 1)
     oidn_temporal: TemporalParams = field(default_factory=lambda: TemporalParams(alpha=0.5, k=3.0))
+    #: oidn-guided's accumulation: the same current weight, the history clamped to the
+    #: guide's 3x3 mean ± 1σ (the usual TAA neighbourhood clamp)
+    oidn_guided: TemporalParams = field(default_factory=lambda: TemporalParams(alpha=0.5, k=1.0, clamp_radius=1))
     outliers: OutlierParams | None = None  # None: no outlier removal
     demodulate: bool = False
 
@@ -59,13 +71,14 @@ class DenoiseOptions:
 def parse_method(name: str) -> DenoiseOptions:
     """Options from a benchmark name: ``[demod+][outliers+]METHOD[+temporal]``,
     e.g. ``atrous+temporal``, ``oidn``, ``demod+outliers+atrous+temporal``;
-    ``svgf`` is temporal by nature (and demodulates when an albedo is there)."""
+    ``svgf`` and ``oidn-guided`` are temporal by nature (``svgf`` demodulates
+    when an albedo is there)."""
     parts = name.split("+")
     method = next((p for p in parts if p in METHODS), None)
     unknown = set(parts) - set(METHODS) - {"temporal", "demod", "outliers"}
     if method is None or unknown:
         raise UsageError(f"unknown method {name!r}")
-    temporal = "temporal" in parts or method == "svgf"
+    temporal = "temporal" in parts or method in TEMPORAL_BY_NATURE
     return DenoiseOptions(method=method, temporal=temporal, demodulate="demod" in parts or method == "svgf",
                           outliers=OutlierParams() if "outliers" in parts else None)
 
@@ -79,11 +92,25 @@ class Denoiser:
         self.previous_ids = None  # the previous frame's ids, uploaded once
         self.history = None  # the previous result (or SVGF's history, or the accumulated input for OIDN)
         self.oidn = None
-        if options.method == "oidn":
+        if options.method in ("oidn", "oidn-guided"):
             from .oidn import OIDN
 
             self.oidn = OIDN(options.oidn)
-        self.last_execute_s = 0.0  # OIDN's execute time of the last frame
+        self.last_execute_s = 0.0  # OIDN's execute time of the last frame (both runs for oidn-guided)
+        self.last_execute_cpu_s = 0.0  # the same as this process's CPU time (all threads)
+
+    def _oidn(self, color, frame: FrameData):
+        """OIDN on ``color`` with the frame's albedo and normals; adds its execute time."""
+        import time
+
+        import mitsuba as mi
+
+        self.oidn.set_inputs(np.array(color, np.float32), frame.albedo, frame.normal)
+        start, cpu = time.perf_counter(), time.process_time()
+        self.oidn.execute()
+        self.last_execute_s += time.perf_counter() - start
+        self.last_execute_cpu_s += time.process_time() - cpu
+        return mi.TensorXf(self.oidn.output())
 
     def step(self, frame: FrameData) -> np.ndarray:
         import drjit as dr
@@ -99,7 +126,8 @@ class Denoiser:
         color = tensor(frame.beauty)
         position = tensor(frame.position)
         ids = tensor(frame.ids)
-        albedo = tensor(frame.albedo) if (o.demodulate and frame.albedo is not None and o.method != "oidn") else None
+        albedo = (tensor(frame.albedo) if (o.demodulate and frame.albedo is not None and not o.method.startswith("oidn"))
+                  else None)
         if albedo is not None:
             color = demodulate(color, albedo)
         if o.outliers is not None:
@@ -108,21 +136,24 @@ class Denoiser:
         if o.temporal and self.previous is not None:
             index, valid = reproject(position, ids, self.previous_ids, frame.object_to_world,
                                      self.previous.object_to_world, self.previous.world_to_screen)
-        buffers = Frame(color, tensor(frame.normal), position)
+        buffers = FrameArrays(color, tensor(frame.normal), position)
         if o.method == "svgf":
             result, self.history, _ = svgf(buffers, o.svgf, self.history if index is not None else None, index, valid)
         elif o.method == "oidn":
+            self.last_execute_s = self.last_execute_cpu_s = 0.0
             accumulated = color
             if index is not None:
                 accumulated = accumulate(color, self.history, index, valid, o.oidn_temporal)
             self.history = accumulated
-            import time
-
-            self.oidn.set_inputs(np.array(accumulated, np.float32), frame.albedo, frame.normal)
-            start = time.perf_counter()
-            self.oidn.execute()
-            self.last_execute_s = time.perf_counter() - start
-            result = tensor(self.oidn.output())
+            result = self._oidn(accumulated, frame)
+        elif o.method == "oidn-guided":
+            self.last_execute_s = self.last_execute_cpu_s = 0.0
+            accumulated = color
+            if index is not None:
+                guide = self._oidn(color, frame)
+                accumulated = accumulate(color, self.history, index, valid, o.oidn_guided, bounds=guide)
+            self.history = accumulated
+            result = self._oidn(accumulated, frame)
         else:
             result = (atrous(buffers, o.edges, o.atrous) if o.method == "atrous"
                       else joint_bilateral(buffers, o.edges, o.window))

@@ -41,3 +41,22 @@ def depth_to_grey(depth: np.ndarray, near: float, far: float) -> np.ndarray:
         grey = np.clip((depth - near) / span, 0.0, 1.0)
     grey = np.where(depth > 0.0, np.nan_to_num(grey, nan=0.0), 0.0)
     return np.repeat(grey[..., None], 3, axis=-1) if grey.ndim == 2 else grey
+
+
+def tone_map(image: np.ndarray) -> np.ndarray:
+    """HDR to 8-bit sRGB for previews: Reinhard's extended operator (white 4) per
+    channel, then the sRGB transfer function (colour-science)."""
+    x = np.maximum(np.nan_to_num(np.asarray(image, np.float64)), 0.0)
+    return to_srgb_8bit(x * (1.0 + x / 16.0) / (1.0 + x))
+
+
+def side_by_side(images: list[np.ndarray], shrink: int = 1) -> np.ndarray:
+    """HDR images tone-mapped (:func:`tone_map`) and set side by side, each first
+    box-filtered down by ``shrink``."""
+    def small(image: np.ndarray) -> np.ndarray:
+        if shrink == 1:
+            return image
+        h, w = image.shape[0] // shrink, image.shape[1] // shrink
+        return image[: h * shrink, : w * shrink].reshape(h, shrink, w, shrink, -1).mean(axis=(1, 3))
+
+    return np.concatenate([tone_map(small(i)) for i in images], axis=1)

@@ -131,6 +131,18 @@ def write_image(path: str | Path, pixels: np.ndarray) -> None:
 
 
 
+def write_video(path: str | Path, frames: list[np.ndarray], fps: int = 2) -> None:
+    """Writes 8-bit RGB frames as an H.264 MP4 (imageio's FFmpeg)."""
+    import imageio.v2 as imageio
+
+    path = Path(path)
+    with atomic_path(path, path.suffix) as tmp:
+        with imageio.get_writer(tmp, fps=fps, codec="libx264", quality=8, format="FFMPEG",
+                                macro_block_size=2) as writer:
+            for frame in frames:
+                writer.append_data(frame)
+
+
 def read_png(path: str | Path) -> np.ndarray:
     """Reads a PNG as uint8 RGB (H, W, 3)."""
     with Image.open(path) as image:
@@ -222,3 +234,9 @@ def read_exr(path: str | Path) -> dict[str, np.ndarray]:
 
     with OpenEXR.File(str(path), separate_channels=True) as exr:
         return {name: np.asarray(channel.pixels, np.float32) for name, channel in exr.channels().items()}
+
+
+def read_exr_rgb(path: str | Path) -> np.ndarray:
+    """The R, G, B channels of an EXR as one float32 (H, W, 3) array."""
+    channels = read_exr(path)
+    return np.stack([channels[c] for c in "RGB"], -1)

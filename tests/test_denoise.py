@@ -77,14 +77,14 @@ def np_atrous(c, n, x, levels, sc, sn, sp):
     return c
 
 
-def np_accumulate(current, previous, index, valid, alpha, k, r):
+def np_accumulate(current, previous, index, valid, alpha, k, r, bounds=None):
     h, w = current.shape[:2]
     flat = previous.reshape(-1, 3)
     history = np.where(valid.reshape(h, w, 1), flat[index].reshape(h, w, 3), 0)
     mean, count, square = np.zeros_like(current), np.zeros((h, w, 1)), np.zeros_like(current)
     for dy in range(-r, r + 1):
         for dx in range(-r, r + 1):
-            cj, inside = shifted(current, dx, dy)
+            cj, inside = shifted(current if bounds is None else bounds, dx, dy)
             mean += np.where(inside[..., None], cj, 0)
             square += np.where(inside[..., None], cj * cj, 0)
             count += inside[..., None]
@@ -122,22 +122,22 @@ def close(ours, reference):
 
 # -- tests ---------------------------------------------------------------------------
 def test_joint_bilateral_matches_numpy(variant_llvm_ad_rgb, buffers):
-    from denoise.filters import BilateralWindow, EdgeWeights, Frame, joint_bilateral
+    from denoise.filters import BilateralWindow, EdgeWeights, FrameArrays, joint_bilateral
 
     c, n, x, _ = buffers
     p = EdgeWeights(sigma_color=0.6, sigma_normal=0.3, sigma_plane=0.3)
-    ours = np.array(joint_bilateral(Frame(*tensors(c, n, x)), p, BilateralWindow(radius=4, sigma_coord=3.0)))
+    ours = np.array(joint_bilateral(FrameArrays(*tensors(c, n, x)), p, BilateralWindow(radius=4, sigma_coord=3.0)))
     reference = np_bilateral(c, n, x, 4, 3.0, 0.6, 0.3, 0.3)
     assert close(ours, reference) < 1e-4
     assert np.abs(np.diff(ours, axis=1)).mean() < np.abs(np.diff(c, axis=1)).mean()  # it smooths
 
 
 def test_atrous_matches_numpy(variant_llvm_ad_rgb, buffers):
-    from denoise.filters import EdgeWeights, Frame, atrous
+    from denoise.filters import EdgeWeights, FrameArrays, atrous
 
     c, n, x, _ = buffers
     p = EdgeWeights(sigma_color=0.6, sigma_normal=0.3, sigma_plane=0.3)
-    ours = np.array(atrous(Frame(*tensors(c, n, x)), p, levels=3))
+    ours = np.array(atrous(FrameArrays(*tensors(c, n, x)), p, levels=3))
     assert close(ours, np_atrous(c, n, x, 3, 0.6, 0.3, 0.3)) < 1e-4
 
 
@@ -155,6 +155,12 @@ def test_accumulate_matches_numpy(variant_llvm_ad_rgb, buffers):
     ours = np.array(accumulate(current, prev, mi.UInt32(index.astype(np.uint32)), mi.Bool(valid),
                                TemporalParams(alpha=0.2, k=1.0, clamp_radius=3)))
     assert close(ours, np_accumulate(c, previous, index, valid, 0.2, 1.0, 3)) < 1e-4
+    # the clamp's neighbourhood taken from another image (oidn-guided's guide)
+    guide = c * 0.5 + 0.05
+    ours = np.array(accumulate(current, prev, mi.UInt32(index.astype(np.uint32)), mi.Bool(valid),
+                               TemporalParams(alpha=0.5, k=1.0, clamp_radius=1), bounds=tensors(guide)[0]))
+    assert close(ours, np_accumulate(c, previous, index, valid, 0.5, 1.0, 1, bounds=guide)) < 1e-4
+    assert close(ours, np_accumulate(c, previous, index, valid, 0.5, 1.0, 1)) > 1e-2  # the bounds matter
 
 
 def test_screen_matrix_and_static_reprojection(variant_llvm_ad_rgb, buffers):
@@ -309,7 +315,9 @@ def test_reprojection_of_the_ground_truth(variant_llvm_ad_rgb, tmp_path, motion)
 
 #: what ``python -m benchmarks.denoise`` compares (its METHODS)
 BENCHMARK_METHODS = ("raw", "bilateral", "atrous", "bilateral+temporal", "atrous+temporal",
-                     "demod+outliers+atrous+temporal", "svgf", "oidn", "oidn+temporal")
+                     "demod+outliers+atrous+temporal", "svgf", "oidn", "oidn+temporal", "oidn-guided")
+#: the methods of the speed bars (its TIMED)
+TIMED_METHODS = ("oidn", "atrous+temporal", "svgf", "bilateral")
 
 
 def test_denoise_command_and_benchmark_quick(variant_llvm_ad_rgb, tmp_path):
@@ -336,7 +344,8 @@ def test_denoise_command_and_benchmark_quick(variant_llvm_ad_rgb, tmp_path):
     sequence = results["sequences"][0]
     assert np.isfinite(sequence["reference_noise"]) and sequence["reference_noise"] > 0
     assert set(sequence["stability"]) == set(BENCHMARK_METHODS)
-    assert set(results["timing"]["ms"]) == {"oidn", "atrous+temporal", "svgf", "bilateral"}  # the speed bars' methods
+    assert set(results["timing"]["ms"]) == set(results["timing"]["cpu_ms"]) == set(TIMED_METHODS)
+    assert all(v > 0 for v in results["timing"]["cpu_ms"].values())
     last = {r["method"]: r["relmse"] for r in results["results"] if r["frame"] == 3}
     assert last["atrous+temporal"] < last["raw"] / 2  # it denoises
     folder = tmp_path / "work" / "glossy_shadow_96x54_16spp_quick"
@@ -350,6 +359,9 @@ def test_denoise_command_and_benchmark_quick(variant_llvm_ad_rgb, tmp_path):
 
     frames = imageio.mimread(video)
     assert len(frames) == 4 and frames[0].shape[1] == 3 * 96  # input | output | reference
+    # our OIDN-guided accumulation is a method of the command too
+    assert denoise_main([str(folder), str(tmp_path / "guided"), "--method", "oidn-guided"]) == 0
+    assert len(list((tmp_path / "guided").glob("result_*.exr"))) == 4
 
 
 @pytest.mark.parametrize("flags, message", [

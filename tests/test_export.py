@@ -159,6 +159,13 @@ def test_folder_made_with_other_settings_is_refused(tmp_path, uninterrupted, cap
         assert folder_bytes(target) == before
     assert main(common) == 0  # the same settings: resumes, nothing to do
     assert "0 frames rendered" in capsys.readouterr().out
+    # the same scene under another path (another checkout) is the same setting; other contents are not
+    record = json.loads((target / "sequence.json").read_text())
+    (target / "sequence.json").write_text(json.dumps(dict(record, scene_file="/elsewhere/scenes/x.txt")))
+    assert main(common) == 0 and "0 frames rendered" in capsys.readouterr().out
+    (target / "sequence.json").write_text(json.dumps(dict(record, scene_sha256="0" * 64)))
+    assert main(common) == 2 and "scene_sha256" in capsys.readouterr().err
+    (target / "sequence.json").write_text(json.dumps(record))
     # a folder of frames without a record (an older export) is refused too
     (target / "sequence.json").unlink()
     assert main(common) == 2

@@ -15,7 +15,10 @@ PACKAGES = ("core", "converters", "course", "mi_plugins", "imaging", "renderer",
 HOMES = {"relmse": "validation/metrics.py", "flip_error": "validation/metrics.py",
          "bad_pixels": "validation/metrics.py", "bad_fraction": "validation/metrics.py",
          "grading_lines": "course/__init__.py", "course_runs": "course/__init__.py",
-         "resolve_scene": "course/__init__.py"}
+         "resolve_scene": "course/__init__.py", "course_camera_basis": "mi_plugins/camera_basis.py",
+         "tone_map": "imaging/colour.py", "write_video": "imaging/image_io.py", "read_exr": "imaging/image_io.py"}
+#: the packages users run; they never need the checks or the measurements
+PRODUCTION = ("core", "converters", "course", "mi_plugins", "imaging", "renderer", "denoise")
 
 
 def sources(root: Path):
@@ -85,6 +88,17 @@ def test_tests_do_not_import_benchmarks():
     assert offenders == []
 
 
+def production_offenders(root: Path) -> list[str]:
+    return [path.relative_to(root).as_posix() for path, tree in sources(root)
+            if any(path.is_relative_to(root / package) for package in PRODUCTION)
+            and imported_packages(path, tree) & {"benchmarks", "validation", "notebooks", "tests"}]
+
+
+def test_production_code_imports_no_checks_or_benchmarks():
+    """denoise's CLI once took its PNG and video writers from benchmarks.denoise."""
+    assert production_offenders(ROOT) == []
+
+
 def test_imaging_depends_on_core_only():
     """imaging is below converters (it used to import converters for the error type, and converters imports it)."""
     for path, tree in sources(ROOT):
@@ -103,6 +117,8 @@ def test_the_layout_checks_can_fail(tmp_path):
     (tmp_path / "benchmarks" / "denoise.py").write_text(
         "import os\ndef relmse(a, b):\n    return 0\nDATA = os.environ.get('COURSE_DATA')\n")
     (tmp_path / "tests" / "test_x.py").write_text("from benchmarks.crossval import run\n")
+    (tmp_path / "denoise" / "cli.py").write_text("def main():\n    from benchmarks.denoise import write_video\n")
+    assert production_offenders(tmp_path) == ["denoise/cli.py"]
     assert sorted(definitions(tmp_path)["relmse"]) == ["benchmarks/denoise.py", "validation/metrics.py"]
     assert environment_reads(tmp_path) == {"COURSE_DATA"}
     assert imported_packages(tmp_path / "tests" / "test_x.py",

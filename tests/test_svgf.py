@@ -105,10 +105,10 @@ def np_svgf(c, n, x, p, history=None, index=None, valid=None):
 def svgf_ours(c, n, x, p, history=None, index=None, valid=None):
     import mitsuba as mi
 
-    from denoise.filters import Frame
+    from denoise.filters import FrameArrays
     from denoise.svgf import svgf
 
-    frame = Frame(*tensors(c, n, x))
+    frame = FrameArrays(*tensors(c, n, x))
     if index is not None:
         index, valid = mi.UInt32(index.astype(np.uint32)), mi.Bool(valid)
     result, state, var = svgf(frame, p, history, index, valid)
@@ -217,3 +217,18 @@ def test_svgf_denoises(variant_llvm_ad_rgb, buffers):
     c, n, x, _ = buffers
     ours, _, _ = svgf_ours(c, n, x, SVGFParams())
     assert np.abs(np.diff(ours, axis=1)).mean() < 0.5 * np.abs(np.diff(c, axis=1)).mean()
+
+
+def test_svgf_levels_follow_the_width(variant_llvm_ad_rgb, buffers):
+    """By default the footprint is the paper's fraction of the image: 5 levels at
+    1280 pixels wide, 3 at 320, at least 1; the default run is the run with
+    those levels, and a fixed 5 gives another image."""
+    from denoise.svgf import SVGFParams, levels_for
+
+    assert [levels_for(w) for w in (1280, 1920, 640, 320, 160, 40, 8)] == [5, 6, 4, 3, 2, 1, 1]
+    c, n, x, _ = buffers
+    default, _, _ = svgf_ours(c, n, x, SVGFParams(sigma_plane=0.3))
+    explicit, _, _ = svgf_ours(c, n, x, SVGFParams(levels=levels_for(c.shape[1]), sigma_plane=0.3))
+    assert np.array_equal(default, explicit)
+    assert close(default, np_svgf(c, n, x, SVGFParams(levels=levels_for(c.shape[1]), sigma_plane=0.3))[0]) < 1e-4
+    assert close(default, svgf_ours(c, n, x, SVGFParams(levels=5, sigma_plane=0.3))[0]) > 1e-3

@@ -31,7 +31,7 @@ def _frame(seed: int = 0, beauty=None, normal=None, position=None, ids=None, obj
     rng = np.random.default_rng(seed)
     ys, xs = np.mgrid[0:H, 0:W].astype(np.float64)
     default_position = np.stack([xs / W, np.zeros_like(xs), -ys / H - 2], -1)
-    screen = np.array([[W, 0, 0, 0], [0, -H, 0, -2.0 * H], [0, 0, 1, 0], [0, 0, 0, 1.0]])  # x, -z -> pixels
+    screen = np.array([[W, 0, 0, 0], [0, 0, -H, -2.0 * H], [0, 0, 1, 0], [0, 0, 0, 1.0]])  # x, -z -> pixels
     return FrameData(
         beauty=rng.random((H, W, 3)) if beauty is None else beauty,
         normal=np.tile([0.0, 1.0, 0.0], (H, W, 1)) if normal is None else normal,
@@ -347,6 +347,7 @@ def denoise_cases() -> list[DenoiseCase]:
         DenoiseCase("buffers of different sizes in a frame", damaged_folder(_one_buffer_resized, "depth_0.exr")),
         DenoiseCase("svgf on NaN/inf/negative input", method_finite("svgf")),
         DenoiseCase("oidn+temporal on NaN/inf/negative input", method_finite("oidn")),
+        DenoiseCase("oidn-guided on NaN/inf/negative input", method_finite("oidn-guided")),
         DenoiseCase("outliers+demod on NaN/inf input", method_finite("atrous", demodulate=True,
                                                                      outliers=_outliers())),
         DenoiseCase("svgf on a static scene settles", svgf_static),
