@@ -270,8 +270,12 @@ def readme_section(results: dict, still: str | None, video: str | None, command:
         s["name"], s["size"][0], s["size"][1], s["frames"], s["spp"], s["reference_spp"])
         for s in results["sequences"])
     lines = ["<!-- denoise:start -->",
-             f"Results of `{command}` on {results.get('date', 'this machine')} ({described}; OIDN "
-             f"{results.get('oidn', '')}; times on this 2-core machine, llvm_ad_rgb, median over frames after a "
+             f"Results of `{command}` on {results.get('date', 'this machine')}"
+             + (f" ({results['machine']}; load average {results['load_average_at_start']} at the start, "
+                f"{results['load_average_at_end']} at the end; {results['wall_s'] / 60:.1f} min in all, frames "
+                "already rendered reused)" if "wall_s" in results else "")
+             + f" ({described}; OIDN "
+             f"{results.get('oidn', '')}; times in llvm_ad_rgb, median over frames after a "
              "warm-up; temporal stability: mean relMSE between consecutive back-projected outputs divided by the "
              "ground truth's, 1 = as stable as the truth):", "", summary(results), ""]
     lines += [f"- {line}" for line in reference_checks(results)]
@@ -327,7 +331,12 @@ def main(argv: list[str] | None = None) -> int:
         args.json = args.json or docs / "denoise.json"
     quality, timing_size = (QUICK, QUICK_TIMING) if args.quick else (QUALITY, TIMING)
     suffix = "_quick" if args.quick else ""
-    results = {"date": datetime.date.today().isoformat(), "oidn": "1.4.3 through its C API: hdr on, albedo and "
+    from benchmarks import machine
+
+    start = time.perf_counter()
+    results = {"date": datetime.date.today().isoformat(), "machine": machine(),
+               "load_average_at_start": round(os.getloadavg()[0], 2),
+               "oidn": "1.4.3 through its C API: hdr on, albedo and "
                "normal with cleanAux, filter committed once per size", "sequences": [], "results": []}
     outputs_hard = None
     for spec_path in SEQUENCES:
@@ -356,6 +365,7 @@ def main(argv: list[str] | None = None) -> int:
         timing_folder = args.work / f"timing_{spec_path.stem}_{timing_size['size'][0]}x{timing_size['size'][1]}{suffix}"
         export(Spec.load(spec_path, **timing_size), timing_folder)
         results["timing"] = {"sequence": spec_path.stem, **run_timing(timing_folder)}
+    results.update(load_average_at_end=round(os.getloadavg()[0], 2), wall_s=round(time.perf_counter() - start, 1))
     print(summary(results))
     checks = reference_checks(results)
     for line in checks + bar_lines(results):
