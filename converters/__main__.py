@@ -27,7 +27,7 @@ if __name__ == "__main__":  # started by a Python without the project's packages
     from core.launcher import use_project_python
     use_project_python("converters", "converters")
 
-from core.entry import run
+from core.entry import ArgumentParser, run
 from core.errors import OutputError, UsageError
 
 EXAMPLES = """examples:
@@ -45,7 +45,7 @@ shape merging off (it would fuse the plane's tiles into one imprecise mesh):
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = ArgumentParser(
         prog="python -m converters", allow_abbrev=False, formatter_class=argparse.RawDescriptionHelpFormatter,
         description=__doc__, epilog=EXAMPLES)
     parser.add_argument("scenes", nargs="+", type=Path, metavar="SCENE.txt", help="course scene files")
@@ -69,7 +69,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 def render_settings(args: argparse.Namespace) -> dict:
     """The flags given on the command line (None where not given), as settings."""
-    settings = {"bounces": args.bounces, "shadows": args.shadows, "jitter": args.jitter, "filter": args.filter}
+    settings = {"bounces": args.bounces, "shadows": args.shadows, "jitter": args.jitter, "filter": args.filter,
+                "spp": args.spp}
     if args.size is not None:
         settings["width"], settings["height"] = args.size
     for name, value in (("width", settings.get("width")), ("height", settings.get("height")),
@@ -102,6 +103,7 @@ def convert(source: Path, target: Path, root: Path | None = None, settings: dict
     ``settings``: render flags as in :func:`render_settings`; the scene's
     ``# render:`` header fills in the ones left out.
     """
+    from renderer.checks import check_limits, check_numbers
     from renderer.job import RenderJob
     from renderer.scene_flags import with_scene_flags
 
@@ -111,7 +113,11 @@ def convert(source: Path, target: Path, root: Path | None = None, settings: dict
 
     scene = load_scene(source.resolve())  # absolute paths, written relative to the XML
     final = with_scene_flags(source, dict(settings or {}))
-    options = RenderJob(scene=source, **final).options()
+    job = RenderJob(scene=source, **final)
+    # the limits render.py enforces: an XML that no render could run is refused here too
+    check_numbers(job.width, job.height, job.bounces, job.spp)
+    check_limits(job, memory=2**63)  # samples only: the XML is rendered elsewhere, with its own memory
+    options = job.options()
     shown = source.resolve().relative_to(root) if root and source.resolve().is_relative_to(root) else source.name
     note = f"with {flags_text(final)}" if flags_text(final) else "with the default flags"
     if final.get("filter"):
@@ -178,7 +184,7 @@ def _main(argv: list[str] | None) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    return run("converters", lambda: _main(argv))
+    return run("python -m converters", lambda: _main(argv))
 
 
 if __name__ == "__main__":

@@ -32,6 +32,14 @@ TAGS = {
 }
 
 
+def _comment_text(text: str) -> str:
+    """``text`` made legal inside an XML comment, which may not hold ``--`` (a
+    ``--spp`` flag, a file named ``a--b.txt``) nor end in ``-``."""
+    while "--" in text:
+        text = text.replace("--", "- -")
+    return text.rstrip("-")
+
+
 def _number(value: float) -> str:
     text = repr(float(value))  # shortest round-trip form
     return text[:-2] if text.endswith(".0") else text
@@ -86,7 +94,10 @@ class _Writer:
     def plugin(self, depth: int, key: str, spec: dict) -> None:
         kind = spec["type"]
         tag = TAGS[kind]
-        identity = spec.get("id", key if tag in ("shape", "bsdf", "emitter") else None)
+        # ids as load_dict gives them (its keys), so that mi.traverse names the
+        # parameters alike (``sensor.fov``, not ``object_<address>.fov``)
+        named = tag in ("shape", "bsdf", "emitter") or (depth == 1 and tag in ("sensor", "integrator"))
+        identity = spec.get("id", key if named else None)
         id_attr = f" id={quoteattr(identity)}" if identity else ""
         self.emit(depth, f"<{tag} type={quoteattr(kind)}{id_attr}>")
         for name, value in spec.items():
@@ -114,7 +125,7 @@ def write_xml(description: dict, path: str | Path, source: str | None = None, no
     writer.emit(0, '<scene version="3.0.0">')
     if source:
         made = f" {note}" if note else ""
-        writer.emit(1, f"<!-- Converted from {source} by converters/{made}; load with optimize=False -->")
+        writer.emit(1, f"<!-- {_comment_text(f'Converted from {source} by converters/{made}; load with optimize=False')} -->")
     for key, value in lower(description).items():
         if key == "type":
             continue

@@ -22,6 +22,7 @@ Anything else is a bug and keeps its traceback.
 """
 from __future__ import annotations
 
+import argparse
 import os
 import signal
 import sys
@@ -104,6 +105,16 @@ def interruption(error: BaseException) -> int | None:
             return int(signal.SIGINT)
         error = error.__cause__ or error.__context__
     return None
+
+
+class ArgumentParser(argparse.ArgumentParser):
+    """argparse whose errors are :class:`core.errors.UsageError` (one line, exit 2
+    under :func:`run`), not a usage block; every user-facing command parses with it."""
+
+    def error(self, message: str):
+        from core.errors import UsageError
+
+        raise UsageError(" ".join(message.split()))
 
 
 def one_line(error: BaseException) -> str:

@@ -76,7 +76,13 @@ def resolve_scene(name: str, data: Path | None) -> Path:
             raise UsageError(f"scene name {name!r} is ambiguous in {folder}: "
                              + ", ".join(m.name for m in matches))
     where = ", ".join(str(f) for f in folders)
-    hint = "" if data else f" (set --data to the course's data folder, or {ENVIRONMENT} to the course folder)"
+    if not data:
+        hint = f" (set --data to the course's data folder, or {ENVIRONMENT} to the course folder)"
+    elif not data.is_dir():
+        chosen = f"${ENVIRONMENT}={os.environ[ENVIRONMENT]}" if os.environ.get(ENVIRONMENT) else "--data"
+        hint = f" ({data} does not exist; {chosen} chose it)"
+    else:
+        hint = ""
     raise UsageError(f"no scene {name!r} in {where}{hint}")
 
 

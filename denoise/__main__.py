@@ -14,6 +14,8 @@ if __name__ == "__main__":  # started by a Python without the project's packages
     from core.launcher import use_project_python
     use_project_python("python -m denoise", "denoise")
 
+from core.entry import ArgumentParser
+
 from .pipeline import METHODS
 
 EXAMPLE = """methods:
@@ -41,7 +43,7 @@ def _parser() -> argparse.ArgumentParser:
 
     edges, window, levels = EdgeWeights(), BilateralWindow(), AtrousLevels()
     temporal, outliers, svgf = TemporalParams(), OutlierParams(), SVGFParams()
-    parser = argparse.ArgumentParser(prog="python -m denoise", description=__doc__.split("\n", 1)[0].split(": ", 1)[1],
+    parser = ArgumentParser(prog="python -m denoise", description=__doc__.split("\n", 1)[0].split(": ", 1)[1],
                                      formatter_class=argparse.RawDescriptionHelpFormatter, epilog=EXAMPLE)
     parser.add_argument("source", type=Path, metavar="IN_DIR", help="the frame folder")
     parser.add_argument("target", type=Path, metavar="OUT_DIR", help="where result_i.exr are written")

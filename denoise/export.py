@@ -72,6 +72,7 @@ import numpy as np
 
 from converters import transforms
 from converters.model import Scene, Sphere, Triangle, TriangleMesh
+from core.entry import ArgumentParser
 from core.errors import SpecError
 
 from .frames import BUFFERS, FrameData, camera_matrices, depth_range, write_frame
@@ -810,7 +811,7 @@ def export(spec: Spec, target: Path, data: Path | None = None, whitted: bool = F
 
 
 def _parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="python -m denoise.export", description=__doc__.split("\n\n")[0])
+    parser = ArgumentParser(prog="python -m denoise.export", description=__doc__.split("\n\n")[0])
     parser.add_argument("paths", type=Path, nargs="+", metavar="SPEC.json... OUT",
                         help="one or more specs, then the output folder")
     parser.add_argument("--frames", type=int)
@@ -857,7 +858,7 @@ def _main(argv: list[str] | None) -> int:
 def main(argv: list[str] | None = None) -> int:
     from core.entry import run
 
-    return run("denoise.export", lambda: _main(argv))
+    return run("python -m denoise.export", lambda: _main(argv))
 
 
 if __name__ == "__main__":

@@ -20,7 +20,7 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
-from core.entry import hold_signals, one_line, run
+from core.entry import ArgumentParser, hold_signals, one_line, run
 from core.errors import ToolkitError, UsageError, describe
 from course import ENVIRONMENT as COURSE_ENVIRONMENT, data_dir, resolve_scene
 
@@ -52,13 +52,6 @@ class Preview:
     """--png: a tone-mapped sRGB PNG of the beauty, beside the EXR."""
     exr: Path
     path: Path
-
-
-class ArgumentParser(argparse.ArgumentParser):
-    """argparse whose errors are :class:`UsageError` (one line, exit 2), not usage text and exit."""
-
-    def error(self, message: str):
-        raise UsageError(one_line(message))
 
 
 class Once(argparse.Action):

@@ -136,7 +136,7 @@ def test_cli_refuses_bad_specs_with_one_line(tmp_path, capsys):
         spec.write_text(json.dumps(dict(TINY, **change)))
         assert main([str(spec), str(tmp_path / "out"), "--local"]) == 2
         err = capsys.readouterr().err
-        assert err.count("\n") == 1 and err.startswith("denoise.export: error: ") and message in err
+        assert err.count("\n") == 1 and err.startswith("python -m denoise.export: error: ") and message in err
         assert not (tmp_path / "out").exists()
 
 

@@ -298,7 +298,7 @@ def test_converter_help_is_plain_text(capsys):
 def _one_error(capsys, code: int) -> str:
     assert code == 2
     err = capsys.readouterr().err
-    assert err.count("\n") == 1 and err.startswith("converters: error: ")
+    assert err.count("\n") == 1 and err.startswith("python -m converters: error: ")
     return err
 
 
@@ -392,3 +392,33 @@ def test_bars_only_on_a_terminal(monkeypatch):
     assert not progress.bars_wanted(True)
     monkeypatch.setattr(sys, "stderr", Terminal())
     assert progress.bars_wanted(True) and not progress.bars_wanted(False)
+
+
+def test_converter_writes_spp_and_refuses_what_render_py_refuses(variant_scalar_rgb, tmp_path, capsys):
+    """``--spp`` reaches the XML's sampler (it was checked, then dropped), and the
+    converter refuses the numbers render.py refuses instead of writing an XML no
+    render could run."""
+    from converters.__main__ import main
+
+    scene = str(ROOT / "scenes" / "transforms.txt")
+    for extra, count in ((["--spp", "7"], 7), (["--spp", "7", "-jitter"], 7), (["-jitter"], 16), ([], 1)):
+        target = tmp_path / f"s{len(extra)}_{count}.xml"
+        assert main([scene, "-o", str(target), "-size", "8", "8", *extra]) == 0
+        sampler = ElementTree.parse(target).getroot().find("sensor/sampler")
+        assert sampler.find("integer[@name='sample_count']").get("value") == str(count), extra
+    capsys.readouterr()
+    for extra, message in ((["--spp", "99999999999"], "--spp wants"), (["-bounces", "5000"], "-bounces wants"),
+                           (["-size", "100000", "100000"], "exceed")):
+        err = _one_error(capsys, main([scene, "-o", str(tmp_path / "bad.xml"), *extra]))
+        assert message in err
+        assert not (tmp_path / "bad.xml").exists()
+
+
+@pytest.mark.parametrize("command", [["converters", "scenes/transforms.txt", "-o", "x.xml", "-size", "32"],
+                                     ["converters"], ["denoise", "a", "b", "--bogus"],
+                                     ["denoise.export", "a.json", "b", "--bogus"]])
+def test_argument_errors_are_one_line(command, tmp_path):
+    """argparse's usage block is not an error line: every command's parser raises UsageError."""
+    result = subprocess.run([sys.executable, "-m", *command], cwd=ROOT, capture_output=True, text=True)
+    assert result.returncode == 2
+    assert result.stderr.count("\n") == 1 and result.stderr.startswith(f"python -m {command[0]}: error: ")

@@ -19,6 +19,7 @@ import numpy as np
 from converters import transforms
 from converters.model import PointLight
 from core.errors import SceneError
+from imaging.image_io import CUBE_FACES
 from validation.metrics import TOLERANCE, bad_fraction
 from validation.stress_cases import DEFAULTS, Case, scene as base_scene
 
@@ -138,7 +139,7 @@ def fuzz(examples: int, seed: int = 0) -> int:
     count = 0
     folder = Path(tempfile.mkdtemp(prefix="stress-fuzz-"))
     (folder / "mesh.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
-    for face in ("left", "right", "up", "down", "front", "back"):
+    for face in CUBE_FACES:
         (folder / "sky").mkdir(exist_ok=True)
         (folder / "sky" / f"{face}.png").write_bytes(b"not a png")
     valid = base_scene(num_objects=4, objects=DEFAULTS["objects"] + " MaterialIndex 0 TriangleMesh { obj_file mesh.obj }")

@@ -14,6 +14,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from imaging.image_io import CUBE_FACES
+
 #: A small well-conditioned scene; {materials}, {lights}, {objects} and the
 #: other fields are filled in per case.
 BASE = """PerspectiveCamera {{ center {center} direction {direction} up {up} angle {angle} }}
@@ -169,7 +171,7 @@ def error_cases() -> list[Case]:
         Case("missing OBJ file", scene(objects="MaterialIndex 0 TriangleMesh { obj_file nowhere.obj }",
                                        num_objects=1), "error", expect="cannot read mesh"),
         Case("missing cube-map face", scene(background="cubeMap sky"), "error", expect="up.png",
-             files={f"sky/{f}.png": b"" for f in ("left", "right", "down", "front", "back")}),
+             files={f"sky/{f}.png": b"" for f in CUBE_FACES if f != "up"}),
         Case("malformed OBJ vertex", scene(objects="MaterialIndex 0 TriangleMesh { obj_file bad.obj }",
                                            num_objects=1), "error", expect="bad.obj:2:5: expected a number",
              files={"bad.obj": b"v 0 0 0\nv 1 x 0\nv 0 1 0\nf 1 2 3\n"}),

@@ -27,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
+from imaging.image_io import CUBE_FACES
 from validation.stress_cases import DEFAULTS, Case, material, scene
 
 
@@ -45,7 +46,7 @@ def run_render_cli(folder: Path, argv: list[str]) -> tuple[int, str]:
         os.chdir(cwd)
     return code, stderr.getvalue()
 
-FACES = ("left", "right", "up", "down", "front", "back")
+FACES = CUBE_FACES
 TINY = ["-size", "8", "6", "--quiet"]
 
 
