@@ -17,15 +17,8 @@ Both are compared with **one common reference**: ``whitted`` converged
 two on the same image. Errors are relMSE and mean FLIP (``flip-evaluator``,
 LDR: the course displays linear values clamped to [0, 1]).
 
-Fitting rule (fixed before any data was taken, the same for every curve):
-``slope`` is the least-squares slope of log relMSE over log seconds, and
-``spp_slope`` that over log spp, both fitted over the upper half of the spp
-ladder (the points whose spp is at least the median spp of the curve; the
-first renders are dominated by fixed per-render costs). Monte Carlo gives
-``spp_slope`` = -1; ``slope`` approaches -1 as the fixed costs vanish.
-``seconds_to_relmse_1e-3`` is read off that fitted line (extrapolated where
-no render reached 1e-3). The measurement and the fit are
-:mod:`validation.convergence`; this command runs them at full size.
+The fitting rule (fixed before any data was taken) and the measurement are
+:mod:`validation.convergence`'s; this command runs them at full size.
 
 Writes per scene a log-log plot ``<out>/<scene>.png``,
 ``<out>/error_vs_time.csv`` and, with ``--json``,
