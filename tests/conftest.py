@@ -45,7 +45,7 @@ REQUIRED_FIXTURES = {"variant_rgb", "variant_llvm_ad_rgb", "variant_scalar_rgb"}
 #: tests of Dr.Jit kernels that have no scalar form (the denoiser): for these
 #: ``variant_llvm_ad_rgb`` means exactly that variant, as ``variant_vectorised_rgb``
 #: does (until they ask for it by that name)
-VECTORISED_TESTS = ("tests/test_denoise.py::", "tests/stress/test_stress.py::test_denoise_case")
+VECTORISED_TESTS = ("tests/test_denoise.py::", "tests/test_svgf.py::", "tests/stress/test_stress.py::test_denoise_case")
 
 
 def best_variant() -> str:

@@ -256,6 +256,10 @@ def passes_on(threads: int, spp: int, batch_spp: int) -> list[bytes]:
 def test_bytes_do_not_depend_on_the_thread_count(uninterrupted, spp, batch_spp):
     """1 and 2 Dr.Jit threads (a worker's and the local process's) give the same bytes."""
     import drjit as dr
+    import mitsuba as mi
+
+    if not dr.is_jit_v(mi.Float):
+        pytest.skip("Dr.Jit's thread count does not apply to scalar_rgb (and this takes minutes there)")
 
     threads = dr.thread_count()
     try:
@@ -268,9 +272,12 @@ def test_thread_check_fails_without_single_threaded_passes(uninterrupted, monkey
     """The check above on purpose-broken code (passes on the process's threads):
     the renders follow the thread count."""
     import drjit as dr
+    import mitsuba as mi
 
     import denoise.export as export_module
 
+    if not dr.is_jit_v(mi.Float):
+        pytest.skip("scalar_rgb renders on one thread whatever the thread count: the mutation cannot show")
     monkeypatch.setattr(export_module, "RENDER_THREADS", None)
     threads = dr.thread_count()
     try:

@@ -378,7 +378,8 @@ def test_result_lines_one_per_scene_without_a_terminal(variant_llvm_ad_rgb, tmp_
     out, err = capsys.readouterr()
     lines = out.splitlines()
     assert len(lines) == 2 and lines[0].startswith("showcase") and lines[1].startswith("transforms")
-    assert err == ""
+    # nothing on stderr but, without a usable libLLVM, the one line that says so
+    assert err == "" or (err.count("\n") == 1 and "using scalar_rgb instead of llvm_ad_rgb" in err)
 
 
 def test_bars_only_on_a_terminal(monkeypatch):

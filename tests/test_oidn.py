@@ -74,7 +74,7 @@ def _plane_frames(count=2, h=24, w=32, seed=9):
     return frames
 
 
-def test_oidn_guided_matches_numpy(variant_llvm_ad_rgb):
+def test_oidn_guided_matches_numpy(variant_vectorised_rgb):
     """oidn-guided = OIDN(accumulate(input, history clamped to the 3x3 mean ± kσ of
     OIDN(input))), with NumPy doing the accumulation and a second OIDN filter the
     denoising; the same test with the clamp taken from the input (the guide step

@@ -160,13 +160,13 @@ def test_lights_too_bright_for_float32_give_finite_images(variant_llvm_ad_rgb, i
         field = "intensity" if "intensity" in light else "irradiance"
         light[field] = {"type": "rgb", "value": [intensity] * 3}
     scene = load_scene_dict(description)
-    for image in (render_in_launches(scene, 1, False), np.array(mi.render(scene), np.float32)):
+    for image in (render_image(scene), np.array(mi.render(scene), np.float32)):
         assert np.isfinite(image).all()
         assert image[..., :3].max() > 1e20  # bright, not zeroed
 
 
 # -- launches: Ctrl-C between them, the same image however split -----------------
-def test_launches_give_the_same_image(variant_llvm_ad_rgb):
+def test_launches_give_the_same_image(variant_vectorised_rgb):
     scene = load_scene_dict(scene_dict(parsed(scene_text()), RenderOptions(width=33, height=17, aovs=("id",),
                                                                             jitter=True, **FLAGS)))
     whole = render_in_launches(scene, 4, True)
@@ -175,7 +175,7 @@ def test_launches_give_the_same_image(variant_llvm_ad_rgb):
     assert not np.array_equal(render_in_launches(scene, 4, True, seed=1), whole)  # the jitter is live
 
 
-def test_one_sample_renders_as_mitsuba_does(variant_llvm_ad_rgb):
+def test_one_sample_renders_as_mitsuba_does(variant_vectorised_rgb):
     """Pixel-centre renders equal mi.render's (except where Mitsuba's film puts a
     sample on a pixel border into the neighbour: a handful of pixels)."""
     import mitsuba as mi
@@ -243,13 +243,24 @@ def many_lights(count: int) -> str:
     return scene_text(num_lights=count, lights=lights)
 
 
+def render_image(scene) -> np.ndarray:
+    """One sample at each pixel centre: the project's launches in a JIT variant,
+    ``mi.render`` in a scalar one (which renders in bands, never in launches)."""
+    import drjit as dr
+    import mitsuba as mi
+
+    if dr.is_jit_v(mi.Float):
+        return render_in_launches(scene, 1, False)
+    return np.array(mi.render(scene), np.float32)
+
+
 def render_lights(text: str, unrolled: int, size=(48, 36), stats=False):
     import mitsuba as mi
 
     description = scene_dict(parsed(text), RenderOptions(width=size[0], height=size[1], stats=stats, **FLAGS))
     description["integrator"]["max_unrolled_lights"] = unrolled
     scene = load_scene_dict(description)
-    image = render_in_launches(scene, 1, False)
+    image = render_image(scene)
     return image, (scene.integrator().ray_counts() if stats else None)
 
 
@@ -272,7 +283,7 @@ def test_light_loop_misses_no_light(variant_llvm_ad_rgb):
     assert np.abs(looped - unrolled).max() > 1e-3
 
 
-def test_thousand_lights_compile_fast(variant_llvm_ad_rgb):
+def test_thousand_lights_compile_fast(variant_vectorised_rgb):
     start = time.perf_counter()
     image, _ = render_lights(many_lights(1000), 8, size=(32, 32))
     seconds = time.perf_counter() - start
