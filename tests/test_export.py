@@ -182,21 +182,28 @@ class Stop(KeyboardInterrupt):
     pass
 
 
+def export_interrupted_after(target: Path, count: int) -> list:
+    """The tiny sequence exported until ``count`` tasks are done, then stopped
+    as Ctrl-C would stop it; returns those tasks."""
+    done = []
+
+    def interrupt(task):
+        done.append(task)
+        if len(done) == count:
+            raise Stop
+
+    with pytest.raises(Stop):
+        export_tiny(target, after_task=interrupt)
+    return done
+
+
 def test_interrupted_export_resumes_with_only_the_missing_tasks(tmp_path, uninterrupted):
     """Ctrl-C after 3 of the 10 tasks (between a frame's batches); the rerun
     renders only the 7 missing tasks, and the files equal an uninterrupted run's."""
     from denoise.export import Spec, plan, sequences_for
 
     target = tmp_path / "seq"
-    done = []
-
-    def interrupt_after_three(task):
-        done.append(task)
-        if len(done) == 3:
-            raise Stop
-
-    with pytest.raises(Stop):
-        export_tiny(target, after_task=interrupt_after_three)
+    done = export_interrupted_after(target, 3)
     [sequence] = sequences_for([("seq", Spec.from_dict(dict(TINY)))], target, batch_spp=BATCH_SPP)
     remaining = plan(sequence)
     assert len(remaining) == 10 - 3
@@ -221,15 +228,7 @@ def test_resume_check_fails_when_finished_batches_are_ignored(tmp_path, monkeypa
     from denoise.export import Spec, plan, sequences_for
 
     target = tmp_path / "seq"
-    done = []
-
-    def interrupt_after_three(task):
-        done.append(task)
-        if len(done) == 3:
-            raise Stop
-
-    with pytest.raises(Stop):
-        export_tiny(target, after_task=interrupt_after_three)
+    export_interrupted_after(target, 3)
     monkeypatch.setattr(export_module, "batch_path", lambda *args: Path("/nonexistent/batch.npy"))
     [sequence] = sequences_for([("seq", Spec.from_dict(dict(TINY)))], target, batch_spp=BATCH_SPP)
     assert len(plan(sequence)) > 10 - 3
