@@ -63,12 +63,15 @@ QUALITY = dict(size=(320, 180), frames=8)
 #: 12 %, 24 % and 20 % of the best method's mean relMSE; these put it near 6 %, 6 % and 7 % (bar 10 %)
 REFERENCE_SPP = {"dolly_lamps": 2048, "orbit_transforms": 1536, "glossy_shadow": 2048}
 QUICK = dict(size=(96, 54), frames=4, reference_spp=16)
-TIMING = dict(size=(1280, 720), frames=5, reference_spp=2)
+TIMING = dict(size=(1280, 720), frames=9, reference_spp=2)
 QUICK_TIMING = dict(size=(160, 90), frames=3, reference_spp=2)
 #: the reference's own noise must be at most this fraction of the best method's relMSE
 REFERENCE_NOISE_BAR = 0.1
 #: per-frame time as a fraction of OIDN's execute time (issue 9's speed bars)
 SPEED_BARS = {"atrous+temporal": 0.2, "svgf": 0.3, "bilateral": 2.0}
+#: seconds of idle before each timed frame: OIDN's worker threads spin for a while after
+#: their work is done, and would otherwise be timed as part of the method that follows
+SETTLE_S = 0.2
 #: the methods timed at 1280x720 (the bars' methods and OIDN)
 TIMED = ("oidn", "atrous+temporal", "svgf", "bilateral")
 
@@ -163,30 +166,37 @@ def run_sequence(folder: Path, name: str, methods=METHODS, outputs: dict | None 
 
 def run_timing(folder: Path, methods=TIMED) -> dict:
     """Per-frame milliseconds (median after a warm-up frame) of every method
-    on ``folder``'s frames, OIDN by its execute call alone."""
+    on ``folder``'s frames, OIDN by its execute call alone. The methods take
+    turns frame by frame (round robin), so that a slow spell of a shared
+    machine falls on all of them alike instead of on whichever ran then."""
     import drjit as dr
 
     from denoise.frames import frame_indices, read_frame
 
     frames = [read_frame(folder, i) for i in frame_indices(folder)]
-    timing = {"size": [frames[0].beauty.shape[1], frames[0].beauty.shape[0]], "frames": len(frames), "ms": {}}
+    timing = {"size": [frames[0].beauty.shape[1], frames[0].beauty.shape[0]], "frames": len(frames), "ms": {},
+              "order": "round robin: frame by frame, each method in turn"}
+    methods = [m for m in methods if m != "raw"]
+    runners = {}
     for method in methods:
-        if method == "raw":
-            continue
         warm_up(method, frames)
-        runner = make_method(method)
-        runner.step(frames[0])  # its filter committed (OIDN); its history started
-        times, cpu_times = [], []
-        for frame in frames[1:]:
+        runners[method] = make_method(method)
+        runners[method].step(frames[0])  # its filter committed (OIDN); its history started
+    times = {m: [] for m in methods}
+    cpu_times = {m: [] for m in methods}
+    for frame in frames[1:]:
+        for method, runner in runners.items():
+            time.sleep(SETTLE_S)  # the previous method's worker threads (OIDN's spin-wait) gone idle
             start, cpu = time.perf_counter(), time.process_time()
             runner.step(frame)
             dr.sync_thread()
             elapsed, cpu_elapsed = time.perf_counter() - start, time.process_time() - cpu
             oidn = method.startswith("oidn")
-            times.append(runner.last_execute_s if oidn else elapsed)
-            cpu_times.append(runner.last_execute_cpu_s if oidn else cpu_elapsed)
-        timing["ms"][method] = 1000 * float(np.median(times))
-        timing.setdefault("cpu_ms", {})[method] = 1000 * float(np.median(cpu_times))
+            times[method].append(runner.last_execute_s if oidn else elapsed)
+            cpu_times[method].append(runner.last_execute_cpu_s if oidn else cpu_elapsed)
+    for method in methods:
+        timing["ms"][method] = 1000 * float(np.median(times[method]))
+        timing.setdefault("cpu_ms", {})[method] = 1000 * float(np.median(cpu_times[method]))
     oidn = timing["ms"]["oidn"]
     timing["ratio_to_oidn"] = {m: ms / oidn for m, ms in timing["ms"].items()}
     # this process's CPU time (all its threads): what other jobs on the machine inflate least
@@ -362,7 +372,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{spec_path.stem}: reference noise {figures['reference_noise']:.2e}", file=sys.stderr)
     if not args.no_timing:
         spec_path = SEQUENCES[0]
-        timing_folder = args.work / f"timing_{spec_path.stem}_{timing_size['size'][0]}x{timing_size['size'][1]}{suffix}"
+        timing_folder = args.work / (f"timing_{spec_path.stem}_{timing_size['size'][0]}x{timing_size['size'][1]}"
+                                     f"_{timing_size['frames']}f{suffix}")
         export(Spec.load(spec_path, **timing_size), timing_folder)
         results["timing"] = {"sequence": spec_path.stem, **run_timing(timing_folder)}
     results.update(load_average_at_end=round(os.getloadavg()[0], 2), wall_s=round(time.perf_counter() - start, 1))

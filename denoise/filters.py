@@ -163,6 +163,22 @@ def pack_guides(normal: mi.Vector3f, position: mi.Vector3f) -> mi.Float:
     return packed
 
 
+_COORDINATES: dict = {}
+
+
+def pixel_coordinates(width: int, height: int) -> tuple[mi.Int32, mi.Int32]:
+    """(x, y) of every pixel, flat index ``y * width + x``; made once per size
+    and variant (every frame of a sequence has the same)."""
+    key = (mi.variant(), width, height)
+    if key not in _COORDINATES:
+        index = dr.arange(mi.UInt32, width * height)
+        x, y = mi.Int32(index % width), mi.Int32(index // width)
+        dr.eval(x, y)
+        _COORDINATES.clear()  # one size at a time: a sequence does not change size
+        _COORDINATES[key] = (x, y)
+    return _COORDINATES[key]
+
+
 class FrameArrays:
     """One frame's buffers as flat Dr.Jit arrays (colour, normal, position),
     uploaded once per frame; :class:`denoise.frames.FrameData` is the same
@@ -181,9 +197,7 @@ class FrameArrays:
         # a neighbour's guides are one 8-float record (normal, position, 2 floats
         # of padding), read with one packet gather per tap instead of two
         self.guides = pack_guides(self.normal, self.position)
-        index = dr.arange(mi.UInt32, self.width * self.height)
-        self.x = mi.Int32(index % self.width)
-        self.y = mi.Int32(index // self.width)
+        self.x, self.y = pixel_coordinates(self.width, self.height)
 
     def gather(self, packed: mi.Float, x: mi.Int32, y: mi.Int32, active=None) -> mi.Vector3f:
         """The value at (x, y) of an image packed by :func:`pack`, (x, y)
@@ -238,27 +252,32 @@ def atrous(frame: FrameArrays, p: EdgeWeights = EdgeWeights(), levels: AtrousLev
     colour sigma halves from one level to the next."""
     count = levels.levels if isinstance(levels, AtrousLevels) else AtrousLevels(levels).levels
     color = frame.color
+    color4 = pack(color)
     for level in range(count):
         step = 1 << level
         coefficients = _coefficients(p, p.sigma_color / step)
-        color4 = pack(color)
         total, weights = mi.Vector3f(0.0), mi.Float(0.0)
         for j, hy in enumerate(B3):
             for i, hx in enumerate(B3):
                 dx, dy = (i - 2) * step, (j - 2) * step
+                if dx == 0 and dy == 0:  # the centre: weight exp(0), its own colour (no gather)
+                    total += hx * hy * color
+                    weights += hx * hy
+                    continue
                 x, y = frame.x + dx, frame.y + dy
                 inside = (x >= 0) & (x < frame.width) & (y >= 0) & (y < frame.height)
                 color_j = frame.gather(color4, x, y, inside)
-                if dx == 0 and dy == 0:
-                    w = mi.Float(hx * hy)
-                else:
-                    log_w = edge_log_weight(coefficients, color, frame.normal, frame.position, color_j,
-                                            *frame.gather_guides(x, y))
-                    w = dr.select(inside, hx * hy * neg_exp(log_w), 0.0)
+                log_w = edge_log_weight(coefficients, color, frame.normal, frame.position, color_j,
+                                        *frame.gather_guides(x, y))
+                w = dr.select(inside, hx * hy * neg_exp(log_w), 0.0)
                 total += w * color_j
                 weights += w
         color = total / weights
-        dr.eval(color)  # the next level gathers from this one
+        if level + 1 < count:  # the next level's taps: packed in this level's kernel
+            color4 = dr.ravel(mi.Vector4f(color.x, color.y, color.z, 0.0))
+            dr.eval(color, color4)
+        else:
+            dr.eval(color)
     return frame.tensor(color)
 
 
@@ -311,40 +330,45 @@ def clamp_box(color: mi.TensorXf, radius: int = 3) -> tuple[mi.Vector3f, mi.Vect
     each row around ``r``; the vertical pass moves those sums to the centre
     ``p`` with ``Σ(c_q - c_p) = Σ(c_q - c_r) + n (c_r - c_p)`` and
     ``Σ(c_q - c_p)² = Σ(c_q - c_r)² + 2 (c_r - c_p) Σ(c_q - c_r) + n (c_r - c_p)²``,
-    so every term stays a difference: 2 (2r+1) taps instead of (2r+1)²."""
+    so every term stays a difference: 2 (2r+1) taps instead of (2r+1)². ``n``,
+    the columns inside the image, is the same for every row of a column, so
+    a row's record is its two sums alone (one 8-float packet per tap)."""
     height, width = color.shape[0], color.shape[1]
     c = dr.unravel(mi.Vector3f, color.array)
     c4 = pack(c)
     index = dr.arange(mi.UInt32, width * height)
     x0, y0 = mi.Int32(index % width), mi.Int32(index // width)
-    row_sum, row_sq, row_count = mi.Vector3f(0.0), mi.Vector3f(0.0), mi.Float(0.0)
+    row_sum, row_sq = mi.Vector3f(0.0), mi.Vector3f(0.0)
     for dx in range(-radius, radius + 1):
+        if dx == 0:  # c_r - c_r
+            continue
         x = x0 + dx
         inside = (x >= 0) & (x < width)
         v = dr.gather(mi.Vector4f, c4, mi.UInt32(y0 * width + dr.clip(x, 0, width - 1)))
         d = dr.select(inside, mi.Vector3f(v.x, v.y, v.z) - c, 0.0)
         row_sum += d
         row_sq += d * d
-        row_count += dr.select(inside, 1.0, 0.0)
-    # one 12-float record per pixel: (c, row sum, row sum of squares, count)
-    rows = dr.ravel(mi.Vector4f(c.x, c.y, c.z, row_count))
-    sums = dr.ravel(mi.Vector4f(row_sum.x, row_sum.y, row_sum.z, 0.0))
-    squares = dr.ravel(mi.Vector4f(row_sq.x, row_sq.y, row_sq.z, 0.0))
-    dr.eval(rows, sums, squares)
-    total, total_sq, count = mi.Vector3f(0.0), mi.Vector3f(0.0), mi.Float(0.0)
+    sums = dr.ravel(mi.ArrayXf(row_sum.x, row_sum.y, row_sum.z, row_sq.x, row_sq.y, row_sq.z, 0.0, 0.0))
+    dr.eval(sums)
+    n = mi.Float(dr.minimum(x0 + radius, width - 1) - dr.maximum(x0 - radius, 0) + 1)
+    total, total_sq, rows = mi.Vector3f(0.0), mi.Vector3f(0.0), mi.Float(0.0)
     for dy in range(-radius, radius + 1):
         y = y0 + dy
         inside = (y >= 0) & (y < height)
         j = mi.UInt32(dr.clip(y, 0, height - 1) * width + x0)  # clamped, unmasked; outside rows are selected away
-        r = dr.gather(mi.Vector4f, rows, j)
-        s_ = dr.gather(mi.Vector4f, sums, j)
-        q = dr.gather(mi.Vector4f, squares, j)
-        n = r.w
+        s = dr.gather(mi.ArrayXf, sums, j, shape=(8, width * height))
+        row_s, row_q = mi.Vector3f(s[0], s[1], s[2]), mi.Vector3f(s[3], s[4], s[5])
+        if dy == 0:  # the centre's own row: c_r = c_p
+            total += row_s
+            total_sq += row_q
+            rows += 1.0
+            continue
+        r = dr.gather(mi.Vector4f, c4, j)
         offset = mi.Vector3f(r.x, r.y, r.z) - c
-        row_s, row_q = mi.Vector3f(s_.x, s_.y, s_.z), mi.Vector3f(q.x, q.y, q.z)
         total += dr.select(inside, row_s + n * offset, 0.0)
         total_sq += dr.select(inside, row_q + 2.0 * offset * row_s + n * offset * offset, 0.0)
-        count += dr.select(inside, n, 0.0)
+        rows += dr.select(inside, 1.0, 0.0)
+    count = n * rows
     mean_offset = total / count
     variance = dr.maximum(total_sq / count - mean_offset * mean_offset, 0.0)
     return c + mean_offset, dr.sqrt(variance)

@@ -172,34 +172,38 @@ def atrous_level(frame: FrameArrays, color: mi.Vector3f, variance: mi.Float, ste
                  ) -> tuple[mi.Vector3f, mi.Float]:
     """One SVGF À-Trous level with holes ``step``."""
     packed = dr.ravel(mi.Vector4f(color.x, color.y, color.z, variance))
-    dr.eval(packed)
+    dr.eval(packed, variance)  # the 3x3 blur gathers the variance alone
     k_plane = _inv_two_sigma_sq(p.sigma_plane)
     # 3x3 Gaussian of the variance at the centre: the luminance weight's scale
-    blurred = mi.Float(0.0)
+    blurred = GAUSS3[1] * GAUSS3[1] * variance  # the centre's own (no gather)
     for dy in (-1, 0, 1):
         for dx in (-1, 0, 1):
+            if dx == 0 and dy == 0:
+                continue
             x = dr.clip(frame.x + dx, 0, frame.width - 1)
             y = dr.clip(frame.y + dy, 0, frame.height - 1)
-            blurred += GAUSS3[dx + 1] * GAUSS3[dy + 1] * dr.gather(mi.Float, packed, mi.UInt32(y * frame.width + x) * 4 + 3)
+            blurred += GAUSS3[dx + 1] * GAUSS3[dy + 1] * dr.gather(mi.Float, variance, mi.UInt32(y * frame.width + x))
     scale = -1.0 / (p.sigma_luminance * dr.sqrt(dr.maximum(blurred, 0.0)) + EPSILON)
     lum_p = luminance(color)
     total, weights, total_var = mi.Vector3f(0.0), mi.Float(0.0), mi.Float(0.0)
     for j, hy in enumerate(B3):
         for i, hx in enumerate(B3):
             dx, dy = (i - 2) * step, (j - 2) * step
+            if dx == 0 and dy == 0:  # the centre: weight 1 times the kernel's, its own values (no gather)
+                total += hx * hy * color
+                weights += hx * hy
+                total_var += hx * hy * hx * hy * variance
+                continue
             x, y = frame.x + dx, frame.y + dy
             inside = (x >= 0) & (x < frame.width) & (y >= 0) & (y < frame.height)
             q = dr.gather(mi.Vector4f, packed, mi.UInt32(dr.clip(y, 0, frame.height - 1) * frame.width
                                                          + dr.clip(x, 0, frame.width - 1)))
             c_q = mi.Vector3f(q.x, q.y, q.z)
-            if dx == 0 and dy == 0:
-                w = mi.Float(hx * hy)
-            else:
-                n_q, x_q = frame.gather_guides(x, y)
-                log_w = dr.abs(lum_p - luminance(c_q)) * scale - plane_log_weight(
-                    k_plane, frame.normal, frame.position, x_q)
-                w = hx * hy * normal_power(dr.dot(frame.normal, n_q), p.sigma_normal) * neg_exp(-log_w)
-                w = dr.select(inside, w, 0.0)
+            n_q, x_q = frame.gather_guides(x, y)
+            log_w = dr.abs(lum_p - luminance(c_q)) * scale - plane_log_weight(
+                k_plane, frame.normal, frame.position, x_q)
+            w = hx * hy * normal_power(dr.dot(frame.normal, n_q), p.sigma_normal) * neg_exp(-log_w)
+            w = dr.select(inside, w, 0.0)
             total += w * c_q
             weights += w
             total_var += w * w * q.w
