@@ -76,6 +76,12 @@ SETTLE_S = 0.2
 TIMED = ("oidn", "atrous+temporal", "svgf", "bilateral")
 
 
+def timing_folder(work: Path, sequence: str, settings: dict, quick: bool = False) -> Path:
+    """Where the speed run's frames of ``sequence`` are rendered and cached."""
+    width, height = settings["size"]
+    return work / f"timing_{sequence}_{width}x{height}_{settings['frames']}f{'_quick' if quick else ''}"
+
+
 class RawMethod:
     last_execute_s = None
 
@@ -372,10 +378,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{spec_path.stem}: reference noise {figures['reference_noise']:.2e}", file=sys.stderr)
     if not args.no_timing:
         spec_path = SEQUENCES[0]
-        timing_folder = args.work / (f"timing_{spec_path.stem}_{timing_size['size'][0]}x{timing_size['size'][1]}"
-                                     f"_{timing_size['frames']}f{suffix}")
-        export(Spec.load(spec_path, **timing_size), timing_folder)
-        results["timing"] = {"sequence": spec_path.stem, **run_timing(timing_folder)}
+        folder = timing_folder(args.work, spec_path.stem, timing_size, args.quick)
+        export(Spec.load(spec_path, **timing_size), folder)
+        results["timing"] = {"sequence": spec_path.stem, **run_timing(folder)}
     results.update(load_average_at_end=round(os.getloadavg()[0], 2), wall_s=round(time.perf_counter() - start, 1))
     print(summary(results))
     checks = reference_checks(results)

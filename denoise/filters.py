@@ -156,11 +156,10 @@ GUIDE_FLOATS = 8
 
 
 def pack_guides(normal: mi.Vector3f, position: mi.Vector3f) -> mi.Float:
-    """Normal and position per pixel as consecutive 8-float records."""
+    """Normal and position per pixel as consecutive 8-float records (not yet
+    evaluated: the caller evaluates them with whatever else the kernel makes)."""
     zero = dr.zeros(mi.Float, dr.width(normal))
-    packed = dr.ravel(mi.ArrayXf(normal.x, normal.y, normal.z, position.x, position.y, position.z, zero, zero))
-    dr.eval(packed)
-    return packed
+    return dr.ravel(mi.ArrayXf(normal.x, normal.y, normal.z, position.x, position.y, position.z, zero, zero))
 
 
 _COORDINATES: dict = {}
@@ -197,6 +196,9 @@ class FrameArrays:
         # a neighbour's guides are one 8-float record (normal, position, 2 floats
         # of padding), read with one packet gather per tap instead of two
         self.guides = pack_guides(self.normal, self.position)
+        # one kernel makes them all; left lazy, every level's kernel would redo the
+        # normalisation and read the tensors through strided single-float gathers
+        dr.eval(self.color, self.normal, self.position, self.guides)
         self.x, self.y = pixel_coordinates(self.width, self.height)
 
     def gather(self, packed: mi.Float, x: mi.Int32, y: mi.Int32, active=None) -> mi.Vector3f:

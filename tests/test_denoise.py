@@ -348,6 +348,18 @@ def test_denoise_command_and_benchmark_quick(variant_llvm_ad_rgb, tmp_path):
     assert all(v > 0 for v in results["timing"]["cpu_ms"].values())
     last = {r["method"]: r["relmse"] for r in results["results"] if r["frame"] == 3}
     assert last["atrous+temporal"] < last["raw"] / 2  # it denoises
+    # the per-kernel profile, on the speed run's frames just rendered: À-Trous has its
+    # 5 levels, each reading 24 colour and 24 guide records per pixel (the centre not gathered)
+    profile = tmp_path / "profile.json"
+    finished = subprocess.run([sys.executable, "-m", "benchmarks.denoise_profile", "--quick", "--work",
+                               str(tmp_path / "work"), "--json", str(profile)], cwd=ROOT, capture_output=True,
+                              text=True, timeout=600)
+    assert finished.returncode == 0, finished.stderr[-3000:]
+    atrous = json.loads(profile.read_text())["methods"][0]
+    levels = [k for k in atrous["kernels"] if k["level"]]
+    assert atrous["method"] == "atrous+temporal" and len(levels) == 5
+    assert all(k["packet_gathers"] == {"4 floats": 24, "8 floats": 24} for k in levels)
+    assert 0 < atrous["levels_ms"] <= atrous["kernels_ms"]
     folder = tmp_path / "work" / "glossy_shadow_96x54_16spp_quick"
     video = tmp_path / "den.mp4"
     assert denoise_main([str(folder), str(tmp_path / "results"), "--method", "svgf", "--png", "--video", str(video),

@@ -1,0 +1,181 @@
+"""Where a denoised frame's time goes: every Dr.Jit kernel of a frame of the
+timed methods at 1280x720, with its execution time and the bytes it moves.
+
+    python -m benchmarks.denoise_profile [--work DIR] [--frames N] [--json PATH] [--readme]
+
+Runs ``atrous+temporal`` and ``svgf`` (llvm_ad_rgb) over the speed run's
+frames (``benchmarks.denoise``'s 1280x720 folder, rendered if missing), with
+Dr.Jit's kernel history on. Per kernel, in launch order: its size, its
+operation count, what its IR reads per pixel (packet gathers of 4- and
+8-float records, single-float gathers, plain loads) and writes, and its
+execution time, the median over the frames after two warm-up frames.
+Kernels with at least 24 gathers of 4-float colour records and 24 of 8-float
+guide records are the À-Trous levels (5x5 taps, the centre read without a
+gather); the table sums them apart from the rest (guide packing, SVGF's
+spatial variance estimate, reprojection, accumulation and clamping).
+
+``--readme`` writes docs/denoise/profile.json and the README's profile
+section between ``<!-- denoise-profile:start -->`` and ``<!-- denoise-profile:end -->``.
+"""
+from __future__ import annotations
+
+import re
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from benchmarks import write_json
+
+ROOT = Path(__file__).resolve().parent.parent
+PROG = "python -m benchmarks.denoise_profile"
+METHODS = ("atrous+temporal", "svgf")
+#: a kernel with at least this many 4-float and 8-float packet gathers is an À-Trous level
+LEVEL_GATHERS = 24
+
+
+def ir_traffic(ir: str) -> dict:
+    """What a kernel's LLVM IR reads and writes per lane (= per pixel): its
+    main function's loads, stores, single-float gathers and scatters, and
+    calls of Dr.Jit's packet gather/scatter helpers (their bodies not counted)."""
+    start = ir.find("define void @drjit_")
+    if start >= 0:
+        ir = ir[start:ir.find("\n}", start)]
+    packets = {int(n): len(re.findall(rf"call fastcc \[{n} x <\d+ x float>\] @gather_{n}xf32", ir))
+               for n in (2, 4, 8, 16)}
+    single_gathers = len(re.findall(r"call <\d+ x (?:float|i32)> @llvm\.masked\.gather", ir))
+    loads = len(re.findall(r"= load <\d+ x (?:float|i32)>", ir))
+    stores = len(re.findall(r"store <\d+ x (?:float|i32)>", ir))
+    scatters = len(re.findall(r"call void @llvm\.masked\.scatter", ir)) + sum(
+        n * len(re.findall(rf"call fastcc void @scatter_{n}xf32\(", ir)) for n in (2, 4, 8, 16))
+    read = 4 * (sum(n * c for n, c in packets.items()) + single_gathers + loads)
+    return {"packet_gathers": {f"{n} floats": c for n, c in packets.items() if c},
+            "single_gathers": single_gathers, "loads": loads,
+            "bytes_read_per_pixel": read, "bytes_written_per_pixel": 4 * (stores + scatters)}
+
+
+def profile(frames, method: str) -> dict:
+    """Median per-kernel execution times of ``method`` over ``frames[2:]``."""
+    import drjit as dr
+
+    from benchmarks.denoise import make_method
+
+    runner = make_method(method)
+    for frame in frames[:2]:
+        runner.step(frame)
+    dr.sync_thread()
+    dr.set_flag(dr.JitFlag.KernelHistory, True)
+    runs, walls = [], []
+    try:
+        for frame in frames[2:]:
+            dr.kernel_history()  # drop what came before
+            start = time.perf_counter()
+            runner.step(frame)
+            dr.sync_thread()
+            walls.append(1000 * (time.perf_counter() - start))
+            runs.append([k for k in dr.kernel_history() if "execution_time" in k and k.get("size", 0) > 1])
+    finally:
+        dr.set_flag(dr.JitFlag.KernelHistory, False)
+    counts = {len(r) for r in runs}
+    if len(counts) != 1:
+        raise RuntimeError(f"{method}: the frames launched different numbers of kernels ({sorted(counts)})")
+    kernels = []
+    for position, first in enumerate(runs[0]):
+        ir = first.get("ir", "")  # only JIT kernels have IR (not e.g. Dr.Jit's compress or memset)
+        traffic = ir_traffic(ir.getvalue() if hasattr(ir, "getvalue") else str(ir))
+        packets = traffic["packet_gathers"]
+        kernels.append({"kernel": position, "type": str(first["type"]).split(".")[-1], "size": int(first["size"]),
+                        "operations": int(first.get("operation_count", 0)),
+                        "level": packets.get("8 floats", 0) >= LEVEL_GATHERS and packets.get("4 floats", 0) >= LEVEL_GATHERS,
+                        **traffic,
+                        "ms": float(np.median([r[position]["execution_time"] for r in runs]))})
+    total = sum(k["ms"] for k in kernels)
+    levels = sum(k["ms"] for k in kernels if k["level"])
+    return {"method": method, "frames": len(runs), "wall_ms": float(np.median(walls)), "kernels_ms": total,
+            "levels_ms": levels, "other_kernels_ms": total - levels, "kernels": kernels}
+
+
+def table(results: dict) -> str:
+    lines = []
+    for p in results["methods"]:
+        lines += [f"`{p['method']}`, one frame: wall {p['wall_ms']:.0f} ms, kernels {p['kernels_ms']:.0f} ms, of "
+                  f"which À-Trous levels {p['levels_ms']:.0f} ms ({100 * p['levels_ms'] / p['kernels_ms']:.0f} %); "
+                  f"median of {p['frames']} frames:", "",
+                  "| kernel | pixels | operations | packet gathers per pixel | bytes read / written per pixel | ms |",
+                  "|---|---|---|---|---|---|"]
+        for k in p["kernels"]:
+            gathers = ", ".join(f"{c}x{n.split()[0]} floats" for n, c in k["packet_gathers"].items()) or "-"
+            if k["single_gathers"]:
+                gathers += f"; {k['single_gathers']} single"
+            name = f"{k['kernel']}" + (" (À-Trous level)" if k["level"] else "" if k["type"] == "JIT"
+                                       else f" ({k['type']})")
+            lines.append(f"| {name} | {k['size']} | {k['operations']} | {gathers} | "
+                         f"{k['bytes_read_per_pixel']} / {k['bytes_written_per_pixel']} | {k['ms']:.1f} |")
+        lines.append("")
+    return "\n".join(lines)
+
+
+def write_readme(results: dict, command: str) -> None:
+    readme = ROOT / "README.md"
+    m = results["machine"]
+    head = (f"Written by `{command}` on {results['date']} ({m}; load average "
+            f"{results['load_average_at_start']} at the start):\n\n")
+    text = readme.read_text()
+    if "<!-- denoise-profile:start -->" not in text:
+        raise RuntimeError("README.md has no <!-- denoise-profile:start --> section")
+    text = re.sub(r"<!-- denoise-profile:start -->.*?<!-- denoise-profile:end -->",
+                  lambda _: "<!-- denoise-profile:start -->\n" + head + table(results) + "<!-- denoise-profile:end -->",
+                  text, flags=re.S)
+    readme.write_text(text)
+
+
+def main(argv: list[str] | None = None) -> int:
+    from core.entry import ArgumentParser
+
+    parser = ArgumentParser(prog=PROG, description=__doc__.split("\n\n")[0])
+    parser.add_argument("--work", type=Path, default=Path("out/denoise"),
+                        help="where the speed run's frames are (rendered there if missing; default out/denoise)")
+    parser.add_argument("--json", type=Path, metavar="PATH", help="write the profile as JSON")
+    parser.add_argument("--readme", action="store_true", help="write docs/denoise/profile.json and the README section")
+    parser.add_argument("--quick", action="store_true", help="the small speed frames of benchmarks.denoise --quick")
+    args = parser.parse_args(argv)
+    import datetime
+    import os
+
+    from benchmarks import machine
+    from benchmarks.denoise import QUICK_TIMING, SEQUENCES, TIMING, timing_folder
+    from denoise.export import Spec, export
+    from denoise.frames import frame_indices, read_frame
+    from renderer.variants import set_variant
+
+    import mitsuba as mi
+
+    from core.errors import UsageError
+
+    set_variant(None, quiet=True)
+    if mi.variant().startswith("scalar"):
+        raise UsageError("the profile reads Dr.Jit's kernel history: it needs a JIT variant (llvm_ad_rgb), "
+                         f"and {mi.variant()} is what this machine has")
+    size = QUICK_TIMING if args.quick else TIMING
+    folder = timing_folder(args.work, SEQUENCES[0].stem, size, args.quick)
+    export(Spec.load(SEQUENCES[0], **size), folder)
+    frames = [read_frame(folder, i) for i in frame_indices(folder)]
+    results = {"date": datetime.date.today().isoformat(), "machine": machine(),
+               "load_average_at_start": round(os.getloadavg()[0], 2),
+               "size": [frames[0].beauty.shape[1], frames[0].beauty.shape[0]],
+               "methods": [profile(frames, method) for method in METHODS]}
+    print(table(results))
+    if args.readme:
+        args.json = args.json or ROOT / "docs" / "denoise" / "profile.json"
+    if args.json:
+        write_json(args.json, results)
+    if args.readme:
+        write_readme(results, "python -m benchmarks.denoise_profile --readme")
+    return 0
+
+
+if __name__ == "__main__":
+    from core.entry import run
+
+    sys.exit(run(PROG, main))
