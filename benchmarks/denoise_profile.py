@@ -14,6 +14,9 @@ guide records are the À-Trous levels (5x5 taps, the centre read without a
 gather); the table sums them apart from the rest (guide packing, SVGF's
 spatial variance estimate, reprojection, accumulation and clamping).
 
+Last, ``atrous+temporal``'s kernel time with one Dr.Jit thread against the
+default count (how far the second core helps).
+
 ``--readme`` writes docs/denoise/profile.json and the README's profile
 section between ``<!-- denoise-profile:start -->`` and ``<!-- denoise-profile:end -->``.
 """
@@ -89,11 +92,27 @@ def profile(frames, method: str) -> dict:
                         "operations": int(first.get("operation_count", 0)),
                         "level": packets.get("8 floats", 0) >= LEVEL_GATHERS and packets.get("4 floats", 0) >= LEVEL_GATHERS,
                         **traffic,
-                        "ms": float(np.median([r[position]["execution_time"] for r in runs]))})
+                        "ms": float(np.median([r[position]["execution_time"] for r in runs])),
+                        "ms_min": float(min(r[position]["execution_time"] for r in runs)),
+                        "ms_max": float(max(r[position]["execution_time"] for r in runs))})
     total = sum(k["ms"] for k in kernels)
     levels = sum(k["ms"] for k in kernels if k["level"])
     return {"method": method, "frames": len(runs), "wall_ms": float(np.median(walls)), "kernels_ms": total,
             "levels_ms": levels, "other_kernels_ms": total - levels, "kernels": kernels}
+
+
+def thread_scaling(frames, method: str = "atrous+temporal") -> dict:
+    """Kernel time per frame of ``method`` with one Dr.Jit thread and with the default count."""
+    import drjit as dr
+
+    default = dr.thread_count()
+    try:
+        dr.set_thread_count(1)
+        one = profile(frames, method)["kernels_ms"]
+    finally:
+        dr.set_thread_count(default)
+    return {"method": method, "threads": default, "kernels_ms_one_thread": one,
+            "kernels_ms": profile(frames, method)["kernels_ms"]}
 
 
 def table(results: dict) -> str:
@@ -102,7 +121,8 @@ def table(results: dict) -> str:
         lines += [f"`{p['method']}`, one frame: wall {p['wall_ms']:.0f} ms, kernels {p['kernels_ms']:.0f} ms, of "
                   f"which À-Trous levels {p['levels_ms']:.0f} ms ({100 * p['levels_ms'] / p['kernels_ms']:.0f} %); "
                   f"median of {p['frames']} frames:", "",
-                  "| kernel | pixels | operations | packet gathers per pixel | bytes read / written per pixel | ms |",
+                  "| kernel | pixels | operations | packet gathers per pixel | bytes read / written per pixel "
+                  "| ms (min–max) |",
                   "|---|---|---|---|---|---|"]
         for k in p["kernels"]:
             gathers = ", ".join(f"{c}x{n.split()[0]} floats" for n, c in k["packet_gathers"].items()) or "-"
@@ -111,8 +131,13 @@ def table(results: dict) -> str:
             name = f"{k['kernel']}" + (" (À-Trous level)" if k["level"] else "" if k["type"] == "JIT"
                                        else f" ({k['type']})")
             lines.append(f"| {name} | {k['size']} | {k['operations']} | {gathers} | "
-                         f"{k['bytes_read_per_pixel']} / {k['bytes_written_per_pixel']} | {k['ms']:.1f} |")
+                         f"{k['bytes_read_per_pixel']} / {k['bytes_written_per_pixel']} | {k['ms']:.1f} "
+                         f"({k['ms_min']:.1f}–{k['ms_max']:.1f}) |")
         lines.append("")
+    t = results.get("threads")
+    if t:
+        lines += [f"`{t['method']}` kernels with one Dr.Jit thread {t['kernels_ms_one_thread']:.0f} ms, with "
+                  f"{t['threads']} {t['kernels_ms']:.0f} ms ({t['kernels_ms_one_thread'] / t['kernels_ms']:.2f}x).", ""]
     return "\n".join(lines)
 
 
@@ -164,7 +189,7 @@ def main(argv: list[str] | None = None) -> int:
     results = {"date": datetime.date.today().isoformat(), "machine": machine(),
                "load_average_at_start": round(os.getloadavg()[0], 2),
                "size": [frames[0].beauty.shape[1], frames[0].beauty.shape[0]],
-               "methods": [profile(frames, method) for method in METHODS]}
+               "methods": [profile(frames, method) for method in METHODS], "threads": thread_scaling(frames)}
     print(table(results))
     if args.readme:
         args.json = args.json or ROOT / "docs" / "denoise" / "profile.json"
