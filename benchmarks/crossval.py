@@ -38,7 +38,7 @@ def summary_table(results: dict) -> str:
     for a in results["agreement"]:
         ratio = a["relmse_whitted_path"] / a["relmse_path_path"] if a["relmse_path_path"] else float("nan")
         lines.append(f"| {a['scene']} | {a['bounces']} | {a['spp']} | {a['max_abs_z']:.2f} ({a['z_critical']:.2f}) | "
-                     f"{100 * a['relative_bias']:+.3f} ± {100 * a['relative_bias_stderr']:.3f} % | "
+                     f"{round(100 * a['relative_bias'], 3) + 0.0:+.3f} ± {100 * a['relative_bias_stderr']:.3f} % | "
                      f"{a['relmse_whitted_path']:.2e} | {a['relmse_path_path']:.2e} | {ratio:.2f} | "
                      f"{'yes' if a['passed'] else 'NO'} |")
     return "\n".join(lines)

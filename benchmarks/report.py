@@ -164,7 +164,7 @@ def validation_section(cv: dict, evt: dict | None, suite: dict | None) -> str:
         deepest = max((a for a in agreement if a["scene"] == scene and a["spp"] == max(settings["spp"])),
                       key=lambda a: a["bounces"])
         ok = all(a["passed"] for a in agreement if a["scene"] == scene)
-        lines.append(f"| {scene} | " + " | ".join(cells) + f" | {100 * deepest['relative_bias']:+.3f} ± "
+        lines.append(f"| {scene} | " + " | ".join(cells) + f" | {round(100 * deepest['relative_bias'], 3) + 0.0:+.3f} ± "
                      f"{100 * deepest['relative_bias_stderr']:.3f} % | {'yes' if ok else 'NO'} |")
     power = _load(DOCS / "crossval_bias.json")
     if power:

@@ -296,7 +296,7 @@ def failures(results: dict) -> list[str]:
               f"{c['albedo']:.4f} +- {c['stderr']:.4f}, integrated {c['expected']:.4f} (z = {c['z']:.1f})"
               for c in results["furnace"] if not c["passed"]]
     lines += [f"agreement {a['scene']} bounces={a['bounces']} spp={a['spp']}: max |z| {a['max_abs_z']:.1f} "
-              f"(bound {a['z_critical']:.2f}), bias {100 * a['relative_bias']:+.2f} % "
+              f"(bound {a['z_critical']:.2f}), bias {round(100 * a['relative_bias'], 2) + 0.0:+.2f} % "
               f"+- {100 * a['relative_bias_stderr']:.2f} %, relMSE {a['relmse_whitted_path']:.3g} "
               f"vs 2 x {a['relmse_path_path']:.3g}"
               for a in results["agreement"] if not a["passed"]]
