@@ -319,10 +319,29 @@ def write_readme(results: dict, still: Path | None, video: Path | None, command:
     readme.write_text(text)
 
 
+PROG = "python -m benchmarks.denoise"
+
+
+def check_work_and_json(work: Path, json_path: Path | None) -> None:
+    """The cache folder and the JSON file, checked before hours of rendering."""
+    from core.errors import OutputError
+    from renderer.checks import check_writable
+
+    if work.exists() and not work.is_dir():
+        raise OutputError(f"--work {work}: a file, not a folder")
+    work.mkdir(parents=True, exist_ok=True)  # an OSError names the path (one line under core.entry.run)
+    if json_path is not None:
+        if json_path.is_dir():
+            raise OutputError(f"--json {json_path}: a folder; give a file name such as {json_path / 'denoise.json'}")
+        check_writable("--json", json_path)
+
+
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m benchmarks.denoise", description=__doc__.split("\n\n")[0],
-                                     formatter_class=argparse.RawDescriptionHelpFormatter,
-                                     epilog="example: python -m benchmarks.denoise --json out/denoise.json")
+    from core.entry import ArgumentParser
+
+    parser = ArgumentParser(prog=PROG, description=__doc__.split("\n\n")[0],
+                            formatter_class=argparse.RawDescriptionHelpFormatter,
+                            epilog="example: python -m benchmarks.denoise --json out/denoise.json")
     parser.add_argument("--json", type=Path, metavar="PATH", help="write every number as JSON")
     parser.add_argument("--quick", action="store_true", help="small frames and a noisy reference (CI; the "
                         "reference check is reported, not enforced)")
@@ -333,18 +352,27 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--no-timing", action="store_true", help="skip the 1280x720 speed run")
     parser.add_argument("--sequences", nargs="*", metavar="NAME", help="only these sequences")
     parser.add_argument("--reference-spp", type=int, metavar="N",
-                        help="ground-truth spp for every sequence (default: " +
+                        help="ground-truth spp for every sequence, even (default: " +
                              ", ".join(f"{k} {v}" for k, v in REFERENCE_SPP.items()) + ")")
     args = parser.parse_args(argv)
     import datetime
 
+    from core.errors import UsageError
     from denoise.export import Spec, export
     from renderer.variants import set_variant
 
-    set_variant(None, quiet=True)
+    known = [p.stem for p in SEQUENCES]
+    unknown = [name for name in args.sequences or [] if name not in known]
+    if unknown:
+        raise UsageError(f"--sequences: no sequence {unknown[0]!r}; choose from {', '.join(known)}")
+    if args.reference_spp is not None and (args.reference_spp < 2 or args.reference_spp % 2):
+        raise UsageError(f"--reference-spp must be an even number >= 2 (two independently seeded halves), "
+                         f"got {args.reference_spp}")
     docs = ROOT / "docs" / "denoise"
     if args.readme:
         args.json = args.json or docs / "denoise.json"
+    check_work_and_json(args.work, args.json)
+    set_variant(None, quiet=True)
     quality, timing_size = (QUICK, QUICK_TIMING) if args.quick else (QUALITY, TIMING)
     suffix = "_quick" if args.quick else ""
     from benchmarks import machine
@@ -359,8 +387,10 @@ def main(argv: list[str] | None = None) -> int:
         if args.sequences and spec_path.stem not in args.sequences:
             continue
         settings = dict(quality)
-        if not args.quick:
-            settings["reference_spp"] = args.reference_spp or REFERENCE_SPP.get(spec_path.stem, 1024)
+        if args.reference_spp is not None:
+            settings["reference_spp"] = args.reference_spp
+        elif not args.quick:
+            settings["reference_spp"] = REFERENCE_SPP.get(spec_path.stem, 1024)
         spec = Spec.load(spec_path, **settings)
         # the folder names its settings: other settings render beside it, never into it
         folder = args.work / f"{spec_path.stem}_{spec.size[0]}x{spec.size[1]}_{spec.reference_spp}spp{suffix}"
@@ -405,4 +435,6 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from core.entry import run
+
+    sys.exit(run(PROG, main))

@@ -169,7 +169,7 @@ def main(argv: list[str] | None = None) -> int:
     import os
 
     from benchmarks import machine
-    from benchmarks.denoise import QUICK_TIMING, SEQUENCES, TIMING, timing_folder
+    from benchmarks.denoise import QUICK_TIMING, SEQUENCES, TIMING, check_work_and_json, timing_folder
     from denoise.export import Spec, export
     from denoise.frames import frame_indices, read_frame
     from renderer.variants import set_variant
@@ -178,6 +178,9 @@ def main(argv: list[str] | None = None) -> int:
 
     from core.errors import UsageError
 
+    if args.readme:
+        args.json = args.json or ROOT / "docs" / "denoise" / "profile.json"
+    check_work_and_json(args.work, args.json)
     set_variant(None, quiet=True)
     if mi.variant().startswith("scalar"):
         raise UsageError("the profile reads Dr.Jit's kernel history: it needs a JIT variant (llvm_ad_rgb), "
@@ -191,8 +194,6 @@ def main(argv: list[str] | None = None) -> int:
                "size": [frames[0].beauty.shape[1], frames[0].beauty.shape[0]],
                "methods": [profile(frames, method) for method in METHODS], "threads": thread_scaling(frames)}
     print(table(results))
-    if args.readme:
-        args.json = args.json or ROOT / "docs" / "denoise" / "profile.json"
     if args.json:
         write_json(args.json, results)
     if args.readme:

@@ -50,7 +50,8 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--method", choices=METHODS, default="atrous", help="the filter (default: atrous)")
     parser.add_argument("--no-temporal", action="store_true", help="each frame on its own (no history)")
     parser.add_argument("--demodulate", action="store_true",
-                        help="filter beauty / albedo and multiply back (needs albedo_i.exr; svgf always does)")
+                        help="filter beauty / albedo and multiply back (needs albedo_i.exr for every frame; "
+                             "svgf does so whenever the frames have it)")
     parser.add_argument("--outliers", type=float, metavar="K", default=None,
                         help=f"first clamp each pixel's luminance to its 7x7 mean +- K sigma (off by default; "
                              f"{outliers.k:g} is a usual K)")
@@ -108,7 +109,13 @@ def options_from(args):
                                                                                      defaults.temporal_params)
     temporal = TemporalParams(alpha=base.alpha if args.alpha is None else args.alpha,
                               k=base.k if args.k is None else args.k, clamp_radius=base.clamp_radius)
-    svgf = SVGFParams(sigma_luminance=args.sigma_luminance, sigma_normal=args.normal_exponent)
+    from core.errors import UsageError
+
+    try:
+        svgf = SVGFParams(sigma_luminance=args.sigma_luminance, sigma_normal=args.normal_exponent)
+    except UsageError as error:  # name the command's option, not the parameter
+        raise UsageError(str(error).replace("sigma_normal", "--normal-exponent")
+                         .replace("sigma_luminance", "--sigma-luminance")) from None
     if args.levels is not None:
         svgf = replace(svgf, levels=args.levels)
     return DenoiseOptions(
@@ -157,14 +164,20 @@ def _main(argv: list[str] | None) -> int:
                 row.append(truth)
             panels.append(row)
 
-    written = denoise_folder(args.source, args.target, options, on_frame)
+    report = denoise_folder(args.source, args.target, options, on_frame, require_albedo=args.demodulate)
     if args.video is not None:
         from imaging.colour import side_by_side
         from imaging.image_io import write_video
 
         write_video(args.video, [side_by_side(row) for row in panels], fps=args.fps)
     extra = (" with PNG previews" if args.png else "") + (f", video {args.video}" if args.video else "")
-    print(f"{len(written)} frames -> {args.target}{extra}")
+    print(f"{len(report.written)} frames -> {args.target}{extra}")
+    if report.replaced_values:
+        from .pipeline import RADIANCE_LIMIT
+
+        print(f"python -m denoise: note: {report.replaced_values} beauty values in {report.frames_with_replaced} "
+              f"frames were NaN, infinite or beyond +-{RADIANCE_LIMIT:g}: filtered as 0 or +-{RADIANCE_LIMIT:g}",
+              file=sys.stderr)
     return 0
 
 

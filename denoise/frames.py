@@ -141,11 +141,17 @@ def _read_exr(path: Path) -> dict:
     return channels
 
 
+def missing_files(folder: Path, index: int) -> list[str]:
+    """The names of frame ``index``'s required files that ``folder`` lacks."""
+    required = [folder / f"{name}_{index}.exr" for name in BUFFERS] + [folder / f"matrix_{index}.mat"]
+    return [p.name for p in required if not p.exists()]
+
+
 def read_frame(folder: Path, index: int) -> FrameData:
     """Frame ``index`` of ``folder``, checked: every buffer the same size, ids
     that are whole numbers naming an object of ``matrix_i.mat`` (or -1)."""
     paths = {name: folder / f"{name}_{index}.exr" for name in BUFFERS}
-    missing = [str(p.name) for p in list(paths.values()) + [folder / f"matrix_{index}.mat"] if not p.exists()]
+    missing = missing_files(folder, index)
     if missing:
         raise FrameError(f"{folder}: frame {index} lacks {', '.join(missing)}")
     rgb = {n: _rgb(_read_exr(paths[n]), paths[n]) for n in ("beauty", "normal", "position")}

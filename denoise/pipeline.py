@@ -35,7 +35,7 @@ from imaging.image_io import write_exr
 
 from .filters import (AtrousLevels, BilateralWindow, EdgeWeights, FrameArrays, OutlierParams, TemporalParams,
                       accumulate, atrous, demodulate, joint_bilateral, remodulate, remove_outliers, reproject)
-from .frames import FrameData, frame_indices, read_frame
+from .frames import FrameData, frame_indices, missing_files, read_frame
 from .oidn import OIDNParams
 from .svgf import SVGFParams, svgf
 
@@ -96,6 +96,7 @@ class Denoiser:
             from .oidn import OIDN
 
             self.oidn = OIDN(options.oidn)
+        self.last_replaced = 0  # beauty values of the last frame that were not usable (see usable())
         self.last_execute_s = 0.0  # OIDN's execute time of the last frame (both runs for oidn-guided)
         self.last_execute_cpu_s = 0.0  # the same as this process's CPU time (all threads)
 
@@ -123,8 +124,10 @@ class Denoiser:
         if self.previous is not None and self.previous.beauty.shape != frame.beauty.shape:
             raise FrameError(f"frame size changed from {self.previous.beauty.shape[1]}x"
                              f"{self.previous.beauty.shape[0]} to {frame.beauty.shape[1]}x{frame.beauty.shape[0]}")
-        color = tensor(frame.beauty)
-        position = tensor(frame.position)
+        beauty, self.last_replaced = usable(frame.beauty, RADIANCE_LIMIT)
+        position_values, _ = usable(frame.position, POSITION_LIMIT)
+        color = tensor(beauty)
+        position = tensor(position_values)
         ids = tensor(frame.ids)
         albedo = (tensor(frame.albedo) if (o.demodulate and frame.albedo is not None and not o.method.startswith("oidn"))
                   else None)
@@ -167,8 +170,10 @@ class Denoiser:
         return np.array(result, np.float32)
 
 
-def check_folder(source: Path) -> list[int]:
-    """The frame indices of ``source``, which must be consecutive."""
+def check_folder(source: Path, require_albedo: bool = False) -> list[int]:
+    """The frame indices of ``source``, which must be consecutive, each with
+    every required file, and albedo for all frames or for none (for every
+    frame where ``require_albedo``): checked before any frame is denoised."""
     if not source.is_dir():
         raise FrameError(f"{source}: not a folder")
     indices = frame_indices(source)
@@ -177,27 +182,78 @@ def check_folder(source: Path) -> list[int]:
     if indices != list(range(indices[0], indices[0] + len(indices))):
         missing = sorted(set(range(indices[0], indices[-1] + 1)) - set(indices))
         raise FrameError(f"{source}: frames {missing} are missing")
+    for index in indices:
+        missing = missing_files(source, index)
+        if missing:
+            raise FrameError(f"{source}: frame {index} lacks {', '.join(missing)}")
+    with_albedo = [i for i in indices if (source / f"albedo_{i}.exr").exists()]
+    if require_albedo and len(with_albedo) < len(indices):
+        lacking = sorted(set(indices) - set(with_albedo))
+        raise FrameError(f"{source}: --demodulate needs albedo_i.exr, and frame {lacking[0]} has none"
+                         + (f" ({len(lacking)} frames lack it)" if len(lacking) > 1 else ""))
+    if 0 < len(with_albedo) < len(indices):
+        lacking = sorted(set(indices) - set(with_albedo))
+        raise FrameError(f"{source / f'albedo_{lacking[0]}.exr'}: missing, while frame {with_albedo[0]} has its "
+                         "albedo (every frame or none)")
     return indices
 
 
+#: beauty values beyond +-this are clamped to it (NaN and inf become 0) before any filter:
+#: squared differences and second moments of 49 such values stay finite in float32
+RADIANCE_LIMIT = 1e12
+#: positions beyond +-this are clamped to it (no scene is that large in float32 anyway)
+POSITION_LIMIT = 1e15
+
+
+def usable(values: np.ndarray, limit: float) -> tuple[np.ndarray, int]:
+    """``values`` with NaN and inf set to 0 and the rest clamped to +-``limit``,
+    and how many values that changed."""
+    if values.size == 0 or (values.min() >= -limit and values.max() <= limit):  # NaN fails both: slow path
+        return values, 0
+    finite = np.isfinite(values)
+    changed = int(values.size - np.count_nonzero(finite & (np.abs(values) <= limit)))
+    return np.clip(np.where(finite, values, 0.0), -limit, limit).astype(np.float32), changed
+
+
+@dataclass
+class FolderReport:
+    """What :func:`denoise_folder` did: the results written, and how many
+    beauty values were not usable (NaN, inf, beyond :data:`RADIANCE_LIMIT`)."""
+    written: list[Path] = field(default_factory=list)
+    replaced_values: int = 0
+    frames_with_replaced: int = 0
+
+
 def denoise_folder(source: Path, target: Path, options: DenoiseOptions = DenoiseOptions(),
-                   on_frame=None) -> list[Path]:
+                   on_frame=None, require_albedo: bool = False) -> FolderReport:
     """Denoises every frame of ``source`` into ``target/result_i.exr``;
-    ``on_frame(index, frame, result)`` is called after each (previews)."""
-    indices = check_folder(source)
-    denoiser, written = Denoiser(options), []
+    ``on_frame(index, frame, result)`` is called after each (previews). The
+    folder's files are checked before the first frame; a frame that turns out
+    damaged later stops the run with the results before it kept, as the
+    error says."""
+    indices = check_folder(source, require_albedo)
+    denoiser, report = Denoiser(options), FolderReport()
     size = None
     for index in tqdm(indices, desc="denoising", unit="frame", delay=1.0, leave=False):
-        frame = read_frame(source, index)
-        if size is None:
-            size = frame.beauty.shape[:2]
-        elif frame.beauty.shape[:2] != size:
-            raise FrameError(f"{source / f'beauty_{index}.exr'}: {frame.beauty.shape[1]}x{frame.beauty.shape[0]} "
-                             f"pixels, but frame {indices[0]} has {size[1]}x{size[0]}")
-        result = denoiser.step(frame)
+        try:
+            frame = read_frame(source, index)
+            if size is None:
+                size = frame.beauty.shape[:2]
+            elif frame.beauty.shape[:2] != size:
+                raise FrameError(f"{source / f'beauty_{index}.exr'}: {frame.beauty.shape[1]}x"
+                                 f"{frame.beauty.shape[0]} pixels, but frame {indices[0]} has {size[1]}x{size[0]}")
+            result = denoiser.step(frame)
+        except FrameError as error:
+            if report.written:
+                done = (f"the result of frame {indices[0]} was" if index - 1 == indices[0]
+                        else f"the results of frames {indices[0]} to {index - 1} were")
+                raise FrameError(f"{error} ({done} written to {target}; none from frame {index} on)") from None
+            raise
         path = target / f"result_{index}.exr"
         write_exr(path, {"": result})
-        written.append(path)
+        report.written.append(path)
+        report.replaced_values += denoiser.last_replaced
+        report.frames_with_replaced += denoiser.last_replaced > 0
         if on_frame is not None:
             on_frame(index, frame, result)
-    return written
+    return report

@@ -132,7 +132,9 @@ def write_image(path: str | Path, pixels: np.ndarray) -> None:
 
 
 def write_video(path: str | Path, frames: list[np.ndarray], fps: int = 2) -> None:
-    """Writes 8-bit RGB frames as an H.264 MP4 (imageio's FFmpeg)."""
+    """Writes 8-bit RGB frames as an H.264 MP4 (imageio's FFmpeg). H.264's 4:2:0
+    chroma wants even sizes: an odd width or height gets one more column or
+    row (a copy of the last), rather than FFmpeg's resampling and warning."""
     import imageio.v2 as imageio
 
     path = Path(path)
@@ -140,7 +142,8 @@ def write_video(path: str | Path, frames: list[np.ndarray], fps: int = 2) -> Non
         with imageio.get_writer(tmp, fps=fps, codec="libx264", quality=8, format="FFMPEG",
                                 macro_block_size=2) as writer:
             for frame in frames:
-                writer.append_data(frame)
+                height, width = frame.shape[:2]
+                writer.append_data(np.pad(frame, ((0, height % 2), (0, width % 2), (0, 0)), mode="edge"))
 
 
 def read_png(path: str | Path) -> np.ndarray:

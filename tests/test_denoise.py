@@ -376,6 +376,28 @@ def test_denoise_command_and_benchmark_quick(variant_llvm_ad_rgb, tmp_path):
     assert len(list((tmp_path / "guided").glob("result_*.exr"))) == 4
 
 
+@pytest.mark.parametrize("argv, message", [
+    (["--quick", "--sequences", "nosuch"], "--sequences: no sequence 'nosuch'; choose from"),
+    (["--reference-spp", "3"], "--reference-spp must be an even number >= 2"),
+    (["--reference-spp", "0"], "--reference-spp must be an even number >= 2"),
+    (["--quick", "--work", "README.md"], "--work README.md: a file, not a folder"),
+    (["--quick", "--json", "docs"], "--json docs: a folder"),
+])
+@pytest.mark.parametrize("module", ["benchmarks.denoise", "benchmarks.denoise_profile"])
+def test_denoise_benchmarks_refuse_bad_arguments_first(module, argv, message):
+    """Bad arguments of the two denoising benchmarks: one line, exit 2, before
+    anything is rendered or timed (the profile has no --sequences/--reference-spp)."""
+    import subprocess
+    import sys
+
+    if module.endswith("profile") and ("--sequences" in argv or "--reference-spp" in argv):
+        message = "unrecognized arguments"
+    finished = subprocess.run([sys.executable, "-m", module, *argv], cwd=ROOT, capture_output=True, text=True,
+                              timeout=120)
+    assert finished.returncode == 2 and "Traceback" not in finished.stderr, finished.stderr[-2000:]
+    assert finished.stderr.count("\n") == 1 and message in finished.stderr, finished.stderr
+
+
 @pytest.mark.parametrize("flags, message", [
     (["--levels", "31"], "levels must be a whole number from 1 to 12"),
     (["--radius", "-5"], "radius must be a whole number from 0 to 64"),
@@ -386,7 +408,8 @@ def test_denoise_command_and_benchmark_quick(variant_llvm_ad_rgb, tmp_path):
     (["--sigma-plane", "-1"], "sigma_plane"),
     (["--sigma-coord", "inf"], "sigma_coord"),
     (["--outliers", "-1"], "outlier removal: k"),
-    (["--method", "svgf", "--sigma-luminance", "nan"], "sigma_luminance"),
+    (["--method", "svgf", "--sigma-luminance", "nan"], "svgf: --sigma-luminance must be"),
+    (["--method", "svgf", "--normal-exponent", "-3"], "svgf: --normal-exponent must be"),
     (["--video", "out.gif"], "name it .mp4"),
 ])
 def test_denoise_rejects_bad_parameters(tmp_path, capsys, flags, message):

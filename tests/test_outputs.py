@@ -171,3 +171,19 @@ def test_failed_write_keeps_the_earlier_file(tmp_path):
             raise RuntimeError("interrupted")
     assert np.array_equal(image_io.read_png(target), good)
     assert [p.name for p in tmp_path.iterdir()] == ["a.png"]  # no temporary files left
+
+
+def test_video_of_odd_size_is_padded_not_resampled(tmp_path, capfd):
+    """H.264 wants even sizes: a 5x3 frame becomes 6x4 by repeating its last
+    column and row (no FFmpeg resampling, no warning on stderr)."""
+    import imageio.v2 as imageio
+
+    from imaging.image_io import write_video
+
+    frame = np.zeros((3, 5, 3), np.uint8)
+    frame[:, 4] = 255  # the last column white: it must stay at the right edge, twice
+    write_video(tmp_path / "odd.mp4", [frame, frame], fps=2)
+    assert "WARNING" not in capfd.readouterr().err
+    frames = imageio.mimread(tmp_path / "odd.mp4")
+    assert len(frames) == 2 and frames[0].shape == (4, 6, 3)
+    assert frames[0][:, 4:].mean() > 200 and frames[0][:, :3].mean() < 60

@@ -297,6 +297,45 @@ def method_finite(method: str, **options):
     return check
 
 
+def huge_values(method: str):
+    """Finite but huge inputs (beauty 1e30 over a region, a 3e38 pixel, 1e20
+    fireflies; positions of 1e30 and -3e38): squared differences and second
+    moments would overflow float32 into inf - inf = NaN; the output must be finite."""
+    def check():
+        beauty = _frame(30).beauty.copy()
+        beauty[:4, :5] = 1e30
+        beauty[6, 7] = 3e38
+        beauty[::5, ::3, 0] = 1e20
+        position = _frame(30).position.copy()
+        position[8, ::4] = 1e30
+        position[9, 2] = -3e38
+        frames = [_frame(30, beauty=beauty, position=position), _frame(31, beauty=beauty, position=position),
+                  _frame(32, beauty=beauty)]
+        return _finite(_run(frames, method=method))
+    return check
+
+
+def albedo_damage(require: bool, expect: str):
+    """Albedo for some frames only, or (with ``--demodulate``) for none: a FrameError."""
+    def check():
+        from denoise.frames import write_frame
+        from denoise.pipeline import denoise_folder
+
+        with tempfile.TemporaryDirectory() as tmp:
+            folder = Path(tmp)
+            for i in (0, 1):
+                frame = _frame(i)
+                write_frame(folder, i, replace(frame, albedo=np.full_like(frame.beauty, 0.5)) if i == 0 and not require
+                            else frame)
+            try:
+                denoise_folder(folder, folder / "out", require_albedo=require)
+            except FrameError as error:
+                ok = expect in str(error) and "\n" not in str(error) and not (folder / "out").exists()
+                return ok, str(error)
+        return False, "no error"
+    return check
+
+
 def svgf_static():
     """SVGF on a static noisy scene: the history grows and the output settles."""
     rng = np.random.default_rng(22)
@@ -351,6 +390,12 @@ def denoise_cases() -> list[DenoiseCase]:
         DenoiseCase("outliers+demod on NaN/inf input", method_finite("atrous", demodulate=True,
                                                                      outliers=_outliers())),
         DenoiseCase("svgf on a static scene settles", svgf_static),
+        *[DenoiseCase(f"{method} on huge finite values (1e20 to 3e38)", huge_values(method))
+          for method in ("bilateral", "atrous", "svgf", "oidn", "oidn-guided")],
+        DenoiseCase("albedo for some frames only", albedo_damage(False, "albedo_1.exr: missing")),
+        DenoiseCase("--demodulate without albedo", albedo_damage(True, "--demodulate needs albedo_i.exr")),
+        DenoiseCase("a damaged frame after written ones", damaged_folder(
+            _truncate("beauty_1.exr"), "the result of frame 0 was written")),
     ]
 
 
