@@ -35,3 +35,19 @@ def stamp(command: list[str]) -> dict:
 
     words = [w for k, w in enumerate(command) if w != "--json" and (k == 0 or command[k - 1] != "--json")]
     return {"command": " ".join(words), "machine": machine(), "date": dt.date.today().isoformat()}
+
+
+def check_json(path: Path | None) -> None:
+    """A ``--json`` target, checked before the measurement (which may take hours):
+    not a folder, and a file we may write."""
+    if path is None:
+        return
+    from core.errors import OutputError
+    from renderer.checks import check_writable
+
+    if path.is_dir():
+        raise OutputError(f"--json {path}: a folder; give a file name such as {path / 'results.json'}")
+    check_writable("--json", path)
+    # its folder made now: where that fails (e.g. under /proc, which root may "write"),
+    # the OSError names it at once, not after the measurement
+    path.parent.mkdir(parents=True, exist_ok=True)

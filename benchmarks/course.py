@@ -12,7 +12,6 @@ after a change that moves pixels on purpose.
 """
 from __future__ import annotations
 
-import argparse
 import datetime as dt
 import sys
 import tempfile
@@ -41,7 +40,9 @@ def record(course: Path, variant: str | None, path: Path = RECORD) -> dict:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m benchmarks.course", description=__doc__.split("\n\n")[0])
+    from core.entry import ArgumentParser
+
+    parser = ArgumentParser(prog="python -m benchmarks.course", description=__doc__.split("\n\n")[0])
     parser.add_argument("--record", action="store_true", help=f"write the counts to {RECORD.relative_to(ROOT)}")
     parser.add_argument("--variant", help="variant (default: llvm_ad_rgb where usable)")
     parser.add_argument("--course", type=Path, default=course_root(),
@@ -62,4 +63,6 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from core import entry
+
+    sys.exit(entry.run("python -m benchmarks.course", main))

@@ -13,13 +13,12 @@ calls the same functions and the presentation below.
 """
 from __future__ import annotations
 
-import argparse
 import sys
 from pathlib import Path
 
 import numpy as np
 
-from benchmarks import stamp, write_json
+from benchmarks import check_json, stamp, write_json
 from course import root as course_root
 from validation.crossval import biased_whitted, failures, render, run
 
@@ -98,7 +97,9 @@ def plot_light_paths(path: Path, size: int = 160, spp: int = 64, bounces: int = 
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m benchmarks.crossval", description=__doc__.split("\n\n")[0])
+    from core.entry import ArgumentParser
+
+    parser = ArgumentParser(prog="python -m benchmarks.crossval", description=__doc__.split("\n\n")[0])
     parser.add_argument("--json", type=Path, metavar="PATH", help="write the numbers as JSON")
     parser.add_argument("--quick", action="store_true", help="a small version (CI)")
     parser.add_argument("--course", type=Path, default=course_root(), help="course folder (default: $COURSE_ROOT, else ../shared/course)")
@@ -106,6 +107,7 @@ def main(argv: list[str] | None = None) -> int:
                         help="fault injection: scale whitted's shading by 1 + FRACTION (the run must then fail)")
     parser.add_argument("--agreement-only", action="store_true", help="skip the chi-square and furnace checks")
     args = parser.parse_args(argv)
+    check_json(args.json)
     from renderer.variants import set_variant
 
     set_variant(None, quiet=True)
@@ -131,4 +133,6 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from core import entry
+
+    sys.exit(entry.run("python -m benchmarks.crossval", main))

@@ -45,7 +45,7 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks import write_json
+from benchmarks import check_json, write_json
 from imaging.colour import side_by_side
 from imaging.image_io import read_exr_rgb as read_rgb, write_image, write_video
 from validation.metrics import flip_error, relmse
@@ -325,15 +325,11 @@ PROG = "python -m benchmarks.denoise"
 def check_work_and_json(work: Path, json_path: Path | None) -> None:
     """The cache folder and the JSON file, checked before hours of rendering."""
     from core.errors import OutputError
-    from renderer.checks import check_writable
 
     if work.exists() and not work.is_dir():
         raise OutputError(f"--work {work}: a file, not a folder")
     work.mkdir(parents=True, exist_ok=True)  # an OSError names the path (one line under core.entry.run)
-    if json_path is not None:
-        if json_path.is_dir():
-            raise OutputError(f"--json {json_path}: a folder; give a file name such as {json_path / 'denoise.json'}")
-        check_writable("--json", json_path)
+    check_json(json_path)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -435,6 +431,6 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    from core.entry import run
+    from core import entry
 
-    sys.exit(run(PROG, main))
+    sys.exit(entry.run(PROG, main))

@@ -202,6 +202,6 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    from core.entry import run
+    from core import entry
 
-    sys.exit(run(PROG, main))
+    sys.exit(entry.run(PROG, main))

@@ -27,12 +27,11 @@ Writes per scene a log-log plot ``<out>/<scene>.png``,
 """
 from __future__ import annotations
 
-import argparse
 import csv
 import sys
 from pathlib import Path
 
-from benchmarks import stamp, write_json
+from benchmarks import check_json, stamp, write_json
 from course import root as course_root
 from validation.convergence import TARGET_RELMSE, measure, settings
 from validation.crossval import scene_paths
@@ -98,12 +97,15 @@ def slope_table(results: dict) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m benchmarks.error_vs_time", description=__doc__.split("\n\n")[0])
+    from core.entry import ArgumentParser
+
+    parser = ArgumentParser(prog="python -m benchmarks.error_vs_time", description=__doc__.split("\n\n")[0])
     parser.add_argument("--quick", action="store_true", help="a small version (CI)")
     parser.add_argument("--json", type=Path, metavar="PATH", help="write the points and slopes as JSON")
     parser.add_argument("--out", type=Path, default=Path("out/error_vs_time"), help="folder for plots and CSV")
     parser.add_argument("--course", type=Path, default=course_root(), help="course folder (default: $COURSE_ROOT, else ../shared/course)")
     args = parser.parse_args(argv)
+    check_json(args.json)
     from renderer.variants import set_variant
 
     set_variant(None, quiet=True)
@@ -121,5 +123,7 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from core import entry
+
+    sys.exit(entry.run("python -m benchmarks.error_vs_time", main))
 

@@ -30,7 +30,6 @@ The JSON records the machine and the date.
 """
 from __future__ import annotations
 
-import argparse
 import datetime as dt
 import statistics
 import subprocess
@@ -39,7 +38,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from benchmarks import machine, write_json
+from benchmarks import check_json, machine, write_json
 from course import course_runs, outputs_into, root as course_root
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -147,7 +146,9 @@ def report(results: dict) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m benchmarks.render_speed", description=__doc__.split("\n\n")[0])
+    from core.entry import ArgumentParser
+
+    parser = ArgumentParser(prog="python -m benchmarks.render_speed", description=__doc__.split("\n\n")[0])
     parser.add_argument("--json", type=Path, metavar="PATH", help="also write the numbers as JSON")
     parser.add_argument("--repeat", type=int, default=5, help="timed runs per measurement (default 5)")
     parser.add_argument("--variant", help="variant (default: llvm_ad_rgb where usable)")
@@ -157,6 +158,7 @@ def main(argv: list[str] | None = None) -> int:
                         help="the course's binary: timed as a whole process beside ours, same arguments")
     parser.add_argument("--only", metavar="SCENE", action="append", help="only these scenes (a quick check)")
     args = parser.parse_args(argv)
+    check_json(args.json)
     results = measure(args.course, args.repeat, args.variant, args.peer, args.only)
     print(report(results))
     if args.json:
@@ -165,4 +167,6 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from core import entry
+
+    sys.exit(entry.run("python -m benchmarks.render_speed", main))

@@ -28,7 +28,6 @@ keep the tail short.
 """
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import shutil
@@ -37,6 +36,8 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+
+from benchmarks import check_json, write_json
 
 ROOT = Path(__file__).resolve().parent.parent
 #: the dataset: two of our sequences (fixed, so that adding a sequence does not change the benchmark)
@@ -123,7 +124,9 @@ def measure(frames: int, size: tuple[int, int], reference_spp: int, batch_spp: i
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m benchmarks.scaleout", description=__doc__.split("\n\n")[0])
+    from core.entry import ArgumentParser
+
+    parser = ArgumentParser(prog="python -m benchmarks.scaleout", description=__doc__.split("\n\n")[0])
     parser.add_argument("--json", type=Path, metavar="PATH")
     parser.add_argument("--frames", type=int, default=4)
     parser.add_argument("--size", type=int, nargs=2, default=(320, 180), metavar=("W", "H"))
@@ -132,6 +135,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--work", type=Path, help="where the two exports go (default: a temporary folder)")
     args = parser.parse_args(argv)
+    check_json(args.json)
     with tempfile.TemporaryDirectory(prefix="scaleout.") as scratch:
         result = measure(args.frames, tuple(args.size), args.reference_spp, args.batch_spp, args.workers,
                          args.work or Path(scratch))
@@ -139,10 +143,11 @@ def main(argv: list[str] | None = None) -> int:
     print(f"efficiency {result['efficiency']:.3f}, per worker {result['parallel_efficiency']:.3f} (bar >= 0.9), overhead {100 * result['overhead_fraction']:.2f} % "
           f"of the median task (bar <= 5 %), identical: {result['identical']}", file=sys.stderr)
     if args.json:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(result, indent=2) + "\n")
+        write_json(args.json, result)
     return 0 if result["identical"] else 1
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from core import entry
+
+    sys.exit(entry.run("python -m benchmarks.scaleout", main))

@@ -12,12 +12,11 @@ Prints and writes ``{"cases": N, "passed": N, "fuzz_inputs": M}`` (with
 """
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 from pathlib import Path
 
-from benchmarks import write_json
+from benchmarks import check_json, write_json
 from validation.stress import fuzz, fuzz_cli, run_case
 from validation.stress_cases import all_cases
 
@@ -48,12 +47,15 @@ def run(fuzz_examples: int, quick: bool) -> dict:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m benchmarks.stress", description=__doc__.split("\n\n")[0])
+    from core.entry import ArgumentParser
+
+    parser = ArgumentParser(prog="python -m benchmarks.stress", description=__doc__.split("\n\n")[0])
     parser.add_argument("--json", type=Path, metavar="PATH", help="write the results as JSON")
     parser.add_argument("--fuzz", type=int, default=7000, metavar="N",
                         help="examples per fuzzer (three fuzzers; default 7000, i.e. 21000 inputs)")
     parser.add_argument("--quick", action="store_true", help="the CI subset")
     args = parser.parse_args(argv)
+    check_json(args.json)
     results = run(args.fuzz, args.quick)
     for r in results["results"]:
         if not r["passed"]:
@@ -69,4 +71,6 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from core import entry
+
+    sys.exit(entry.run("python -m benchmarks.stress", main))

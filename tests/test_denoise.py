@@ -382,6 +382,7 @@ def test_denoise_command_and_benchmark_quick(variant_llvm_ad_rgb, tmp_path):
     (["--reference-spp", "0"], "--reference-spp must be an even number >= 2"),
     (["--quick", "--work", "README.md"], "--work README.md: a file, not a folder"),
     (["--quick", "--json", "docs"], "--json docs: a folder"),
+    (["--quick", "--json", "/proc/x/a.json"], "/proc/x: No such file or directory"),
 ])
 @pytest.mark.parametrize("module", ["benchmarks.denoise", "benchmarks.denoise_profile"])
 def test_denoise_benchmarks_refuse_bad_arguments_first(module, argv, message):

@@ -329,3 +329,30 @@ def test_a_libllvm_that_is_not_a_library_is_named_in_a_whole_sentence(tmp_path):
     assert len(notes) == 1, result.stderr
     reason = notes[0].split("Dr.Jit cannot use it (")[1].split(");")[0]
     assert reason.endswith("could not be found"), notes[0]
+
+
+BENCHMARKS = ("course", "crossval", "denoise", "denoise_profile", "error_vs_time", "render_speed", "report",
+              "scaleout", "stress")
+#: the benchmarks that write their numbers with --json
+WITH_JSON = ("crossval", "denoise", "denoise_profile", "error_vs_time", "render_speed", "scaleout", "stress")
+
+
+@pytest.mark.parametrize("name", BENCHMARKS)
+def test_benchmarks_keep_the_error_contract(name):
+    """Every benchmark command: an unknown flag, and a --json that cannot be
+    written, are one line and exit 2 before any measurement (some take hours)."""
+    import subprocess
+    import sys
+
+    def run(*argv):
+        finished = subprocess.run([sys.executable, "-m", f"benchmarks.{name}", *argv], cwd=ROOT,
+                                  capture_output=True, text=True, timeout=120)
+        return finished.returncode, finished.stderr
+
+    code, err = run("--bogus")
+    assert code == 2 and err.count("\n") == 1 and "unrecognized arguments: --bogus" in err, err
+    if name in WITH_JSON:
+        code, err = run("--json", "docs")
+        assert code == 2 and err.count("\n") == 1 and "--json docs: a folder" in err, err
+        code, err = run("--json", "/proc/no/such.json")
+        assert code == 2 and err.count("\n") == 1 and "/proc/no" in err, err
