@@ -113,6 +113,19 @@ class Denoiser:
         self.last_execute_cpu_s += time.process_time() - cpu
         return mi.TensorXf(self.oidn.output())
 
+    def usable_frame(self, frame: FrameData) -> FrameData:
+        """``frame`` with every buffer the filters and OIDN read made usable
+        (:func:`usable`): beauty and albedo within +-:data:`RADIANCE_LIMIT`,
+        normal and position within +-:data:`POSITION_LIMIT` (a normal's length
+        then stays finite in float32); counts the beauty values replaced."""
+        from dataclasses import replace
+
+        beauty, self.last_replaced = usable(frame.beauty, RADIANCE_LIMIT)
+        normal, _ = usable(frame.normal, POSITION_LIMIT)
+        position, _ = usable(frame.position, POSITION_LIMIT)
+        albedo = None if frame.albedo is None else usable(frame.albedo, RADIANCE_LIMIT)[0]
+        return replace(frame, beauty=beauty, normal=normal, position=position, albedo=albedo)
+
     def step(self, frame: FrameData) -> np.ndarray:
         import drjit as dr
         import mitsuba as mi
@@ -124,10 +137,9 @@ class Denoiser:
         if self.previous is not None and self.previous.beauty.shape != frame.beauty.shape:
             raise FrameError(f"frame size changed from {self.previous.beauty.shape[1]}x"
                              f"{self.previous.beauty.shape[0]} to {frame.beauty.shape[1]}x{frame.beauty.shape[0]}")
-        beauty, self.last_replaced = usable(frame.beauty, RADIANCE_LIMIT)
-        position_values, _ = usable(frame.position, POSITION_LIMIT)
-        color = tensor(beauty)
-        position = tensor(position_values)
+        frame = self.usable_frame(frame)
+        color = tensor(frame.beauty)
+        position = tensor(frame.position)
         ids = tensor(frame.ids)
         albedo = (tensor(frame.albedo) if (o.demodulate and frame.albedo is not None and not o.method.startswith("oidn"))
                   else None)

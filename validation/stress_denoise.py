@@ -299,8 +299,10 @@ def method_finite(method: str, **options):
 
 def huge_values(method: str):
     """Finite but huge inputs (beauty 1e30 over a region, a 3e38 pixel, 1e20
-    fireflies; positions of 1e30 and -3e38): squared differences and second
-    moments would overflow float32 into inf - inf = NaN; the output must be finite."""
+    fireflies; positions of 1e30 and -3e38, a normal of length 3e38, an
+    albedo of 3e38, demodulated by atrous and svgf): squared differences,
+    second moments and lengths would overflow float32 into NaN; the output
+    must be finite."""
     def check():
         beauty = _frame(30).beauty.copy()
         beauty[:4, :5] = 1e30
@@ -309,9 +311,14 @@ def huge_values(method: str):
         position = _frame(30).position.copy()
         position[8, ::4] = 1e30
         position[9, 2] = -3e38
-        frames = [_frame(30, beauty=beauty, position=position), _frame(31, beauty=beauty, position=position),
-                  _frame(32, beauty=beauty)]
-        return _finite(_run(frames, method=method))
+        normal = _frame(30).normal.copy()
+        normal[3, 3] = [1e30, 3e38, 0.0]
+        albedo = np.full_like(beauty, 0.5)
+        albedo[4, 4] = 3e38
+        frames = [_frame(30, beauty=beauty, position=position, normal=normal),
+                  _frame(31, beauty=beauty, position=position), _frame(32, beauty=beauty)]
+        frames = [replace(f, albedo=albedo) for f in frames]
+        return _finite(_run(frames, method=method, demodulate=method in ("atrous", "svgf")))
     return check
 
 
