@@ -27,7 +27,7 @@ if __name__ == "__main__":  # started by a Python without the project's packages
     from core.launcher import use_project_python
     use_project_python("converters", "converters")
 
-from core.entry import ArgumentParser, run
+from core.entry import ArgumentParser, ascii_int, run
 from core.errors import OutputError, UsageError
 
 EXAMPLES = """examples:
@@ -52,9 +52,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("-o", "--output", type=Path, required=True, metavar="OUT",
                         help="the .xml file (one scene) or a folder (required)")
     flags = parser.add_argument_group("render flags (as render.py's; written into the XML)")
-    flags.add_argument("-size", nargs=2, type=int, metavar=("W", "H"),
+    flags.add_argument("-size", nargs=2, type=ascii_int, metavar=("W", "H"),
                        help="image size, the film's width and height (default 800 800)")
-    flags.add_argument("-bounces", type=int, metavar="N", help="mirror bounces, the integrator's bounces "
+    flags.add_argument("-bounces", type=ascii_int, metavar="N", help="mirror bounces, the integrator's bounces "
                                                               "(default 0)")
     flags.add_argument("-shadows", action="store_true", default=None,
                        help="trace shadow rays (default: off)")
@@ -63,7 +63,7 @@ def build_parser() -> argparse.ArgumentParser:
     flags.add_argument("-filter", action="store_true", default=None,
                        help="a film 3x the size; downsample the render with imaging.filters.downsample_3x "
                             "(default: off)")
-    flags.add_argument("--spp", type=int, metavar="N", help="samples per pixel (default 1, 16 with -jitter)")
+    flags.add_argument("--spp", type=ascii_int, metavar="N", help="samples per pixel (default 1, 16 with -jitter)")
     return parser
 
 

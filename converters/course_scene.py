@@ -105,6 +105,11 @@ def _tokenize(text: str) -> list[_Token]:
     return tokens
 
 
+#: the course format's numbers: ASCII decimal, optionally signed, with a decimal exponent
+_DECIMAL = re.compile(r"[+-]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][+-]?[0-9]+)?")
+_WHOLE = re.compile(r"[+-]?[0-9]+")
+
+
 class _Parser:
     def __init__(self, path: Path, text: str):
         self.path = path
@@ -145,6 +150,8 @@ class _Parser:
             raise self.error(token, "a number") from None
         if not math.isfinite(value):
             raise self.error(token, "a finite number")
+        if not _DECIMAL.fullmatch(token.text):  # Python also reads 1_0 and other scripts' digits
+            raise self.error(token, "a number in ASCII decimal digits")
         if abs(value) > FLOAT32_MAX:
             raise self.error(token, f"a number of magnitude at most {FLOAT32_MAX:.7g} (float32)")
         return value
@@ -161,6 +168,8 @@ class _Parser:
     def integer(self, minimum: int = 0) -> int:
         token = self.next()
         try:
+            if not _WHOLE.fullmatch(token.text):
+                raise ValueError(token.text)
             value = int(token.text)
         except (TypeError, ValueError):
             raise self.error(token, "an integer") from None
@@ -368,6 +377,10 @@ class _Parser:
                 self.next()
                 index_token = self.peek()
                 index = self.integer()
+                if index >= len(self.materials) and not self.materials:
+                    raise SceneError(self.path, index_token.line, index_token.col,
+                                     f"found MaterialIndex {index}, but the scene declares no materials "
+                                     "(numMaterials 0)")
                 if index >= len(self.materials):
                     raise self.error(index_token, f"a material index in 0..{len(self.materials) - 1}")
                 self.material_index = index
@@ -453,7 +466,14 @@ class _Parser:
                 self.expect("{")
                 columns = [self.number() for _ in range(16)]
                 self.expect("}")
-                matrix = np.array(columns, np.float64).reshape(4, 4).T @ matrix
+                given = np.array(columns, np.float64).reshape(4, 4).T
+                if not np.array_equal(given[3], [0.0, 0.0, 0.0, 1.0]):
+                    # a ray tracer's transforms are affine; a projective last row has no meaning for
+                    # spheres and normals (and a zero one cannot be inverted)
+                    raise SceneError(self.path, token.line, token.col,
+                                     "expected an affine Matrix4f, whose last row (the 4th number of each "
+                                     f"column) is 0 0 0 1, found {' '.join(f'{v:g}' for v in given[3])}")
+                matrix = given @ matrix
             else:
                 break
         with np.errstate(over="ignore", invalid="ignore"):
@@ -465,7 +485,12 @@ class _Parser:
             raise SceneError(self.path, start.line, start.col,
                              "expected an invertible transform, found a singular one (a scale of 0?)")
         # Mitsuba keeps the inverse too, in float32: a scale of 1e-39 inverts to infinity
-        self.finite32(start, "an inverse transform matrix", np.linalg.inv(world))
+        try:
+            inverse = np.linalg.inv(world)
+        except np.linalg.LinAlgError:
+            raise SceneError(self.path, start.line, start.col,
+                             "expected an invertible transform, found a singular one") from None
+        self.finite32(start, "an inverse transform matrix", inverse)
         self.object(world)
         self.expect("}")
         self.nesting -= 1
@@ -480,10 +505,12 @@ def referenced_files(path: str | Path) -> list[Path]:
     """The files a scene file reads besides itself: its meshes and cube-map
     faces, found by a scan of its words (no parsing: a damaged scene stays the
     parser's to report). Unreadable scenes name none."""
+    from core.inputs import NotAnInputFile, read_input
+
     path = Path(path)
     try:
-        text = path.read_bytes().decode("utf-8-sig")
-    except (OSError, UnicodeDecodeError):
+        text = read_input(path).decode("utf-8-sig")
+    except (OSError, NotAnInputFile, UnicodeDecodeError):
         return []
     words = [token.text for token in _tokenize(text)]
     files = []
@@ -497,11 +524,15 @@ def referenced_files(path: str | Path) -> list[Path]:
 
 def load_scene(path: str | Path) -> Scene:
     """Reads and parses a scene file."""
+    from core.inputs import NotAnInputFile, read_input
+
     path = Path(path)
     try:
-        data = path.read_bytes()
+        data = read_input(path)
     except OSError as error:
         raise SceneError(path, 1, 1, f"cannot read scene: {error.strerror or error}") from None
+    except NotAnInputFile as error:
+        raise SceneError(path, 1, 1, f"cannot read scene: {error}") from None
     try:
         text = data.decode("utf-8-sig")  # a byte-order mark (Windows editors) is not text
     except UnicodeDecodeError as error:

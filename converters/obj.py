@@ -23,12 +23,16 @@ _IGNORED = {"vn", "vp", "o", "g", "s", "usemtl", "mtllib", "l"}
 
 def read_obj(path: Path) -> tuple[np.ndarray, np.ndarray]:
     """Returns ``(positions (V,3) float64, faces (F,3) uint32)``, 0-based."""
+    from core.inputs import NotAnInputFile, read_input
+
     try:
-        data = path.read_bytes()
+        data = read_input(path)
     except OSError as error:
         raise SceneError(path, 1, 1, f"cannot read mesh: {error.strerror or error}") from None
+    except NotAnInputFile as error:
+        raise SceneError(path, 1, 1, f"cannot read mesh: {error}") from None
     try:
-        text = data.decode("utf-8")
+        text = data.decode("utf-8-sig")  # a byte-order mark (Windows editors) is not text, as in scenes
     except UnicodeDecodeError as error:
         line = data[: error.start].count(b"\n") + 1
         raise SceneError(path, line, 1, "expected UTF-8 text, found binary data") from None

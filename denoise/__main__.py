@@ -14,7 +14,7 @@ if __name__ == "__main__":  # started by a Python without the project's packages
     from core.launcher import use_project_python
     use_project_python("python -m denoise", "denoise")
 
-from core.entry import ArgumentParser
+from core.entry import ArgumentParser, ascii_float, ascii_int
 
 from .pipeline import METHODS
 
@@ -52,35 +52,35 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--demodulate", action="store_true",
                         help="filter beauty / albedo and multiply back (needs albedo_i.exr for every frame; "
                              "svgf does so whenever the frames have it)")
-    parser.add_argument("--outliers", type=float, metavar="K", default=None,
+    parser.add_argument("--outliers", type=ascii_float, metavar="K", default=None,
                         help=f"first clamp each pixel's luminance to its 7x7 mean +- K sigma (off by default; "
                              f"{outliers.k:g} is a usual K)")
     group = parser.add_argument_group("edge-stopping weights (bilateral, atrous)")
-    group.add_argument("--sigma-color", type=float, default=edges.sigma_color, help=f"default {edges.sigma_color}")
-    group.add_argument("--sigma-normal", type=float, default=edges.sigma_normal,
+    group.add_argument("--sigma-color", type=ascii_float, default=edges.sigma_color, help=f"default {edges.sigma_color}")
+    group.add_argument("--sigma-normal", type=ascii_float, default=edges.sigma_normal,
                        help=f"on the normals' angle in radians (default {edges.sigma_normal})")
-    group.add_argument("--sigma-plane", type=float, default=edges.sigma_plane, help=f"default {edges.sigma_plane}")
+    group.add_argument("--sigma-plane", type=ascii_float, default=edges.sigma_plane, help=f"default {edges.sigma_plane}")
     group = parser.add_argument_group("bilateral window")
-    group.add_argument("--radius", type=int, default=window.radius,
+    group.add_argument("--radius", type=ascii_int, default=window.radius,
                        help=f"window (2 radius + 1)^2, 0..64 (default {window.radius})")
-    group.add_argument("--sigma-coord", type=float, default=window.sigma_coord,
+    group.add_argument("--sigma-coord", type=ascii_float, default=window.sigma_coord,
                        help=f"pixels (default {window.sigma_coord})")
     group = parser.add_argument_group("a-trous and svgf")
-    group.add_argument("--levels", type=int, default=None,
+    group.add_argument("--levels", type=ascii_int, default=None,
                        help=f"passes, 1..12 (default {levels.levels} for atrous; for svgf the paper's 5 at 1280 "
                             "pixels wide, one fewer per halving of the width)")
     group = parser.add_argument_group("temporal accumulation (bilateral, atrous, oidn, oidn-guided)")
     oidn_temporal, oidn_guided = DenoiseOptions().oidn_temporal, DenoiseOptions().oidn_guided
-    group.add_argument("--alpha", type=float, default=None,
+    group.add_argument("--alpha", type=ascii_float, default=None,
                        help=f"weight of the current frame, in (0, 1] (default {temporal.alpha}; "
                             f"{oidn_temporal.alpha} for oidn, {oidn_guided.alpha} for oidn-guided)")
-    group.add_argument("--k", type=float, default=None,
+    group.add_argument("--k", type=ascii_float, default=None,
                        help=f"clamp the history to the 7x7 mean +- k sigma, k >= 0 (default {temporal.k}; "
                             f"{oidn_temporal.k} for oidn; oidn-guided: the guide's 3x3, {oidn_guided.k})")
     group = parser.add_argument_group("svgf")
-    group.add_argument("--sigma-luminance", type=float, default=svgf.sigma_luminance,
+    group.add_argument("--sigma-luminance", type=ascii_float, default=svgf.sigma_luminance,
                        help=f"luminance weight, in standard deviations (default {svgf.sigma_luminance})")
-    group.add_argument("--normal-exponent", type=float, default=svgf.sigma_normal,
+    group.add_argument("--normal-exponent", type=ascii_float, default=svgf.sigma_normal,
                        help=f"normal weight max(0, n.n')^exponent (default {svgf.sigma_normal:g})")
     group = parser.add_argument_group("previews")
     group.add_argument("--png", action="store_true", help="also write result_i.png (tone-mapped sRGB) beside the EXRs")
@@ -88,7 +88,7 @@ def _parser() -> argparse.ArgumentParser:
                        help="input | output (| reference) per frame, tone-mapped sRGB, H.264")
     group.add_argument("--reference", type=Path, metavar="REF_DIR",
                        help="ground truth folder (beauty_i.exr) for the video's third panel")
-    group.add_argument("--fps", type=int, default=4, help="video frames per second (default 4)")
+    group.add_argument("--fps", type=ascii_int, default=4, help="video frames per second (default 4)")
     parser.add_argument("--variant", help="Mitsuba variant (default: llvm_ad_rgb where usable)")
     return parser
 

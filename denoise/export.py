@@ -72,7 +72,7 @@ import numpy as np
 
 from converters import transforms
 from converters.model import Scene, Sphere, Triangle, TriangleMesh
-from core.entry import ArgumentParser
+from core.entry import ArgumentParser, ascii_int
 from core.errors import SpecError
 
 from .frames import BUFFERS, FrameData, camera_matrices, depth_range, write_frame
@@ -814,11 +814,11 @@ def _parser() -> argparse.ArgumentParser:
     parser = ArgumentParser(prog="python -m denoise.export", description=__doc__.split("\n\n")[0])
     parser.add_argument("paths", type=Path, nargs="+", metavar="SPEC.json... OUT",
                         help="one or more specs, then the output folder")
-    parser.add_argument("--frames", type=int)
-    parser.add_argument("--size", type=int, nargs=2, metavar=("W", "H"))
-    parser.add_argument("--spp", type=int)
-    parser.add_argument("--reference-spp", type=int)
-    parser.add_argument("--batch-spp", type=int, default=DEFAULT_BATCH_SPP,
+    parser.add_argument("--frames", type=ascii_int)
+    parser.add_argument("--size", type=ascii_int, nargs=2, metavar=("W", "H"))
+    parser.add_argument("--spp", type=ascii_int)
+    parser.add_argument("--reference-spp", type=ascii_int)
+    parser.add_argument("--batch-spp", type=ascii_int, default=DEFAULT_BATCH_SPP,
                         help=f"ground-truth samples per task (default {DEFAULT_BATCH_SPP})")
     parser.add_argument("--whitted", action="store_true", help="noisy beauty from whitted (jittered), not path")
     parser.add_argument("--data", type=Path, help="course data folder for course scene names")
@@ -826,7 +826,7 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--force", action="store_true", help="start over in folders made with other settings")
     where = parser.add_mutually_exclusive_group()
     where.add_argument("--scheduler", metavar="ADDRESS", help="a running Dask scheduler (tcp://host:8786)")
-    where.add_argument("--workers", type=int, help="local Dask worker processes (default: one per core)")
+    where.add_argument("--workers", type=ascii_int, help="local Dask worker processes (default: one per core)")
     where.add_argument("--local", action="store_true", help="render in this process, without Dask")
     return parser
 

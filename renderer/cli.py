@@ -20,7 +20,7 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
-from core.entry import ArgumentParser, hold_signals, one_line, run
+from core.entry import ArgumentParser, ascii_int, hold_signals, one_line, run
 from core.errors import ToolkitError, UsageError, describe
 from course import ENVIRONMENT as COURSE_ENVIRONMENT, data_dir, resolve_scene
 
@@ -83,14 +83,14 @@ def build_parser() -> argparse.ArgumentParser:
     course = parser.add_argument_group("course binary flags")
     course.add_argument("-input", action=Once, metavar="FILE", help="scene file in the course format (default: none; "
                                                        "then SCENE names are rendered)")
-    course.add_argument("-size", action=Once, nargs=2, type=int, metavar=("W", "H"), default=list(DEFAULT_SIZE),
+    course.add_argument("-size", action=Once, nargs=2, type=ascii_int, metavar=("W", "H"), default=list(DEFAULT_SIZE),
                         help=f"image width and height in pixels (default: {DEFAULT_SIZE[0]} {DEFAULT_SIZE[1]})")
     course.add_argument("-output", action=Once, metavar="FILE", help="beauty image, .png .bmp .tga (8-bit, course encoding) "
                                                         "or .exr (float) (default: none)")
     course.add_argument("-normals", action=Once, metavar="FILE", help="normal image, (N + 1) / 2 (default: none)")
     course.add_argument("-depth", action=Once, nargs=3, metavar=("MIN", "MAX", "FILE"),
                         help="depth image, (t - MIN) / (MAX - MIN), clamped (default: none)")
-    course.add_argument("-bounces", action=Once, type=int, default=0, metavar="N",
+    course.add_argument("-bounces", action=Once, type=ascii_int, default=0, metavar="N",
                         help=f"mirror bounces, 0..{checks.MAX_BOUNCES} (default: 0, plain ray casting)")
     course.add_argument("-shadows", action="store_true", help="trace shadow rays (default: off)")
     course.add_argument("-jitter", action="store_true", help="16 jittered samples per pixel (default: off)")
@@ -109,7 +109,7 @@ def build_parser() -> argparse.ArgumentParser:
     ours.add_argument("--png", action="store_true",
                       help="with --exr: also write a tone-mapped sRGB preview PNG beside the EXR "
                            "(<exr name>.png) unless the beauty is already a PNG (default: off)")
-    ours.add_argument("--spp", action=Once, type=int, metavar="N",
+    ours.add_argument("--spp", action=Once, type=ascii_int, metavar="N",
                       help=f"samples per pixel, 1..{checks.MAX_SPP} (default: 1, 16 with -jitter)")
     ours.add_argument("--batch", action=Once, metavar="FILE",
                       help="run course command lines from FILE, one per line, in this one process "
@@ -166,7 +166,10 @@ def jobs_from_args(args: argparse.Namespace) -> list:
                              "with -output, -normals or -depth give it a FILE (--exr out.exr)")
         return [RenderJob(scene=scenes[0], **with_scene_flags(scenes[0], base), **single_outputs)]
     if any(single_outputs.values()):
-        raise UsageError("-output, -normals and -depth name one file: use them with one scene")
+        given = [flag for flag, key in (("-output", "output"), ("-normals", "normals"), ("-depth", "depth"),
+                                        ("--exr FILE", "exr")) if single_outputs[key]]
+        raise UsageError(f"{', '.join(given)} name{'s' if len(given) == 1 else ''} one file: use "
+                         f"{'it' if len(given) == 1 else 'them'} with one scene (or --out FOLDER for several)")
     folder = Path(args.out)
     return [with_outputs_in(RenderJob(scene=path, **with_scene_flags(path, base)), folder, path.stem,
                             exr=bool(args.exr)) for path in scenes]
@@ -188,7 +191,9 @@ def checked_jobs(args: argparse.Namespace, seen: dict[str, str] | None = None,
     seen = {} if seen is None else seen
     for job in jobs_from_args(args):
         if not job.scene.is_file():
-            raise UsageError(f"scene file {job.scene}: {'is a folder' if job.scene.is_dir() else 'no such file'}")
+            kind = ("is a folder" if job.scene.is_dir() else "not a regular file (a device or a pipe?)"
+                    if job.scene.exists() else "no such file")
+            raise UsageError(f"scene file {job.scene}: {kind}")
         preview = preview_of(job, args.png)
         checks.check_limits(job, memory)
         checks.check_outputs(job, seen, [("--png", preview.path)] if preview else [])
@@ -197,12 +202,20 @@ def checked_jobs(args: argparse.Namespace, seen: dict[str, str] | None = None,
 
 
 # -- batches -----------------------------------------------------------------------
+#: a batch file is command lines: anything larger is not one (e.g. a device that never ends)
+BATCH_BYTES = 16 << 20
+
+
 def batch_lines(path: Path) -> list[tuple[int, str]]:
     """``(line number, text)`` of each logical line: ``\\`` at the end of a line continues it."""
+    from core.inputs import NotAnInputFile, read_input
+
     try:
-        data = path.read_bytes()
+        data = read_input(path, limit=BATCH_BYTES, allow_pipe=True)  # `--batch <(grep ...)` is a pipe
     except OSError as error:
         raise UsageError(f"--batch {path}: cannot read it: {error.strerror or error}") from None
+    except NotAnInputFile as error:
+        raise UsageError(f"--batch {path}: cannot read it: {error}") from None
     try:
         text = data.decode("utf-8")
     except UnicodeDecodeError as error:

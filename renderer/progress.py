@@ -19,13 +19,15 @@ _QUIET = ("SamplingIntegrator Python implementations will have terrible performa
 
 
 class _TqdmAppender(mi.Appender):
-    def __init__(self, bars: bool):
+    def __init__(self, bars: bool, warnings: bool = True):
         super().__init__()
-        self.bars = bars
+        self.bars, self.warnings = bars, warnings
         self.bar: tqdm | None = None
 
     def append(self, level, text):
-        if level >= mi.LogLevel.Warn and not any(q in text for q in _QUIET):
+        # --quiet: "nothing but errors", so Mitsuba's warnings go too
+        lowest = mi.LogLevel.Warn if self.warnings else mi.LogLevel.Error
+        if level >= lowest and not any(q in text for q in _QUIET):
             tqdm.write(text, file=sys.stderr)
 
     def log_progress(self, progress, name, formatted, eta, ptr=None):
@@ -77,7 +79,7 @@ class RenderProgress:
         self.level = self.logger.log_level()
         self.appenders = [self.logger.appender(i) for i in range(self.logger.appender_count())]
         self.logger.clear_appenders()
-        self.logger.add_appender(_TqdmAppender(bars=self.bars))
+        self.logger.add_appender(_TqdmAppender(bars=self.bars, warnings=self.enabled))
         if self.bars:
             self.logger.set_log_level(mi.LogLevel.Info)  # progress reports need Info
             if self.total > 1:

@@ -7,6 +7,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from course import resolve_scene
 from imaging.image_io import read_exr, read_png
@@ -78,6 +79,26 @@ def test_usage_errors(tmp_path):
     assert result.returncode == 2 and "needs at least one of -output" in result.stderr
     result = run("no_such_scene", "--data", str(tmp_path))
     assert result.returncode == 2 and "no scene 'no_such_scene'" in result.stderr
+
+
+@pytest.mark.parametrize("flags, message", [
+    (["-size", "８", "８"], "argument -size: invalid int value: '８'"),
+    (["--spp", "1_000"], "argument --spp: invalid int value: '1_000'"),
+    (["-bounces", "٢"], "argument -bounces: invalid int value: '٢'"),
+])
+def test_numbers_are_ascii_decimal(tmp_path, flags, message):
+    """Python's int() also reads 1_000 and other scripts' digits; a course command line has neither."""
+    result = run("showcase", "--out", str(tmp_path), *flags)
+    assert result.returncode == 2 and message in result.stderr, result.stderr
+    assert len([line for line in result.stderr.splitlines() if "using scalar_rgb instead" not in line]) == 1
+
+
+def test_devices_are_not_scene_or_batch_files(tmp_path):
+    """/dev/zero never ends: reading it whole ran the machine out of memory."""
+    result = run("-input", "/dev/zero", "-size", "8", "8", "-output", str(tmp_path / "x.png"))
+    assert result.returncode == 2 and "scene file /dev/zero: not a regular file" in result.stderr
+    result = run("--batch", "/dev/zero")
+    assert result.returncode == 2 and "--batch /dev/zero: cannot read it: a device, not a regular file" in result.stderr
 
 
 def test_falls_back_to_scalar_without_a_usable_llvm(tmp_path):

@@ -30,7 +30,11 @@ SIZE = (48, 36)
 
 def _write(folder: Path, case: Case) -> Path:
     path = folder / "scene.txt"
-    path.write_bytes(case.text.encode("latin-1"))
+    try:  # latin-1 writes the raw-byte cases (binary garbage) byte for byte ...
+        data = case.text.encode("latin-1")
+    except UnicodeEncodeError:  # ... and text beyond it is a UTF-8 file, as an editor saves it
+        data = case.text.encode("utf-8")
+    path.write_bytes(data)
     for name, data in case.files.items():
         (folder / name).parent.mkdir(parents=True, exist_ok=True)
         (folder / name).write_bytes(data)

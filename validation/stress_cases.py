@@ -131,6 +131,15 @@ def error_cases() -> list[Case]:
         Case("Matrix4f singular", scene(objects="MaterialIndex 0 Transform { Matrix4f { 1 0 0 0 1 0 0 0 0 0 1 0 "
                                                 "0 0 0 1 } Sphere { center 0 0 0 radius 1 } }", num_objects=1),
              "error", expect="invertible transform"),
+        Case("Matrix4f with a zero last row", scene(objects="MaterialIndex 0 Transform { Matrix4f { 1 0 0 0 "
+                                                            "0 1 0 0 0 0 1 0 0 0 0 0 } Sphere { center 0 0 0 "
+                                                            "radius 1 } }", num_objects=1),
+             "error", expect="expected an affine Matrix4f, whose last row (the 4th number of each column) is "
+                             "0 0 0 1, found 0 0 0 0"),
+        Case("Matrix4f with a projective last row", scene(objects="MaterialIndex 0 Transform { Matrix4f { 1 0 0 0.5 "
+                                                                  "0 1 0 0 0 0 1 0 0 0 0 2 } Sphere { center 0 0 0 "
+                                                                  "radius 1 } }", num_objects=1),
+             "error", expect="found 0.5 0 0 2"),
         Case("Rotate about a zero axis", scene(objects="MaterialIndex 0 Transform { Rotate { 0 0 0 45 } "
                                                        "Sphere { center 0 0 0 radius 1 } }", num_objects=1),
              "error", expect="non-zero rotation axis"),
@@ -181,6 +190,17 @@ def error_cases() -> list[Case]:
         Case("OBJ unknown statement", scene(objects="MaterialIndex 0 TriangleMesh { obj_file bad.obj }",
                                             num_objects=1), "error", expect="expected an OBJ statement",
              files={"bad.obj": b"v 0 0 0\nwhat 1 2\n"}),
+        Case("a device as mesh (never ends)", scene(objects="MaterialIndex 0 TriangleMesh { obj_file /dev/zero }",
+                                                    num_objects=1), "error", expect="a device, not a regular file"),
+        Case("a number with an underscore", scene(objects="MaterialIndex 0 Sphere { center 0 0 0 radius 1_0 }",
+                                                  num_objects=1), "error", expect="a number in ASCII decimal digits"),
+        Case("a number in other scripts' digits", scene(objects="MaterialIndex 0 Sphere { center 0 0 0 radius ٣ }",
+                                                        num_objects=1), "error",
+             expect="a number in ASCII decimal digits, found '٣'"),
+        Case("MaterialIndex without materials", scene(num_materials=0, materials="",
+                                                      objects="MaterialIndex 0 Sphere { center 0 0 0 radius 1 }",
+                                                      num_objects=1), "error",
+             expect="the scene declares no materials"),
         Case("OBJ without faces", scene(objects="MaterialIndex 0 TriangleMesh { obj_file bad.obj }",
                                         num_objects=1), "error", expect="at least one face",
              files={"bad.obj": b"v 0 0 0\nv 1 0 0\n"}),
