@@ -27,7 +27,8 @@ if __name__ == "__main__":  # started by a Python without the project's packages
     from core.launcher import use_project_python
     use_project_python("converters", "converters")
 
-from core.entry import ArgumentParser, ascii_int, run
+from core.entry import ArgumentParser, run
+from core.numbers import ascii_int
 from core.errors import OutputError, UsageError
 
 EXAMPLES = """examples:

@@ -40,6 +40,7 @@ from mi_plugins.camera_basis import course_camera_basis
 
 from . import transforms
 from core.errors import SceneError, describe
+from core.numbers import DECIMAL, WHOLE
 from .model import (Background, Camera, DirectionalLight, Material, Plane, PointLight, Scene,
                     Sphere, Triangle, TriangleMesh)
 from .obj import read_obj
@@ -105,10 +106,6 @@ def _tokenize(text: str) -> list[_Token]:
     return tokens
 
 
-#: the course format's numbers: ASCII decimal, optionally signed, with a decimal exponent
-_DECIMAL = re.compile(r"[+-]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][+-]?[0-9]+)?")
-_WHOLE = re.compile(r"[+-]?[0-9]+")
-
 
 class _Parser:
     def __init__(self, path: Path, text: str):
@@ -150,7 +147,7 @@ class _Parser:
             raise self.error(token, "a number") from None
         if not math.isfinite(value):
             raise self.error(token, "a finite number")
-        if not _DECIMAL.fullmatch(token.text):  # Python also reads 1_0 and other scripts' digits
+        if not DECIMAL.fullmatch(token.text):  # Python also reads 1_0 and other scripts' digits
             raise self.error(token, "a number in ASCII decimal digits")
         if abs(value) > FLOAT32_MAX:
             raise self.error(token, f"a number of magnitude at most {FLOAT32_MAX:.7g} (float32)")
@@ -168,7 +165,7 @@ class _Parser:
     def integer(self, minimum: int = 0) -> int:
         token = self.next()
         try:
-            if not _WHOLE.fullmatch(token.text):
+            if not WHOLE.fullmatch(token.text):
                 raise ValueError(token.text)
             value = int(token.text)
         except (TypeError, ValueError):

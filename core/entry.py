@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import re
 import signal
 import sys
 import threading
@@ -106,30 +105,6 @@ def interruption(error: BaseException) -> int | None:
             return int(signal.SIGINT)
         error = error.__cause__ or error.__context__
     return None
-
-
-_ASCII_INT = re.compile(r"[+-]?[0-9]+")
-_ASCII_FLOAT = re.compile(r"[+-]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][+-]?[0-9]+)?|[+-]?(?:inf|infinity|nan)",
-                          re.IGNORECASE)
-
-
-def ascii_int(text: str) -> int:
-    """An argparse ``type``: a whole number in ASCII digits (Python's ``int``
-    also takes ``1_000`` and other scripts' digits, which no course command line has)."""
-    if not _ASCII_INT.fullmatch(text.strip()):
-        raise ValueError(text)
-    return int(text)
-
-
-def ascii_float(text: str) -> float:
-    """An argparse ``type``: a decimal number in ASCII (``inf``/``nan`` are left to
-    the range checks, which name them)."""
-    if not _ASCII_FLOAT.fullmatch(text.strip()):
-        raise ValueError(text)
-    return float(text)
-
-
-ascii_int.__name__, ascii_float.__name__ = "int", "float"  # argparse's message: "invalid int value: '８'"
 
 
 class ArgumentParser(argparse.ArgumentParser):

@@ -14,7 +14,8 @@ if __name__ == "__main__":  # started by a Python without the project's packages
     from core.launcher import use_project_python
     use_project_python("python -m denoise", "denoise")
 
-from core.entry import ArgumentParser, ascii_float, ascii_int
+from core.entry import ArgumentParser
+from core.numbers import ascii_float, ascii_int
 
 from .pipeline import METHODS
 

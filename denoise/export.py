@@ -72,7 +72,8 @@ import numpy as np
 
 from converters import transforms
 from converters.model import Scene, Sphere, Triangle, TriangleMesh
-from core.entry import ArgumentParser, ascii_int
+from core.entry import ArgumentParser
+from core.numbers import ascii_int
 from core.errors import SpecError
 
 from .frames import BUFFERS, FrameData, camera_matrices, depth_range, write_frame

@@ -278,11 +278,9 @@ def atrous(frame: FrameArrays, p: EdgeWeights = EdgeWeights(), levels: AtrousLev
                 total += w * color_j
                 weights += w
         color = total / weights
-        if level + 1 < count:  # the next level's taps: packed in this level's kernel
-            color4 = dr.ravel(mi.Vector4f(color.x, color.y, color.z, 0.0))
-            dr.eval(color, color4)
-        else:
-            dr.eval(color)
+        dr.eval(color)
+        if level + 1 < count:
+            color4 = pack(color)  # the next level's taps
     return frame.tensor(color)
 
 
@@ -341,8 +339,7 @@ def clamp_box(color: mi.TensorXf, radius: int = 3) -> tuple[mi.Vector3f, mi.Vect
     height, width = color.shape[0], color.shape[1]
     c = dr.unravel(mi.Vector3f, color.array)
     c4 = pack(c)
-    index = dr.arange(mi.UInt32, width * height)
-    x0, y0 = mi.Int32(index % width), mi.Int32(index // width)
+    x0, y0 = pixel_coordinates(width, height)
     row_sum, row_sq = mi.Vector3f(0.0), mi.Vector3f(0.0)
     for dx in range(-radius, radius + 1):
         if dx == 0:  # c_r - c_r
@@ -410,8 +407,7 @@ def remove_outliers(color: mi.TensorXf, p: OutlierParams = OutlierParams()) -> m
     c = dr.select(dr.isfinite(c), c, 0.0)
     lum = luminance(c)
     dr.eval(lum)
-    index = dr.arange(mi.UInt32, width * height)
-    x0, y0 = mi.Int32(index % width), mi.Int32(index // width)
+    x0, y0 = pixel_coordinates(width, height)
     total, total_sq, count = mi.Float(0.0), mi.Float(0.0), mi.Float(0.0)
     for dy in range(-p.radius, p.radius + 1):
         for dx in range(-p.radius, p.radius + 1):

@@ -20,7 +20,8 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
-from core.entry import ArgumentParser, ascii_int, hold_signals, one_line, run
+from core.entry import ArgumentParser, hold_signals, one_line, run
+from core.numbers import ascii_int
 from core.errors import ToolkitError, UsageError, describe
 from course import ENVIRONMENT as COURSE_ENVIRONMENT, data_dir, resolve_scene
 

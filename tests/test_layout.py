@@ -16,7 +16,9 @@ HOMES = {"relmse": "validation/metrics.py", "flip_error": "validation/metrics.py
          "bad_pixels": "validation/metrics.py", "bad_fraction": "validation/metrics.py",
          "grading_lines": "course/__init__.py", "course_runs": "course/__init__.py",
          "resolve_scene": "course/__init__.py", "course_camera_basis": "mi_plugins/camera_basis.py",
-         "tone_map": "imaging/colour.py", "write_video": "imaging/image_io.py", "read_exr": "imaging/image_io.py"}
+         "tone_map": "imaging/colour.py", "write_video": "imaging/image_io.py", "read_exr": "imaging/image_io.py",
+         "ascii_int": "core/numbers.py", "ascii_float": "core/numbers.py", "read_input": "core/inputs.py",
+         "pixel_coordinates": "denoise/filters.py", "check_json": "benchmarks/__init__.py"}
 #: the packages users run; they never need the checks or the measurements
 PRODUCTION = ("core", "converters", "course", "mi_plugins", "imaging", "renderer", "denoise")
 
