@@ -69,9 +69,6 @@ QUICK_TIMING = dict(size=(160, 90), frames=3, reference_spp=2)
 REFERENCE_NOISE_BAR = 0.1
 #: per-frame time as a fraction of OIDN's execute time (issue 9's speed bars)
 SPEED_BARS = {"atrous+temporal": 0.2, "svgf": 0.3, "bilateral": 2.0}
-#: seconds of idle before each timed frame: OIDN's worker threads spin for a while after
-#: their work is done, and would otherwise be timed as part of the method that follows
-SETTLE_S = 0.2
 #: the methods timed at 1280x720 (the bars' methods and OIDN)
 TIMED = ("oidn", "atrous+temporal", "svgf", "bilateral")
 
@@ -192,7 +189,6 @@ def run_timing(folder: Path, methods=TIMED) -> dict:
     cpu_times = {m: [] for m in methods}
     for frame in frames[1:]:
         for method, runner in runners.items():
-            time.sleep(SETTLE_S)  # the previous method's worker threads (OIDN's spin-wait) gone idle
             start, cpu = time.perf_counter(), time.process_time()
             runner.step(frame)
             dr.sync_thread()
