@@ -29,31 +29,24 @@ Every problem is a :class:`SceneError` at ``file:line:col``.
 from __future__ import annotations
 
 import math
-import re
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from core.errors import SceneError
+from core.inputs import NotAnInputFile, read_input
 from imaging.image_io import CUBE_FACES, read_cube_map
 from mi_plugins.camera_basis import course_camera_basis
 
 from . import transforms
-from core.errors import SceneError, describe
-from core.numbers import DECIMAL, WHOLE
 from .model import (Background, Camera, DirectionalLight, Material, Plane, PointLight, Scene,
                     Sphere, Triangle, TriangleMesh)
 from .obj import read_obj
+from .tokens import FLOAT32_MAX, Token, TokenReader, tokenize
 
-_TOKEN = re.compile(r"[{}]|[^\s{}]+")
-
-#: The renderer stores every number as float32: larger magnitudes are not representable
-FLOAT32_MAX = float(np.finfo(np.float32).max)
-
-#: Rendered scenes are float32 (Mitsuba's rays, hits and offsets): a scene
-#: scaled uniformly renders the same from 1e-10 to 1e11 times the size of
-#: validation.stress_cases' scene (about 6 across), not at 1e-12 or 1e12
-#: (measured, 2026-11-29). So world coordinates are at most MAX_COORDINATE in
+#: Rendered scenes are float32 (Mitsuba's rays, hits and offsets): a scene scaled
+#: uniformly renders the same only within a range of sizes (docs/validation.md,
+#: the scale stress cases). So world coordinates are at most MAX_COORDINATE in
 #: magnitude, and a scene (camera and objects) spans at least MIN_SCENE_SIZE.
 MAX_COORDINATE = 1e12
 MIN_SCENE_SIZE = 1e-10
@@ -91,116 +84,18 @@ def _camera_fits_float32(direction: np.ndarray, up: np.ndarray, angle: float) ->
                 and np.all(lengths > np.finfo(np.float32).tiny))
 
 
-@dataclass(frozen=True)
-class _Token:
-    text: str
-    line: int
-    col: int
+class _Parser(TokenReader):
+    """The grammar: sections, lights, materials, groups, objects and transforms."""
 
-
-def _tokenize(text: str) -> list[_Token]:
-    tokens = []
-    for line_no, line in enumerate(text.splitlines(), start=1):
-        code = line.split("#", 1)[0]
-        tokens.extend(_Token(m.group(), line_no, m.start() + 1) for m in _TOKEN.finditer(code))
-    return tokens
-
-
-
-class _Parser:
     def __init__(self, path: Path, text: str):
-        self.path = path
-        self.tokens = _tokenize(text)
-        self.pos = 0
-        self.end = _Token(None, text.count("\n") + 1, 1)  # type: ignore[arg-type]
+        super().__init__(path, text)
         self.materials: list[Material] = []
         self.material_index: int | None = None
         self.objects = []
         self.mesh_cache: dict[Path, tuple[np.ndarray, np.ndarray]] = {}
         self.bounds: list[tuple[np.ndarray, np.ndarray]] = []  # of each bounded object's world points
-        self.camera_token: _Token | None = None
+        self.camera_token: Token | None = None
         self.nesting = 0  # Group and Transform blocks open around the current token
-
-    # -- tokens -------------------------------------------------------------
-    def peek(self) -> _Token:
-        return self.tokens[self.pos] if self.pos < len(self.tokens) else self.end
-
-    def next(self) -> _Token:
-        token = self.peek()
-        self.pos += 1
-        return token
-
-    def error(self, token: _Token, expected: str) -> SceneError:
-        return SceneError(self.path, token.line, token.col, f"expected {expected}, found {describe(token.text)}")
-
-    def expect(self, text: str) -> _Token:
-        token = self.next()
-        if token.text != text:
-            raise self.error(token, repr(text))
-        return token
-
-    def number(self) -> float:
-        token = self.next()
-        try:
-            value = float(token.text)
-        except (TypeError, ValueError):
-            raise self.error(token, "a number") from None
-        if not math.isfinite(value):
-            raise self.error(token, "a finite number")
-        if not DECIMAL.fullmatch(token.text):  # Python also reads 1_0 and other scripts' digits
-            raise self.error(token, "a number in ASCII decimal digits")
-        if abs(value) > FLOAT32_MAX:
-            raise self.error(token, f"a number of magnitude at most {FLOAT32_MAX:.7g} (float32)")
-        return value
-
-    def finite32(self, token: _Token, what: str, values) -> None:
-        """A value derived from the scene (not typed by the user) must also fit float32."""
-        values = np.asarray(values, np.float64)
-        if not np.all(np.isfinite(values)) or np.any(np.abs(values) > FLOAT32_MAX):
-            shown = " ".join(f"{v:g}" for v in values.ravel()[:3])
-            raise SceneError(self.path, token.line, token.col,
-                             f"expected {what} within float32 range (magnitude at most {FLOAT32_MAX:.7g}), "
-                             f"found {shown}")
-
-    def integer(self, minimum: int = 0) -> int:
-        token = self.next()
-        try:
-            if not WHOLE.fullmatch(token.text):
-                raise ValueError(token.text)
-            value = int(token.text)
-        except (TypeError, ValueError):
-            raise self.error(token, "an integer") from None
-        if value < minimum:
-            raise self.error(token, f"an integer >= {minimum}")
-        return value
-
-    def vector(self) -> tuple[float, float, float]:
-        return (self.number(), self.number(), self.number())
-
-    def path_value(self) -> Path:
-        token = self.next()
-        if token.text is None or token.text in "{}":
-            raise self.error(token, "a file path")
-        return self.path.parent / token.text
-
-    def fields(self, spec: dict[str, callable], required: set[str]) -> tuple[dict, _Token]:
-        """Reads ``{ key value ... }`` with keys in any order, each at most once."""
-        self.expect("{")
-        values: dict = {}
-        while True:
-            token = self.next()
-            if token.text == "}":
-                break
-            if token.text not in spec:
-                keys = ", ".join(sorted(spec))
-                raise self.error(token, f"one of {keys} or '}}'")
-            if token.text in values:
-                raise self.error(token, f"each key once, but {token.text} is repeated")
-            values[token.text] = spec[token.text]()
-        missing = sorted(required - values.keys())
-        if missing:
-            raise self.error(token, f"{', '.join(missing)} before '}}'")
-        return values, token
 
     # -- sections -----------------------------------------------------------
     def scene(self) -> Scene:
@@ -338,7 +233,7 @@ class _Parser:
         return self.counted("numMaterials", material)
 
     # -- objects ------------------------------------------------------------
-    def in_world(self, token: _Token, to_world: np.ndarray, points, bounded: bool = True) -> None:
+    def in_world(self, token: Token, to_world: np.ndarray, points, bounded: bool = True) -> None:
         """An object's points, moved into the world, must stay float32 numbers."""
         points = np.asarray(points, np.float64).reshape(-1, 3)
         with np.errstate(over="ignore", invalid="ignore"):
@@ -348,14 +243,14 @@ class _Parser:
         if bounded:  # (a plane's point is any of its points: no size)
             self.bounds.append((world.min(axis=0), world.max(axis=0)))
 
-    def within_range(self, token: _Token, what: str, points) -> None:
+    def within_range(self, token: Token, what: str, points) -> None:
         largest = float(np.abs(np.asarray(points, np.float64)).max(initial=0.0))
         if largest > MAX_COORDINATE:
             raise SceneError(self.path, token.line, token.col,
                              f"expected {what} of magnitude at most {MAX_COORDINATE:g} (float32 rendering "
                              f"is exact enough only within that), found {largest:g}")
 
-    def enter(self, token: _Token) -> None:
+    def enter(self, token: Token) -> None:
         self.nesting += 1
         if self.nesting > MAX_NESTING:
             raise SceneError(self.path, token.line, token.col,
@@ -502,14 +397,12 @@ def referenced_files(path: str | Path) -> list[Path]:
     """The files a scene file reads besides itself: its meshes and cube-map
     faces, found by a scan of its words (no parsing: a damaged scene stays the
     parser's to report). Unreadable scenes name none."""
-    from core.inputs import NotAnInputFile, read_input
-
     path = Path(path)
     try:
         text = read_input(path).decode("utf-8-sig")
     except (OSError, NotAnInputFile, UnicodeDecodeError):
         return []
-    words = [token.text for token in _tokenize(text)]
+    words = [token.text for token in tokenize(text)]
     files = []
     for key, value in zip(words, words[1:]):
         if key == "obj_file":
@@ -521,8 +414,6 @@ def referenced_files(path: str | Path) -> list[Path]:
 
 def load_scene(path: str | Path) -> Scene:
     """Reads and parses a scene file."""
-    from core.inputs import NotAnInputFile, read_input
-
     path = Path(path)
     try:
         data = read_input(path)
