@@ -17,6 +17,10 @@ import sys
 import tempfile
 from pathlib import Path
 
+# started as `python benchmarks/x.py`, this folder would shadow the course and denoise packages
+if __name__ == "__main__" and not __package__:
+    sys.path[0] = str(Path(__file__).resolve().parents[1])
+
 from benchmarks import machine, write_json
 from course import root as course_root
 from validation.course_images import RECORD, ROOT, image_counts, render_grading_images

@@ -31,6 +31,10 @@ import csv
 import sys
 from pathlib import Path
 
+# started as `python benchmarks/x.py`, this folder would shadow the course and denoise packages
+if __name__ == "__main__" and not __package__:
+    sys.path[0] = str(Path(__file__).resolve().parents[1])
+
 from benchmarks import check_json, stamp, write_json
 from course import root as course_root
 from validation.convergence import TARGET_RELMSE, measure, settings

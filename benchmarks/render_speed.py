@@ -38,6 +38,10 @@ import tempfile
 import time
 from pathlib import Path
 
+# started as `python benchmarks/x.py`, this folder would shadow the course and denoise packages
+if __name__ == "__main__" and not __package__:
+    sys.path[0] = str(Path(__file__).resolve().parents[1])
+
 from benchmarks import check_json, machine, write_json
 from course import course_runs, outputs_into, root as course_root
 

@@ -34,6 +34,10 @@ import sys
 import time
 from pathlib import Path
 
+# started as `python benchmarks/x.py`, this folder would shadow the course and denoise packages
+if __name__ == "__main__" and not __package__:
+    sys.path[0] = str(Path(__file__).resolve().parents[1])
+
 from benchmarks import crossval, error_vs_time, machine, render_speed, write_json
 from benchmarks.course import record
 from course import root as course_root

@@ -37,6 +37,10 @@ import tempfile
 import time
 from pathlib import Path
 
+# started as `python benchmarks/x.py`, this folder would shadow the course and denoise packages
+if __name__ == "__main__" and not __package__:
+    sys.path[0] = str(Path(__file__).resolve().parents[1])
+
 from benchmarks import check_json, write_json
 
 ROOT = Path(__file__).resolve().parent.parent

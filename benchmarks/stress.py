@@ -16,6 +16,10 @@ import json
 import sys
 from pathlib import Path
 
+# started as `python benchmarks/x.py`, this folder would shadow the course and denoise packages
+if __name__ == "__main__" and not __package__:
+    sys.path[0] = str(Path(__file__).resolve().parents[1])
+
 from benchmarks import check_json, write_json
 from validation.stress import fuzz, fuzz_cli, run_case
 from validation.stress_cases import all_cases
