@@ -383,7 +383,8 @@ def test_replace_section_keeps_the_rest_of_the_page(tmp_path):
     page = tmp_path / "results.md"
     page.write_text("# Title\n\nprose before\n\n<!-- a:start -->\nold\n<!-- a:end -->\n\nprose after\n")
     replace_section(page, "a", "new\ntable\n")
-    assert page.read_text() == "# Title\n\nprose before\n\n<!-- a:start -->\nnew\ntable\n<!-- a:end -->\n\nprose after\n"
+    assert page.read_text() == ("# Title\n\nprose before\n\n<!-- a:start -->\nnew\ntable\n<!-- a:end -->\n\n"
+                                "prose after\n")
     replace_section(page, "b", "appended")
     assert page.read_text().endswith("prose after\n\n<!-- b:start -->\nappended\n<!-- b:end -->\n")
     assert read_section(page, "a") == "new\ntable\n" and read_section(page, "c") is None
