@@ -20,7 +20,7 @@ the sections are written from:
   -> ``docs/validation/scalar_suite.json`` (its verdict: failures, required skips).
 
 Render speed is not a step (it needs a quiet machine): run
-``python -m benchmarks.render_speed --json docs/render_speed.json [--peer PATH]``,
+``python -m benchmarks.render_speed --json docs/results/render_speed.json [--peer PATH]``,
 then ``--no-run``. Every number on the two pages comes from these files; each page's
 generated part is one section (``core.markdown.replace_section``).
 """
@@ -43,7 +43,7 @@ from validation.metrics import MAX_BAD_FRACTION
 ROOT = Path(__file__).resolve().parent.parent
 
 DOCS = ROOT / "docs" / "validation"
-SPEED = ROOT / "docs" / "render_speed.json"
+SPEED = ROOT / "docs" / "results" / "render_speed.json"
 STEPS = ("course_images", "crossval", "crossval_power", "error_vs_time", "scalar_suite")
 #: The pages this command writes, each one section of the same name
 RENDERING_PAGE = ROOT / "docs" / "results" / "rendering.md"
@@ -122,8 +122,8 @@ def results_section(images: dict | None, speed: dict | None) -> str:
                   "random.", "", render_speed.report(speed), ""]
     else:
         lines += ["Render speed: not measured in this form yet (run `python -m benchmarks.render_speed --json "
-                  "docs/render_speed.json [--peer PATH]` on a quiet machine, then `python -m benchmarks.report "
-                  "--no-run`).", ""]
+                  "docs/results/render_speed.json [--peer PATH]` on a quiet machine, then "
+                  "`python -m benchmarks.report --no-run`).", ""]
     return "\n".join(lines)
 
 
