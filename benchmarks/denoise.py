@@ -1,6 +1,6 @@
 """Denoising quality, temporal stability and speed on our animated sequences, beside Intel Open Image Denoise.
 
-    python -m benchmarks.denoise [--json PATH] [--quick] [--readme] [--work DIR]
+    python -m benchmarks.denoise [--json PATH] [--quick] [--docs] [--work DIR]
                                  [--no-timing] [--timing-frames N]
 
 Quality: each sequence of ``scenes/sequences/*.json`` is rendered once into
@@ -50,6 +50,7 @@ if __name__ == "__main__" and not __package__:
 import numpy as np
 
 from benchmarks import check_json, write_json
+from core.markdown import replace_section
 from imaging.colour import side_by_side
 from imaging.image_io import read_exr_rgb as read_rgb, write_image, write_video
 from validation.metrics import flip_error, relmse
@@ -58,7 +59,7 @@ ROOT = Path(__file__).resolve().parent.parent
 SEQUENCES = sorted((ROOT / "scenes" / "sequences").glob("*.json"))
 METHODS = ("raw", "bilateral", "atrous", "bilateral+temporal", "atrous+temporal", "demod+outliers+atrous+temporal",
            "svgf", "oidn", "oidn+temporal", "oidn-guided")
-#: the hard sequence: the README's still and video
+#: the hard sequence: the results page's still and video
 HARD = "glossy_shadow"
 STILL_METHODS = ("raw", "atrous+temporal", "svgf", "oidn")
 QUALITY = dict(size=(320, 180), frames=8)
@@ -280,13 +281,16 @@ def bar_lines(results: dict) -> list[str]:
     return lines
 
 
-def readme_section(results: dict, still: str | None, video: str | None, command: str) -> str:
-    """The README's denoising results: every number from ``results``."""
+#: The page ``--docs`` writes its section into
+RESULTS_PAGE = ROOT / "docs" / "results" / "denoise.md"
+
+
+def results_section(results: dict, still: str | None, video: str | None, command: str) -> str:
+    """The denoising results of docs/results/denoise.md: every number from ``results``."""
     described = "; ".join("{}: {}x{}, {} frames, {} spp, ground truth {} spp as two halves".format(
         s["name"], s["size"][0], s["size"][1], s["frames"], s["spp"], s["reference_spp"])
         for s in results["sequences"])
-    lines = ["<!-- denoise:start -->",
-             f"Results of `{command}` on {results.get('date', 'this machine')}"
+    lines = [f"Results of `{command}` on {results.get('date', 'this machine')}"
              + (f" ({results['machine']}; load average {results['load_average_at_start']} at the start, "
                 f"{results['load_average_at_end']} at the end; {results['wall_s'] / 60:.1f} min in all, frames "
                 "already rendered reused)" if "wall_s" in results else "")
@@ -301,22 +305,15 @@ def readme_section(results: dict, still: str | None, video: str | None, command:
                   f"![{HARD}, last frame]({still})"]
     if video:
         lines.append(f"\nVideo of {HARD} (the same panels, every frame): [{video}]({video})")
-    lines.append("<!-- denoise:end -->")
     return "\n".join(lines)
 
 
-def write_readme(results: dict, still: Path | None, video: Path | None, command: str) -> None:
-    import re
-
-    readme = ROOT / "README.md"
-
+def write_results_page(results: dict, still: Path | None, video: Path | None, command: str) -> None:
+    """Section ``denoise`` of :data:`RESULTS_PAGE`; links relative to the page."""
     def link(p):
-        return str(Path(p).resolve().relative_to(ROOT)) if p else None
+        return Path(os.path.relpath(Path(p).resolve(), RESULTS_PAGE.parent)).as_posix() if p else None
 
-    text = re.sub(r"<!-- denoise:start -->.*?<!-- denoise:end -->",
-                  lambda _: readme_section(results, link(still), link(video), command),
-                  readme.read_text(), flags=re.S)
-    readme.write_text(text)
+    replace_section(RESULTS_PAGE, "denoise", results_section(results, link(still), link(video), command))
 
 
 PROG = "python -m benchmarks.denoise"
@@ -343,8 +340,9 @@ def main(argv: list[str] | None = None) -> int:
                         "reference check is reported, not enforced)")
     parser.add_argument("--work", type=Path, default=Path("out/denoise"),
                         help="where the sequences are rendered and cached (default out/denoise)")
-    parser.add_argument("--readme", action="store_true",
-                        help="write docs/denoise/ (JSON, still, video) and the README's denoising results")
+    parser.add_argument("--docs", "--readme", action="store_true",
+                        help="write docs/denoise/ (JSON, still, video) and the results in docs/results/denoise.md "
+                             "(--readme: its former name)")
     parser.add_argument("--no-timing", action="store_true", help="skip the 1280x720 speed run")
     parser.add_argument("--sequences", nargs="*", metavar="NAME", help="only these sequences")
     parser.add_argument("--reference-spp", type=int, metavar="N",
@@ -365,7 +363,7 @@ def main(argv: list[str] | None = None) -> int:
         raise UsageError(f"--reference-spp must be an even number >= 2 (two independently seeded halves), "
                          f"got {args.reference_spp}")
     docs = ROOT / "docs" / "denoise"
-    if args.readme:
+    if args.docs:
         args.json = args.json or docs / "denoise.json"
     check_work_and_json(args.work, args.json)
     set_variant(None, quiet=True)
@@ -414,14 +412,14 @@ def main(argv: list[str] | None = None) -> int:
         print(line)
     if args.json:
         write_json(args.json, results)
-    if args.readme:
+    if args.docs:
         still = video = None
         if outputs_hard is not None:
             panels = [outputs_hard[m] for m in STILL_METHODS] + [outputs_hard["reference"]]
             still, video = docs / f"{HARD}_last.png", docs / f"{HARD}.mp4"
             write_image(still, side_by_side([p[-1] for p in panels]))
             write_video(video, [side_by_side(list(images)) for images in zip(*panels)])
-        write_readme(results, still, video, "python -m benchmarks.denoise --readme")
+        write_results_page(results, still, video, "python -m benchmarks.denoise --docs")
     failed = [line for line in checks if line.startswith("FAIL")]
     if failed and not args.quick:
         print("benchmarks.denoise: error: the ground truth is too noisy to rank the methods (see FAIL above)",

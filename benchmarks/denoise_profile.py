@@ -1,7 +1,7 @@
 """Where a denoised frame's time goes: every Dr.Jit kernel of a frame of the
 timed methods at 1280x720, with its execution time and the bytes it moves.
 
-    python -m benchmarks.denoise_profile [--work DIR] [--frames N] [--json PATH] [--readme]
+    python -m benchmarks.denoise_profile [--work DIR] [--frames N] [--json PATH] [--docs]
 
 Runs ``atrous+temporal`` and ``svgf`` (llvm_ad_rgb) over the speed run's
 frames (``benchmarks.denoise``'s 1280x720 folder, rendered if missing), with
@@ -17,8 +17,8 @@ spatial variance estimate, reprojection, accumulation and clamping).
 Last, ``atrous+temporal``'s kernel time with one Dr.Jit thread against the
 default count (how far the second core helps).
 
-``--readme`` writes docs/denoise/profile.json and the README's profile
-section between ``<!-- denoise-profile:start -->`` and ``<!-- denoise-profile:end -->``.
+``--docs`` writes docs/denoise/profile.json and section ``denoise-profile``
+of docs/results/denoise.md (``core.markdown.replace_section``).
 """
 from __future__ import annotations
 
@@ -34,6 +34,8 @@ if __name__ == "__main__" and not __package__:
 import numpy as np
 
 from benchmarks import write_json
+from benchmarks.denoise import RESULTS_PAGE
+from core.markdown import replace_section
 
 ROOT = Path(__file__).resolve().parent.parent
 PROG = "python -m benchmarks.denoise_profile"
@@ -145,18 +147,12 @@ def table(results: dict) -> str:
     return "\n".join(lines)
 
 
-def write_readme(results: dict, command: str) -> None:
-    readme = ROOT / "README.md"
+def write_results_page(results: dict, command: str) -> None:
+    """Section ``denoise-profile`` of benchmarks.denoise's results page."""
     m = results["machine"]
     head = (f"Written by `{command}` on {results['date']} ({m}; load average "
             f"{results['load_average_at_start']} at the start):\n\n")
-    text = readme.read_text()
-    if "<!-- denoise-profile:start -->" not in text:
-        raise RuntimeError("README.md has no <!-- denoise-profile:start --> section")
-    text = re.sub(r"<!-- denoise-profile:start -->.*?<!-- denoise-profile:end -->",
-                  lambda _: "<!-- denoise-profile:start -->\n" + head + table(results) + "<!-- denoise-profile:end -->",
-                  text, flags=re.S)
-    readme.write_text(text)
+    replace_section(RESULTS_PAGE, "denoise-profile", head + table(results))
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -166,7 +162,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--work", type=Path, default=Path("out/denoise"),
                         help="where the speed run's frames are (rendered there if missing; default out/denoise)")
     parser.add_argument("--json", type=Path, metavar="PATH", help="write the profile as JSON")
-    parser.add_argument("--readme", action="store_true", help="write docs/denoise/profile.json and the README section")
+    parser.add_argument("--docs", "--readme", action="store_true",
+                        help="write docs/denoise/profile.json and its section of docs/results/denoise.md "
+                             "(--readme: its former name)")
     parser.add_argument("--quick", action="store_true", help="the small speed frames of benchmarks.denoise --quick")
     args = parser.parse_args(argv)
     import datetime
@@ -182,7 +180,7 @@ def main(argv: list[str] | None = None) -> int:
 
     from core.errors import UsageError
 
-    if args.readme:
+    if args.docs:
         args.json = args.json or ROOT / "docs" / "denoise" / "profile.json"
     check_work_and_json(args.work, args.json)
     set_variant(None, quiet=True)
@@ -200,8 +198,8 @@ def main(argv: list[str] | None = None) -> int:
     print(table(results))
     if args.json:
         write_json(args.json, results)
-    if args.readme:
-        write_readme(results, "python -m benchmarks.denoise_profile --readme")
+    if args.docs:
+        write_results_page(results, "python -m benchmarks.denoise_profile --docs")
     return 0
 
 

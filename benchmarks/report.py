@@ -1,8 +1,8 @@
-"""Regenerates the README's "Results" and "Validation" sections from measurements.
+"""Regenerates the results pages docs/results/rendering.md and docs/results/validation.md from measurements.
 
     python -m benchmarks.report                     # runs the measurements below, then writes
     python -m benchmarks.report --steps crossval    # runs only some of them (comma-separated)
-    python -m benchmarks.report --no-run            # only rewrites the sections from docs/
+    python -m benchmarks.report --no-run            # only rewrites the pages from docs/'s JSON
 
 Steps, each writing a JSON (with the machine, the date and the command) that
 the sections are written from:
@@ -17,21 +17,20 @@ the sections are written from:
   ``docs/validation/error_vs_time.json`` and its plots;
 - ``scalar_suite``: the fast test suite with the LLVM backend made unusable
   (``DRJIT_LIBLLVM_PATH`` at libLLVM 15), so image tests run on ``scalar_rgb``
-  -> ``docs/validation/scalar_suite.json`` (skips, required skips, time).
+  -> ``docs/validation/scalar_suite.json`` (its verdict: failures, required skips).
 
 Render speed is not a step (it needs a quiet machine): run
-``python -m benchmarks.render_speed --json docs/render_speed.json [--peer PATH]``,
-then ``--no-run``. Every number in the two sections comes from these files.
+``python -m benchmarks.render_speed --json docs/results/render_speed.json [--peer PATH]``,
+then ``--no-run``. Every number on the two pages comes from these files; each page's
+generated part is one section (``core.markdown.replace_section``).
 """
 from __future__ import annotations
 
 import datetime as dt
 import json
 import os
-import re
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 # started as `python benchmarks/x.py`, this folder would shadow the course and denoise packages
@@ -40,6 +39,7 @@ if __name__ == "__main__" and not __package__:
 
 from benchmarks import crossval, error_vs_time, machine, render_speed, write_json
 from benchmarks.course import record
+from core.markdown import replace_section
 from course import root as course_root
 from validation.crossval import FURNACE_SIGMAS
 from validation.metrics import MAX_BAD_FRACTION
@@ -47,10 +47,11 @@ from validation.metrics import MAX_BAD_FRACTION
 ROOT = Path(__file__).resolve().parent.parent
 
 DOCS = ROOT / "docs" / "validation"
-SPEED = ROOT / "docs" / "render_speed.json"
+SPEED = ROOT / "docs" / "results" / "render_speed.json"
 STEPS = ("course_images", "crossval", "crossval_power", "error_vs_time", "scalar_suite")
-MARKERS = {"validation": ("<!-- validation:start -->", "<!-- validation:end -->"),
-           "results": ("<!-- results:start -->", "<!-- results:end -->")}
+#: The pages this command writes, each one section of the same name
+RENDERING_PAGE = ROOT / "docs" / "results" / "rendering.md"
+VALIDATION_PAGE = ROOT / "docs" / "results" / "validation.md"
 OLD_LLVM = "/usr/lib/x86_64-linux-gnu/libLLVM-15.so"
 
 
@@ -63,15 +64,17 @@ def _load(path: Path) -> dict | None:
 
 
 def run_scalar_suite(path: Path) -> dict:
-    """The fast suite with no usable LLVM; its conftest writes the skip counts."""
+    """The fast suite with no usable LLVM; its conftest writes the skip report.
+
+    Only the verdict is kept (failures, required skips, exit status): test
+    counts and durations change with every test and belong in the run's log."""
     env = dict(os.environ, DRJIT_LIBLLVM_PATH=OLD_LLVM if Path(OLD_LLVM).exists() else "/nonexistent/libLLVM-15.so",
                PYTEST_SKIP_REPORT=str(path))
-    start = time.perf_counter()
     result = subprocess.run([sys.executable, "-m", "pytest", "-q", "-m", "not slow", "-p", "no:cacheprovider"],
                             cwd=ROOT, env=env)
-    data = dict(json.loads(path.read_text()), exit_status=result.returncode,
-                wall_s=time.perf_counter() - start,
-                **stamp("DRJIT_LIBLLVM_PATH=libLLVM-15 python -m pytest -m 'not slow'"))
+    report = json.loads(path.read_text())
+    data = {"variant": report["variant"], "failed": report["failed"], "required_skipped": report["required_skipped"],
+            "exit_status": result.returncode, **stamp("DRJIT_LIBLLVM_PATH=libLLVM-15 python -m pytest -m 'not slow'")}
     write_json(path, data)
     return data
 
@@ -97,8 +100,7 @@ def run_power(path: Path, biases=(0.01, -0.01)) -> dict:
 
 # -- sections ---------------------------------------------------------------------
 def results_section(images: dict | None, speed: dict | None) -> str:
-    start, end = MARKERS["results"]
-    lines = [start, "## Results", ""]
+    lines = []
     if images:
         counts = images["images"]
         worst = sorted(counts.items(), key=lambda kv: -kv[1]["bad"])
@@ -124,9 +126,8 @@ def results_section(images: dict | None, speed: dict | None) -> str:
                   "random.", "", render_speed.report(speed), ""]
     else:
         lines += ["Render speed: not measured in this form yet (run `python -m benchmarks.render_speed --json "
-                  "docs/render_speed.json [--peer PATH]` on a quiet machine, then `python -m benchmarks.report "
-                  "--no-run`).", ""]
-    lines.append(end)
+                  "docs/results/render_speed.json [--peer PATH]` on a quiet machine, then "
+                  "`python -m benchmarks.report --no-run`).", ""]
     return "\n".join(lines)
 
 
@@ -135,9 +136,7 @@ def validation_section(cv: dict, evt: dict | None, suite: dict | None) -> str:
     settings = cv["settings"]
     materials = ", ".join(dict.fromkeys("{}/{}/{:g}".format(c["kd"], c["ks"], c["shininess"]) for c in chi2))
     angles = ", ".join("{:g}°".format(a) for a in sorted({c["theta_deg"] for c in chi2}))
-    start, end = MARKERS["validation"]
-    lines = [start, "## Validation", "",
-             f"Regenerate with `python -m benchmarks.report` (each paragraph names its command, machine and "
+    lines = [f"Regenerate with `python -m benchmarks.report` (each paragraph names its command, machine and "
              "date). Raw numbers in `docs/validation/`; the notebooks `notebooks/crossval.ipynb` and "
              "`notebooks/error_vs_time.ipynb` show the same with explanations.", "",
              f"`{cv['command']}` ({settings['variant']}, {cv['machine']}, {cv['date']}):", "",
@@ -187,30 +186,21 @@ def validation_section(cv: dict, evt: dict | None, suite: dict | None) -> str:
                   "spp ladder (a rule fixed before measuring), and the time to relMSE 1e-3:", "",
                   error_vs_time.slope_table(evt), ""]
         scenes = list(dict.fromkeys(p["scene"] for p in evt["points"]))
-        lines += [" ".join(f'<img src="docs/validation/{s}.png" width="49%" alt="{s}">' for s in scenes)]
+        lines += [" ".join(f'<img src="../validation/{s}.png" width="49%" alt="{s}">' for s in scenes)]
     if suite:
+        verdict = ("every test passed and no required test was skipped"
+                   if not suite["failed"] and not suite["required_skipped"] and not suite.get("exit_status")
+                   else "FAILED: tests failed or required tests were skipped (counts in the JSON and CI's log)")
         lines += ["", f"**Without a usable LLVM** (`{suite['command']}`, {suite['machine']}, {suite['date']}): "
-                  f"image tests run on {suite['variant']}; {suite['passed']} passed, {suite['failed']} failed, "
-                  f"{suite['skipped']} skipped, of them {suite['required_skipped']} required, in "
-                  f"{suite['wall_s']:.0f} s."]
-    lines += ["", end]
+                  f"image tests run on {suite['variant']}; {verdict}."]
     return "\n".join(lines)
-
-
-def replace_section(text: str, name: str, new: str, before: str | None = None) -> str:
-    start, end = MARKERS[name]
-    if start in text:
-        return re.sub(re.escape(start) + ".*?" + re.escape(end), lambda _: new, text, flags=re.S)
-    if before and before in text:
-        return text.replace(before, new + "\n\n" + before, 1)
-    return text.rstrip() + "\n\n" + new + "\n"
 
 
 def main(argv: list[str] | None = None) -> int:
     from core.entry import ArgumentParser
 
     parser = ArgumentParser(prog="python -m benchmarks.report", description=__doc__.split("\n\n")[0])
-    parser.add_argument("--no-run", action="store_true", help="only rewrite the README from docs/")
+    parser.add_argument("--no-run", action="store_true", help="only rewrite the pages from docs/'s JSON")
     parser.add_argument("--steps", default=",".join(STEPS), help=f"comma-separated, of {', '.join(STEPS)}")
     args = parser.parse_args(argv)
     steps = [] if args.no_run else [s for s in args.steps.split(",") if s]
@@ -233,14 +223,11 @@ def main(argv: list[str] | None = None) -> int:
     cv, evt = _load(DOCS / "crossval.json"), _load(DOCS / "error_vs_time.json")
     if evt and "spp_slope" not in evt["slopes"][0]:
         evt = None  # measured against separate references by an older version: not shown
-    readme = ROOT / "README.md"
-    text = readme.read_text()
-    text = replace_section(text, "results", results_section(_load(DOCS / "course_images.json"), _load(SPEED)),
-                           before="## Denoising animated sequences")
+    print(replace_section(RENDERING_PAGE, "rendering",
+                          results_section(_load(DOCS / "course_images.json"), _load(SPEED))))
     if cv and "machine" in cv:
-        text = replace_section(text, "validation", validation_section(cv, evt, _load(DOCS / "scalar_suite.json")))
-    readme.write_text(text)
-    print(readme)
+        print(replace_section(VALIDATION_PAGE, "validation",
+                              validation_section(cv, evt, _load(DOCS / "scalar_suite.json"))))
     return 0
 
 
