@@ -313,11 +313,12 @@ def test_reprojection_of_the_ground_truth(variant_llvm_ad_rgb, tmp_path, motion)
     assert relmse(truth[0].reshape(-1, 3)[valid], truth[1].reshape(-1, 3)[valid]) > 1e-3  # it did move
 
 
-#: what ``python -m benchmarks.denoise`` compares (its METHODS)
+#: what ``python -m benchmarks.denoise`` compares (its METHODS, from the registry)
 BENCHMARK_METHODS = ("raw", "bilateral", "atrous", "bilateral+temporal", "atrous+temporal",
-                     "demod+outliers+atrous+temporal", "svgf", "oidn", "oidn+temporal", "oidn-guided")
-#: the methods of the speed bars (its TIMED)
-TIMED_METHODS = ("oidn", "atrous+temporal", "svgf", "bilateral")
+                     "demod+outliers+atrous+temporal", "svgf", "oidn-fast", "oidn-balanced", "oidn-high",
+                     "oidn+temporal", "oidn-guided")
+#: the methods of the speed bars and OIDN in each quality mode (its TIMED)
+TIMED_METHODS = ("oidn-fast", "oidn-balanced", "oidn-high", "atrous+temporal", "svgf", "bilateral")
 
 
 def test_denoise_command_and_benchmark_quick(variant_llvm_ad_rgb, tmp_path):

@@ -41,15 +41,16 @@ def _frame(seed: int = 0, beauty=None, normal=None, position=None, ids=None, obj
         world_to_screen=screen)
 
 
-def _run(frames, **options) -> list[np.ndarray]:
-    from denoise.filters import BilateralWindow, EdgeWeights, TemporalParams
-    from denoise.pipeline import DenoiseOptions, Denoiser
+def _run(frames, method: str = "atrous", bilateral: dict | None = None, temporal_params: dict | None = None,
+         **props) -> list[np.ndarray]:
+    """``method`` over ``frames``; ``bilateral`` and ``temporal_params`` are
+    parameters of the methods that have them (a 7x7 bilateral window unless given)."""
+    from denoise.methods import METHODS
 
-    bilateral = dict(options.pop("bilateral", {"radius": 3}))
-    window = BilateralWindow(radius=bilateral.pop("radius", 3), sigma_coord=bilateral.pop("sigma_coord", 32.0))
-    edges = EdgeWeights(**bilateral)
-    temporal = TemporalParams(**options.pop("temporal_params", {}))
-    denoiser = Denoiser(DenoiseOptions(edges=edges, window=window, temporal_params=temporal, **options))
+    cls = METHODS[method]
+    given = {"radius": 3, **(bilateral or {}), **(temporal_params or {})}
+    keys = {o.key for o in cls.all_options()}
+    denoiser = cls(**{k: v for k, v in given.items() if k in keys}, **props)
     return [denoiser.step(f) for f in frames]
 
 
@@ -152,6 +153,7 @@ def different_sizes():
 
 def missing_file():
     from denoise.frames import write_frame
+    from denoise.methods import make
     from denoise.pipeline import denoise_folder
 
     with tempfile.TemporaryDirectory() as tmp:
@@ -160,7 +162,7 @@ def missing_file():
             write_frame(folder, i, _frame(i))
         (folder / "normal_1.exr").unlink()
         try:
-            denoise_folder(folder, folder / "out")
+            denoise_folder(folder, folder / "out", make("atrous"))
         except FrameError as error:
             return "frame 1 lacks normal_1.exr" in str(error), str(error)
         (folder / "beauty_1.exr").unlink()
@@ -241,6 +243,7 @@ def damaged_folder(damage, expect: str):
     """A frame folder damaged by ``damage(folder)``: a FrameError naming the file."""
     def check():
         from denoise.frames import write_frame
+        from denoise.methods import make
         from denoise.pipeline import denoise_folder
 
         with tempfile.TemporaryDirectory() as tmp:
@@ -249,7 +252,7 @@ def damaged_folder(damage, expect: str):
                 write_frame(folder, i, _frame(i))
             damage(folder)
             try:
-                denoise_folder(folder, folder / "out")
+                denoise_folder(folder, folder / "out", make("atrous"))
             except FrameError as error:
                 return expect in str(error) and "\n" not in str(error), str(error)
         return False, "no error"
@@ -326,6 +329,7 @@ def albedo_damage(require: bool, expect: str):
     """Albedo for some frames only, or (with ``--demodulate``) for none: a FrameError."""
     def check():
         from denoise.frames import write_frame
+        from denoise.methods import make
         from denoise.pipeline import denoise_folder
 
         with tempfile.TemporaryDirectory() as tmp:
@@ -335,7 +339,7 @@ def albedo_damage(require: bool, expect: str):
                 write_frame(folder, i, replace(frame, albedo=np.full_like(frame.beauty, 0.5)) if i == 0 and not require
                             else frame)
             try:
-                denoise_folder(folder, folder / "out", require_albedo=require)
+                denoise_folder(folder, folder / "out", make("atrous"), require_albedo=require)
             except FrameError as error:
                 ok = expect in str(error) and "\n" not in str(error) and not (folder / "out").exists()
                 return ok, str(error)
@@ -406,7 +410,5 @@ def denoise_cases() -> list[DenoiseCase]:
     ]
 
 
-def _outliers():
-    from denoise.filters import OutlierParams
-
-    return OutlierParams(k=1.0)
+def _outliers() -> float:
+    return 1.0
