@@ -467,3 +467,23 @@ def _write_ids(folder, index, value):
     from imaging.image_io import write_exr
 
     write_exr(folder / f"ID_{index}.exr", {"": np.full((4, 5), value, np.float32)})
+
+
+def test_denoise_shows_progress_only_on_a_terminal(variant_llvm_ad_rgb, tmp_path, capsys, monkeypatch):
+    """With stderr redirected, a successful run leaves it empty: in process with
+    the bar's delay at 0 (a bar would show at once), and as a command."""
+    import subprocess
+    import sys
+
+    import denoise.pipeline as pipeline
+    from denoise.__main__ import main
+
+    folder = tmp_path / "frames"
+    _small_folder(folder, count=3)
+    monkeypatch.setattr(pipeline, "PROGRESS_DELAY_S", 0.0)
+    assert main([str(folder), str(tmp_path / "out"), "--radius", "1"]) == 0
+    captured = capsys.readouterr()
+    assert captured.err == "" and "3 frames ->" in captured.out
+    finished = subprocess.run([sys.executable, "-m", "denoise", str(folder), str(tmp_path / "command"), "--radius", "1"],
+                              cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert finished.returncode == 0 and finished.stderr == "", finished.stderr
