@@ -36,16 +36,27 @@ JSON: ``{"sequences": [{..., "reference_noise", "reference_temporal",
 from __future__ import annotations
 
 import argparse
+import datetime
 import os
+import re
 import sys
 import time
 from pathlib import Path
 
+import drjit as dr
+import mitsuba as mi
 import numpy as np
 
-from benchmarks import check_json, write_json
+from benchmarks import check_json, machine, write_json
+from core import entry
+from core.entry import ArgumentParser
+from core.errors import OutputError, UsageError
+from denoise.export import Spec, export, reference_folder
+from denoise.filters import reproject
+from denoise.frames import frame_indices, read_frame
 from denoise.methods import benchmark_names, from_name
 from denoise.oidn import QUALITIES
+from renderer.variants import set_variant
 from imaging.colour import side_by_side
 from imaging.image_io import read_exr_rgb as read_rgb, write_image, write_video
 from validation.metrics import flip_error, relmse
@@ -96,10 +107,6 @@ def make_method(name: str):
 def back_projected(frames, images) -> list[tuple[np.ndarray, np.ndarray]]:
     """For frames 1.., (image t at the pixels that keep history, image t-1 at
     the pixels they came from), through our back projection."""
-    import mitsuba as mi
-
-    from denoise.filters import reproject
-
     def tensor(a):
         return mi.TensorXf(np.ascontiguousarray(a, np.float32))
 
@@ -133,11 +140,6 @@ def warm_up(method: str, frames) -> None:
 
 def run_sequence(folder: Path, name: str, methods=METHODS, outputs: dict | None = None) -> tuple[list[dict], dict]:
     """(per-frame rows, the sequence's reference figures and stability per method)."""
-    import drjit as dr
-
-    from denoise.export import reference_folder
-    from denoise.frames import frame_indices, read_frame
-
     indices = frame_indices(folder)
     frames = [read_frame(folder, i) for i in indices]
     truth = [read_rgb(reference_folder(folder) / f"beauty_{i}.exr") for i in indices]
@@ -173,10 +175,6 @@ def run_timing(folder: Path, methods=TIMED) -> dict:
     on ``folder``'s frames, OIDN by its execute call alone. The methods take
     turns frame by frame (round robin), so that a slow spell of a shared
     machine falls on all of them alike instead of on whichever ran then."""
-    import drjit as dr
-
-    from denoise.frames import frame_indices, read_frame
-
     frames = [read_frame(folder, i) for i in frame_indices(folder)]
     timing = {"size": [frames[0].beauty.shape[1], frames[0].beauty.shape[0]], "frames": len(frames), "ms": {},
               "order": "round robin: frame by frame, each method in turn"}
@@ -303,8 +301,6 @@ def readme_section(results: dict, still: str | None, video: str | None, command:
 
 
 def write_readme(results: dict, still: Path | None, video: Path | None, command: str) -> None:
-    import re
-
     readme = ROOT / "README.md"
 
     def link(p):
@@ -321,8 +317,6 @@ PROG = "python -m benchmarks.denoise"
 
 def check_work_and_json(work: Path, json_path: Path | None) -> None:
     """The cache folder and the JSON file, checked before hours of rendering."""
-    from core.errors import OutputError
-
     if work.exists() and not work.is_dir():
         raise OutputError(f"--work {work}: a file, not a folder")
     work.mkdir(parents=True, exist_ok=True)  # an OSError names the path (one line under core.entry.run)
@@ -330,8 +324,6 @@ def check_work_and_json(work: Path, json_path: Path | None) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from core.entry import ArgumentParser
-
     parser = ArgumentParser(prog=PROG, description=__doc__.split("\n\n")[0],
                             formatter_class=argparse.RawDescriptionHelpFormatter,
                             epilog="example: python -m benchmarks.denoise --json out/denoise.json")
@@ -348,12 +340,6 @@ def main(argv: list[str] | None = None) -> int:
                         help="ground-truth spp for every sequence, even (default: " +
                              ", ".join(f"{k} {v}" for k, v in REFERENCE_SPP.items()) + ")")
     args = parser.parse_args(argv)
-    import datetime
-
-    from core.errors import UsageError
-    from denoise.export import Spec, export
-    from renderer.variants import set_variant
-
     known = [p.stem for p in SEQUENCES]
     unknown = [name for name in args.sequences or [] if name not in known]
     if unknown:
@@ -368,8 +354,6 @@ def main(argv: list[str] | None = None) -> int:
     set_variant(None, quiet=True)
     quality, timing_size = (QUICK, QUICK_TIMING) if args.quick else (QUALITY, TIMING)
     suffix = "_quick" if args.quick else ""
-    from benchmarks import machine
-
     start = time.perf_counter()
     results = {"date": datetime.date.today().isoformat(), "machine": machine(),
                "load_average_at_start": round(os.getloadavg()[0], 2),
@@ -428,6 +412,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    from core import entry
-
     sys.exit(entry.run(PROG, main))

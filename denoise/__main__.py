@@ -70,7 +70,7 @@ def add_method_options(parser: argparse.ArgumentParser) -> set[str]:
     returns their keys."""
     declared = declared_options()
     groups: dict[str, list[str]] = {}
-    for flag, (option, users) in declared.items():
+    for option, users in declared.values():
         if option.group is not None:
             methods = groups.setdefault(option.group, [])
             methods += [name for name, _ in users if name not in methods]

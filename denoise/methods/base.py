@@ -89,9 +89,9 @@ def levels_option(default: int | None, default_text: str | None = None) -> Optio
                   default_text=default_text)
 
 
-def edge_options(defaults: EdgeWeights = EdgeWeights()) -> tuple[Option, Option, Option]:
+def edge_options() -> tuple[Option, Option, Option]:
     """The assignment's edge-stopping sigmas (:class:`denoise.filters.EdgeWeights`)."""
-    group = "edge-stopping weights"
+    defaults, group = EdgeWeights(), "edge-stopping weights"
     return (Option("--sigma-color", defaults.sigma_color, "on the colour difference", group=group),
             Option("--sigma-normal", defaults.sigma_normal, "on the normals' angle in radians", group=group),
             Option("--sigma-plane", defaults.sigma_plane, "on the plane distance", group=group))
