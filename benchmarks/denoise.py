@@ -6,17 +6,14 @@
 Quality: each sequence of ``scenes/sequences/*.json`` is rendered once into
 ``--work`` at 320x180 (1-spp path-traced input; a ground truth of 1536 to 2048 spp, see
 ``REFERENCE_SPP``, made of two independently seeded halves; a rerun finds the
-frames in ``WORK/NAME_320x180_<spp>spp`` and renders nothing). Every method runs over all 8 frames: ``raw`` (the input), the
-assignment's ``bilateral``, ``atrous``, ``bilateral+temporal``,
-``atrous+temporal``, our additions ``demod+outliers+atrous+temporal``
-(albedo demodulation and outlier removal around the assignment's filter) and
-``svgf``, and Intel Open Image Denoise (HDR mode, albedo and normals as clean
-auxiliary images, one committed filter per sequence) alone (``oidn``) and
-after our temporal accumulation (``oidn+temporal``), and ``oidn-guided`` (the
-accumulation's history clamped to the neighbourhood of OIDN's output on the
-frame alone, then OIDN on the accumulated input). Per frame: relMSE and
-FLIP against the ground truth, milliseconds, and ``temporal``: the relMSE
-between the output and the previous output back-projected onto it.
+frames in ``WORK/NAME_320x180_<spp>spp`` and renders nothing). Every method runs over all 8 frames: ``raw`` (the input)
+and each name the methods of :mod:`denoise.methods` are benchmarked under
+(:func:`denoise.methods.benchmark_names`, e.g. ``atrous+temporal``; Intel
+Open Image Denoise alone once per quality mode, ``oidn-fast``,
+``oidn-balanced``, ``oidn-high``; docs/denoising_methods.md lists them).
+Per frame: relMSE and FLIP against the ground truth, milliseconds, and
+``temporal``: the relMSE between the output and the previous output
+back-projected onto it.
 
 The reference's own noise, relMSE(half_a, half_b) / 4 averaged over the
 frames, is printed per sequence and must be at most 10 % of the best method's
@@ -27,7 +24,8 @@ the truth).
 
 Speed: one sequence rendered at 1280x720 (input only) and every method timed
 per frame in the same run (llvm_ad_rgb, median after a warm-up frame), OIDN
-by its execute call only; the ratios to OIDN are the speed bars. The same
+by its execute call only (each quality mode's filter committed once for the
+size); the ratios to ``oidn-high`` are the speed bars. The same
 ratios of this process's CPU time (``cpu_ms``, ``cpu_ratio_to_oidn``) are
 reported beside them: on a shared machine they move less with other jobs.
 
@@ -38,6 +36,7 @@ JSON: ``{"sequences": [{..., "reference_noise", "reference_temporal",
 from __future__ import annotations
 
 import argparse
+import datetime
 import os
 import sys
 import time
@@ -47,35 +46,49 @@ from pathlib import Path
 if __name__ == "__main__" and not __package__:
     sys.path[0] = str(Path(__file__).resolve().parents[1])
 
+import drjit as dr
+import mitsuba as mi
 import numpy as np
 
-from benchmarks import check_json, write_json
+from benchmarks import check_json, machine, write_json
+from core import entry
+from core.entry import ArgumentParser
+from core.errors import OutputError, UsageError
 from core.markdown import replace_section
+from denoise.export import Spec, export, reference_folder
+from denoise.filters import reproject
+from denoise.frames import frame_indices, read_frame
+from denoise.methods import benchmark_names, from_name
+from denoise.oidn import QUALITIES
+from renderer.variants import set_variant
 from imaging.colour import side_by_side
 from imaging.image_io import read_exr_rgb as read_rgb, write_image, write_video
 from validation.metrics import flip_error, relmse
 
 ROOT = Path(__file__).resolve().parent.parent
 SEQUENCES = sorted((ROOT / "scenes" / "sequences").glob("*.json"))
-METHODS = ("raw", "bilateral", "atrous", "bilateral+temporal", "atrous+temporal", "demod+outliers+atrous+temporal",
-           "svgf", "oidn", "oidn+temporal", "oidn-guided")
+METHODS = ("raw",) + benchmark_names()
+#: OIDN alone, one name per quality mode: the baselines
+OIDN_ALONE = tuple(f"oidn-{quality}" for quality in QUALITIES)
+#: the baseline of the speed ratios and the quality comparisons
+BASELINE = "oidn-high"
 #: the hard sequence: the results page's still and video
 HARD = "glossy_shadow"
-STILL_METHODS = ("raw", "atrous+temporal", "svgf", "oidn")
+STILL_METHODS = ("raw", "atrous+temporal", "svgf", BASELINE)
 QUALITY = dict(size=(320, 180), frames=8)
-#: ground-truth samples per pixel per sequence (two halves of half as many); --reference-spp overrides.
-#: Chosen from the run of 2026-11-28 (noise falls as 1/spp): at 1024/512/512 spp the noise was
-#: 12 %, 24 % and 20 % of the best method's mean relMSE; these put it near 6 %, 6 % and 7 % (bar 10 %)
+#: ground-truth samples per pixel per sequence (two halves of half as many; the reference
+#: noise falls as 1/spp, and docs/denoising_methods.md has the run these were chosen from);
+#: --reference-spp overrides
 REFERENCE_SPP = {"dolly_lamps": 2048, "orbit_transforms": 1536, "glossy_shadow": 2048}
 QUICK = dict(size=(96, 54), frames=4, reference_spp=16)
 TIMING = dict(size=(1280, 720), frames=9, reference_spp=2)
 QUICK_TIMING = dict(size=(160, 90), frames=3, reference_spp=2)
 #: the reference's own noise must be at most this fraction of the best method's relMSE
 REFERENCE_NOISE_BAR = 0.1
-#: per-frame time as a fraction of OIDN's execute time (issue 9's speed bars)
+#: per-frame time as a fraction of the baseline's execute time (the assignment's speed bars)
 SPEED_BARS = {"atrous+temporal": 0.2, "svgf": 0.3, "bilateral": 2.0}
-#: the methods timed at 1280x720 (the bars' methods and OIDN)
-TIMED = ("oidn", "atrous+temporal", "svgf", "bilateral")
+#: the methods timed at 1280x720 (the bars' methods and OIDN in each quality mode)
+TIMED = OIDN_ALONE + ("atrous+temporal", "svgf", "bilateral")
 
 
 def timing_folder(work: Path, sequence: str, settings: dict, quick: bool = False) -> Path:
@@ -92,18 +105,12 @@ class RawMethod:
 
 
 def make_method(name: str):
-    from denoise.pipeline import Denoiser, parse_method
-
-    return RawMethod() if name == "raw" else Denoiser(parse_method(name))
+    return RawMethod() if name == "raw" else from_name(name)
 
 
 def back_projected(frames, images) -> list[tuple[np.ndarray, np.ndarray]]:
     """For frames 1.., (image t at the pixels that keep history, image t-1 at
     the pixels they came from), through our back projection."""
-    import mitsuba as mi
-
-    from denoise.filters import reproject
-
     def tensor(a):
         return mi.TensorXf(np.ascontiguousarray(a, np.float32))
 
@@ -137,11 +144,6 @@ def warm_up(method: str, frames) -> None:
 
 def run_sequence(folder: Path, name: str, methods=METHODS, outputs: dict | None = None) -> tuple[list[dict], dict]:
     """(per-frame rows, the sequence's reference figures and stability per method)."""
-    import drjit as dr
-
-    from denoise.export import reference_folder
-    from denoise.frames import frame_indices, read_frame
-
     indices = frame_indices(folder)
     frames = [read_frame(folder, i) for i in indices]
     truth = [read_rgb(reference_folder(folder) / f"beauty_{i}.exr") for i in indices]
@@ -177,10 +179,6 @@ def run_timing(folder: Path, methods=TIMED) -> dict:
     on ``folder``'s frames, OIDN by its execute call alone. The methods take
     turns frame by frame (round robin), so that a slow spell of a shared
     machine falls on all of them alike instead of on whichever ran then."""
-    import drjit as dr
-
-    from denoise.frames import frame_indices, read_frame
-
     frames = [read_frame(folder, i) for i in frame_indices(folder)]
     timing = {"size": [frames[0].beauty.shape[1], frames[0].beauty.shape[0]], "frames": len(frames), "ms": {},
               "order": "round robin: frame by frame, each method in turn"}
@@ -198,16 +196,16 @@ def run_timing(folder: Path, methods=TIMED) -> dict:
             runner.step(frame)
             dr.sync_thread()
             elapsed, cpu_elapsed = time.perf_counter() - start, time.process_time() - cpu
-            oidn = method.startswith("oidn")
-            times[method].append(runner.last_execute_s if oidn else elapsed)
-            cpu_times[method].append(runner.last_execute_cpu_s if oidn else cpu_elapsed)
+            execute = runner.last_execute_s is not None  # OIDN: its execute calls alone
+            times[method].append(runner.last_execute_s if execute else elapsed)
+            cpu_times[method].append(runner.last_execute_cpu_s if execute else cpu_elapsed)
     for method in methods:
         timing["ms"][method] = 1000 * float(np.median(times[method]))
         timing.setdefault("cpu_ms", {})[method] = 1000 * float(np.median(cpu_times[method]))
-    oidn = timing["ms"]["oidn"]
-    timing["ratio_to_oidn"] = {m: ms / oidn for m, ms in timing["ms"].items()}
+    timing["baseline"] = BASELINE
+    timing["ratio_to_oidn"] = {m: ms / timing["ms"][BASELINE] for m, ms in timing["ms"].items()}
     # this process's CPU time (all its threads): what other jobs on the machine inflate least
-    timing["cpu_ratio_to_oidn"] = {m: ms / timing["cpu_ms"]["oidn"] for m, ms in timing["cpu_ms"].items()}
+    timing["cpu_ratio_to_oidn"] = {m: ms / timing["cpu_ms"][BASELINE] for m, ms in timing["cpu_ms"].items()}
     timing["bars"] = {m: {"ratio": timing["ratio_to_oidn"][m], "bar": bar, "met": timing["ratio_to_oidn"][m] <= bar}
                       for m, bar in SPEED_BARS.items() if m in timing["ms"]}
     return timing
@@ -255,19 +253,19 @@ def summary(results: dict) -> str:
 
 
 def bar_lines(results: dict) -> list[str]:
-    """Issue 9's "done when" bars, measured in this run."""
+    """The assignment's bars, measured in this run."""
     rows, lines = results["results"], []
     for s in results["sequences"]:
         name = s["name"]
         last = max(r["frame"] for r in rows if r["sequence"] == name)
         value = {r["method"]: r["relmse"] for r in rows if r["sequence"] == name and r["frame"] == last}
-        ours = {m: v for m, v in value.items() if m not in ("raw", "oidn")}
+        ours = {m: v for m, v in value.items() if m != "raw" and m not in OIDN_ALONE}
         best = min(ours, key=ours.get)
         lines.append(
             f"{name}, frame {last + 1}: svgf relMSE {value['svgf']:.4f} is {value['atrous+temporal'] / value['svgf']:.1f}x "
             f"lower than atrous+temporal (bar 2x) and {value['raw'] / value['svgf']:.0f}x lower than raw (bar 10x); "
-            f"our best ({best}) {ours[best]:.4f} vs oidn {value['oidn']:.4f} "
-            f"({'lower' if ours[best] < value['oidn'] else 'not lower'}); stability svgf "
+            f"our best ({best}) {ours[best]:.4f} vs {BASELINE} {value[BASELINE]:.4f} "
+            f"({'lower' if ours[best] < value[BASELINE] else 'not lower'}); stability svgf "
             f"{s['stability']['svgf']:.2f} vs atrous {s['stability']['atrous']:.2f} "
             f"({'lower' if s['stability']['svgf'] < s['stability']['atrous'] else 'not lower'})")
     timing = results.get("timing")
@@ -277,7 +275,7 @@ def bar_lines(results: dict) -> list[str]:
         parts = [f"{m} {timing['ms'][m]:.0f} ms = {b['ratio']:.2f}x (bar {b['bar']}x: {'met' if b['met'] else 'not met'}"
                  + (f"; CPU time {cpu[m]:.2f}x" if m in cpu else "") + ")"
                  for m, b in timing["bars"].items()]
-        lines.append(f"speed at {size} (oidn execute {timing['ms']['oidn']:.0f} ms): " + "; ".join(parts))
+        lines.append(f"speed at {size} ({BASELINE} execute {timing['ms'][BASELINE]:.0f} ms): " + "; ".join(parts))
     return lines
 
 
@@ -321,8 +319,6 @@ PROG = "python -m benchmarks.denoise"
 
 def check_work_and_json(work: Path, json_path: Path | None) -> None:
     """The cache folder and the JSON file, checked before hours of rendering."""
-    from core.errors import OutputError
-
     if work.exists() and not work.is_dir():
         raise OutputError(f"--work {work}: a file, not a folder")
     work.mkdir(parents=True, exist_ok=True)  # an OSError names the path (one line under core.entry.run)
@@ -330,8 +326,6 @@ def check_work_and_json(work: Path, json_path: Path | None) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from core.entry import ArgumentParser
-
     parser = ArgumentParser(prog=PROG, description=__doc__.split("\n\n")[0],
                             formatter_class=argparse.RawDescriptionHelpFormatter,
                             epilog="example: python -m benchmarks.denoise --json out/denoise.json")
@@ -349,12 +343,6 @@ def main(argv: list[str] | None = None) -> int:
                         help="ground-truth spp for every sequence, even (default: " +
                              ", ".join(f"{k} {v}" for k, v in REFERENCE_SPP.items()) + ")")
     args = parser.parse_args(argv)
-    import datetime
-
-    from core.errors import UsageError
-    from denoise.export import Spec, export
-    from renderer.variants import set_variant
-
     known = [p.stem for p in SEQUENCES]
     unknown = [name for name in args.sequences or [] if name not in known]
     if unknown:
@@ -369,8 +357,6 @@ def main(argv: list[str] | None = None) -> int:
     set_variant(None, quiet=True)
     quality, timing_size = (QUICK, QUICK_TIMING) if args.quick else (QUALITY, TIMING)
     suffix = "_quick" if args.quick else ""
-    from benchmarks import machine
-
     start = time.perf_counter()
     results = {"date": datetime.date.today().isoformat(), "machine": machine(),
                "load_average_at_start": round(os.getloadavg()[0], 2),
@@ -429,6 +415,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    from core import entry
-
     sys.exit(entry.run(PROG, main))

@@ -22,6 +22,8 @@ of docs/results/denoise.md (``core.markdown.replace_section``).
 """
 from __future__ import annotations
 
+import datetime
+import os
 import re
 import sys
 import time
@@ -31,11 +33,20 @@ from pathlib import Path
 if __name__ == "__main__" and not __package__:
     sys.path[0] = str(Path(__file__).resolve().parents[1])
 
+import drjit as dr
+import mitsuba as mi
 import numpy as np
 
-from benchmarks import write_json
-from benchmarks.denoise import RESULTS_PAGE
+from benchmarks import machine, write_json
+from benchmarks.denoise import (QUICK_TIMING, RESULTS_PAGE, SEQUENCES, TIMING, check_work_and_json, make_method,
+                                timing_folder)
+from core import entry
+from core.entry import ArgumentParser
+from core.errors import UsageError
 from core.markdown import replace_section
+from denoise.export import Spec, export
+from denoise.frames import frame_indices, read_frame
+from renderer.variants import set_variant
 
 ROOT = Path(__file__).resolve().parent.parent
 PROG = "python -m benchmarks.denoise_profile"
@@ -66,10 +77,6 @@ def ir_traffic(ir: str) -> dict:
 
 def profile(frames, method: str) -> dict:
     """Median per-kernel execution times of ``method`` over ``frames[2:]``."""
-    import drjit as dr
-
-    from benchmarks.denoise import make_method
-
     runner = make_method(method)
     for frame in frames[:2]:
         runner.step(frame)
@@ -109,8 +116,6 @@ def profile(frames, method: str) -> dict:
 
 def thread_scaling(frames, method: str = "atrous+temporal") -> dict:
     """Kernel time per frame of ``method`` with one Dr.Jit thread and with the default count."""
-    import drjit as dr
-
     default = dr.thread_count()
     try:
         dr.set_thread_count(1)
@@ -156,8 +161,6 @@ def write_results_page(results: dict, command: str) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from core.entry import ArgumentParser
-
     parser = ArgumentParser(prog=PROG, description=__doc__.split("\n\n")[0])
     parser.add_argument("--work", type=Path, default=Path("out/denoise"),
                         help="where the speed run's frames are (rendered there if missing; default out/denoise)")
@@ -167,19 +170,6 @@ def main(argv: list[str] | None = None) -> int:
                              "(--readme: its former name)")
     parser.add_argument("--quick", action="store_true", help="the small speed frames of benchmarks.denoise --quick")
     args = parser.parse_args(argv)
-    import datetime
-    import os
-
-    from benchmarks import machine
-    from benchmarks.denoise import QUICK_TIMING, SEQUENCES, TIMING, check_work_and_json, timing_folder
-    from denoise.export import Spec, export
-    from denoise.frames import frame_indices, read_frame
-    from renderer.variants import set_variant
-
-    import mitsuba as mi
-
-    from core.errors import UsageError
-
     if args.docs:
         args.json = args.json or ROOT / "docs" / "denoise" / "profile.json"
     check_work_and_json(args.work, args.json)
@@ -204,6 +194,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    from core import entry
-
     sys.exit(entry.run(PROG, main))

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 
 import drjit as dr
 import mitsuba as mi
+import numpy as np
 
 from core.errors import UsageError
 
@@ -19,13 +20,16 @@ from core.errors import UsageError
 B3 = (1.0 / 16.0, 1.0 / 4.0, 3.0 / 8.0, 1.0 / 4.0, 1.0 / 16.0)
 
 
-def _positive(owner: str, **values: float) -> None:
+def check_positive(owner: str, **values: float) -> None:
+    """A one-line :class:`UsageError` naming ``owner`` and the parameter unless
+    each of ``values`` is a finite number > 0."""
     for name, value in values.items():
         if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
             raise UsageError(f"{owner}: {name} must be a finite number > 0, got {value!r}")
 
 
-def _whole(owner: str, name: str, value, low: int, high: int) -> None:
+def check_whole(owner: str, name: str, value, low: int, high: int) -> None:
+    """A one-line :class:`UsageError` unless ``value`` is an int from ``low`` to ``high``."""
     if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
         raise UsageError(f"{owner}: {name} must be a whole number from {low} to {high}, got {value!r}")
 
@@ -40,7 +44,7 @@ class EdgeWeights:
     sigma_plane: float = 0.1
 
     def __post_init__(self):
-        _positive("edge weights", sigma_color=self.sigma_color, sigma_normal=self.sigma_normal,
+        check_positive("edge weights", sigma_color=self.sigma_color, sigma_normal=self.sigma_normal,
                   sigma_plane=self.sigma_plane)
 
 
@@ -52,8 +56,8 @@ class BilateralWindow:
     sigma_coord: float = 32.0
 
     def __post_init__(self):
-        _whole("bilateral window", "radius", self.radius, 0, 64)
-        _positive("bilateral window", sigma_coord=self.sigma_coord)
+        check_whole("bilateral window", "radius", self.radius, 0, 64)
+        check_positive("bilateral window", sigma_coord=self.sigma_coord)
 
 
 @dataclass(frozen=True)
@@ -63,7 +67,7 @@ class AtrousLevels:
     levels: int = 5
 
     def __post_init__(self):
-        _whole("a-trous", "levels", self.levels, 1, 12)
+        check_whole("a-trous", "levels", self.levels, 1, 12)
 
 
 @dataclass(frozen=True)
@@ -79,7 +83,7 @@ class TemporalParams:
         if not (isinstance(self.k, (int, float)) and math.isfinite(self.k) and self.k >= 0.0):
             raise UsageError(f"temporal: k (the history clamp, mean ± k sigma) must be a finite number >= 0, "
                              f"got {self.k!r}")
-        _whole("temporal", "clamp_radius", self.clamp_radius, 1, 16)
+        check_whole("temporal", "clamp_radius", self.clamp_radius, 1, 16)
 
 
 @dataclass(frozen=True)
@@ -90,11 +94,12 @@ class OutlierParams:
     radius: int = 3
 
     def __post_init__(self):
-        _positive("outlier removal", k=self.k)
-        _whole("outlier removal", "radius", self.radius, 1, 16)
+        check_positive("outlier removal", k=self.k)
+        check_whole("outlier removal", "radius", self.radius, 1, 16)
 
 
-def _inv_two_sigma_sq(sigma: float) -> float:
+def inv_two_sigma_sq(sigma: float) -> float:
+    """``1 / (2 sigma²)``, the factor of a Gaussian weight's exponent."""
     # sigma -> 0 means "only identical values": a huge but finite factor keeps exp() at 0, not NaN
     return 1.0 / max(2.0 * sigma * sigma, 1e-30)
 
@@ -148,7 +153,7 @@ def fast_acos(x: mi.Float) -> mi.Float:
 
 
 def _coefficients(p: EdgeWeights, sigma_color: float) -> tuple[float, float, float]:
-    return _inv_two_sigma_sq(sigma_color), _inv_two_sigma_sq(p.sigma_normal), _inv_two_sigma_sq(p.sigma_plane)
+    return inv_two_sigma_sq(sigma_color), inv_two_sigma_sq(p.sigma_normal), inv_two_sigma_sq(p.sigma_plane)
 
 
 #: floats per pixel of the packed guides: a power of two, so a tap reads them in one packet gather
@@ -225,10 +230,10 @@ class FrameArrays:
 def joint_bilateral(frame: FrameArrays, p: EdgeWeights = EdgeWeights(), window: BilateralWindow = BilateralWindow()
                     ) -> mi.TensorXf:
     """The assignment's joint bilateral filter over a (2r+1)^2 window: a
-    symbolic loop over the window's rows, each row's taps unrolled (10 %
-    less time at r = 16 than one loop iteration per tap; same result)."""
+    symbolic loop over the window's rows, each row's taps unrolled (less time
+    than one loop iteration per tap; the same result)."""
     r = window.radius
-    k_coord = _inv_two_sigma_sq(window.sigma_coord)  # plain floats: not loop state
+    k_coord = inv_two_sigma_sq(window.sigma_coord)  # plain floats: not loop state
     coefficients = _coefficients(p, p.sigma_color)
     total = mi.Vector3f(frame.color)  # the centre pixel, weight exp(0) = 1
     color4 = pack(frame.color)
@@ -293,8 +298,6 @@ def reproject(position: mi.TensorXf, ids: mi.TensorXf, prev_ids: mi.TensorXf, ob
     ``object_to_world`` and ``prev_object_to_world`` are lists of 4x4 NumPy
     matrices (one per object), ``prev_world_to_screen`` a 4x4 NumPy matrix.
     """
-    import numpy as np
-
     height, width = position.shape[0], position.shape[1]
     p = dr.unravel(mi.Point3f, position.array)
     obj = mi.Int32(ids.array)

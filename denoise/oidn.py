@@ -20,8 +20,14 @@ from pathlib import Path
 
 import numpy as np
 
+from core.errors import UsageError
+
 FORMAT_FLOAT3 = 3  # OIDN_FORMAT_FLOAT3
 DEVICE_TYPE_DEFAULT = 0
+
+
+#: OIDN 2's filter quality modes, fastest first
+QUALITIES = ("fast", "balanced", "high")
 
 
 @dataclass(frozen=True)
@@ -31,6 +37,11 @@ class OIDNParams:
     clean_aux: bool = True
     use_albedo: bool = True
     use_normal: bool = True
+    quality: str = "high"  # one of QUALITIES
+
+    def __post_init__(self):
+        if self.quality not in QUALITIES:
+            raise UsageError(f"oidn: quality must be one of {', '.join(QUALITIES)}, got {self.quality!r}")
 
 
 def library() -> ctypes.CDLL:

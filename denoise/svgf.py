@@ -31,7 +31,10 @@ from dataclasses import dataclass
 import drjit as dr
 import mitsuba as mi
 
-from .filters import B3, FrameArrays, _inv_two_sigma_sq, _positive, _whole, luminance, neg_exp, plane_distance_sq
+from core.errors import UsageError
+
+from .filters import (B3, FrameArrays, check_positive, check_whole, inv_two_sigma_sq, luminance, neg_exp,
+                      plane_distance_sq)
 
 GAUSS3 = (0.25, 0.5, 0.25)
 EPSILON = 1e-10
@@ -44,11 +47,9 @@ class SVGFParams:
     sigma_luminance: float = 4.0
     sigma_normal: float = 128.0  # exponent of max(0, n·n')
     sigma_plane: float = 0.1
-    # the current frame's weight in the colour history: 0.3, not the paper's 0.2. Our
-    # sequences move several pixels per frame (8 frames span the whole motion), so a
-    # moving contact shadow's history goes stale sooner than at the paper's frame rates;
-    # last frame, noise-corrected relMSE at 0.2 -> 0.3: dolly_lamps 320x180 0.0063 ->
-    # 0.0048, glossy_shadow 0.068 -> 0.061, orbit_transforms (160x90) 0.039 -> 0.036
+    # the current frame's weight in the colour history: 0.3, not the paper's 0.2, because
+    # our sequences move several pixels per frame and a moving shadow's history goes stale
+    # sooner (measured in docs/denoising_methods.md)
     alpha_color: float = 0.3
     alpha_moments: float = 0.2
     variance_frames: int = 4  # below this history length the variance is estimated spatially
@@ -57,18 +58,16 @@ class SVGFParams:
 
     def __post_init__(self):
         if self.levels is not None:
-            _whole("svgf", "levels", self.levels, 1, 12)
-        _positive("svgf", sigma_luminance=self.sigma_luminance, sigma_normal=self.sigma_normal,
-                  sigma_plane=self.sigma_plane)
+            check_whole("svgf", "levels", self.levels, 1, 12)
+        check_positive("svgf", sigma_luminance=self.sigma_luminance, sigma_normal=self.sigma_normal,
+                       sigma_plane=self.sigma_plane)
         for name in ("alpha_color", "alpha_moments"):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and 0.0 < value <= 1.0):
-                from core.errors import UsageError
-
                 raise UsageError(f"svgf: {name} must be in (0, 1], got {value!r}")
-        _whole("svgf", "variance_frames", self.variance_frames, 1, 64)
-        _whole("svgf", "spatial_radius", self.spatial_radius, 1, 16)
-        _whole("svgf", "feedback_level", self.feedback_level, 0, (self.levels or 12) - 1)
+        check_whole("svgf", "variance_frames", self.variance_frames, 1, 64)
+        check_whole("svgf", "spatial_radius", self.spatial_radius, 1, 16)
+        check_whole("svgf", "feedback_level", self.feedback_level, 0, (self.levels or 12) - 1)
 
 
 #: the paper's setting: 5 levels on 1280x720 frames
@@ -79,8 +78,7 @@ def levels_for(width: int) -> int:
     """À-Trous levels whose footprint is the same fraction of the image as the
     paper's 5 levels at 1280 pixels wide: one level fewer per halving of the
     width (3 at 320 wide). A footprint fixed in pixels reaches across a small
-    image's shadows and silhouettes: on dolly_lamps at 160x90, 5 levels gave
-    a last-frame relMSE of 0.0154 and 2 levels 0.0105."""
+    image's shadows and silhouettes (measured in docs/denoising_methods.md)."""
     return max(1, min(12, PAPER_LEVELS + round(math.log2(width / PAPER_WIDTH))))
 
 
@@ -141,7 +139,7 @@ def estimate_variance(frame: FrameArrays, moments: mi.Vector2f, length: mi.Float
     cx, cy = dr.gather(mi.Int32, frame.x, short), dr.gather(mi.Int32, frame.y, short)
     normal = dr.gather(mi.Vector3f, frame.normal, short)
     position = dr.gather(mi.Vector3f, frame.position, short)
-    k_plane = _inv_two_sigma_sq(p.sigma_plane)
+    k_plane = inv_two_sigma_sq(p.sigma_plane)
     total, weights = mi.Vector2f(0.0), mi.Float(0.0)
     r = p.spatial_radius
     for dy in range(-r, r + 1):
@@ -173,7 +171,7 @@ def atrous_level(frame: FrameArrays, color: mi.Vector3f, variance: mi.Float, ste
     """One SVGF À-Trous level with holes ``step``."""
     packed = dr.ravel(mi.Vector4f(color.x, color.y, color.z, variance))
     dr.eval(packed, variance)  # the 3x3 blur gathers the variance alone
-    k_plane = _inv_two_sigma_sq(p.sigma_plane)
+    k_plane = inv_two_sigma_sq(p.sigma_plane)
     # 3x3 Gaussian of the variance at the centre: the luminance weight's scale
     blurred = GAUSS3[1] * GAUSS3[1] * variance  # the centre's own (no gather)
     for dy in (-1, 0, 1):

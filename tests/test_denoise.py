@@ -313,11 +313,12 @@ def test_reprojection_of_the_ground_truth(variant_llvm_ad_rgb, tmp_path, motion)
     assert relmse(truth[0].reshape(-1, 3)[valid], truth[1].reshape(-1, 3)[valid]) > 1e-3  # it did move
 
 
-#: what ``python -m benchmarks.denoise`` compares (its METHODS)
+#: what ``python -m benchmarks.denoise`` compares (its METHODS, from the registry)
 BENCHMARK_METHODS = ("raw", "bilateral", "atrous", "bilateral+temporal", "atrous+temporal",
-                     "demod+outliers+atrous+temporal", "svgf", "oidn", "oidn+temporal", "oidn-guided")
-#: the methods of the speed bars (its TIMED)
-TIMED_METHODS = ("oidn", "atrous+temporal", "svgf", "bilateral")
+                     "demod+outliers+atrous+temporal", "svgf", "oidn-fast", "oidn-balanced", "oidn-high",
+                     "oidn+temporal", "oidn-guided")
+#: the methods of the speed bars and OIDN in each quality mode (its TIMED)
+TIMED_METHODS = ("oidn-fast", "oidn-balanced", "oidn-high", "atrous+temporal", "svgf", "bilateral")
 
 
 def test_denoise_command_and_benchmark_quick(variant_llvm_ad_rgb, tmp_path):
@@ -466,3 +467,23 @@ def _write_ids(folder, index, value):
     from imaging.image_io import write_exr
 
     write_exr(folder / f"ID_{index}.exr", {"": np.full((4, 5), value, np.float32)})
+
+
+def test_denoise_shows_progress_only_on_a_terminal(variant_llvm_ad_rgb, tmp_path, capsys, monkeypatch):
+    """With stderr redirected, a successful run leaves it empty: in process with
+    the bar's delay at 0 (a bar would show at once), and as a command."""
+    import subprocess
+    import sys
+
+    import denoise.pipeline as pipeline
+    from denoise.__main__ import main
+
+    folder = tmp_path / "frames"
+    _small_folder(folder, count=3)
+    monkeypatch.setattr(pipeline, "PROGRESS_DELAY_S", 0.0)
+    assert main([str(folder), str(tmp_path / "out"), "--radius", "1"]) == 0
+    captured = capsys.readouterr()
+    assert captured.err == "" and "3 frames ->" in captured.out
+    finished = subprocess.run([sys.executable, "-m", "denoise", str(folder), str(tmp_path / "command"), "--radius", "1"],
+                              cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert finished.returncode == 0 and finished.stderr == "", finished.stderr

@@ -6,14 +6,24 @@ exists) or one clear error. Used by ``tests/stress`` and ``python -m benchmarks.
 """
 from __future__ import annotations
 
+import contextlib
+import io
 import tempfile
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Callable
 
+import mitsuba as mi
 import numpy as np
 
 from core.errors import FrameError, UsageError
+from denoise.__main__ import main as denoise_main
+from denoise.filters import AtrousLevels, BilateralWindow, EdgeWeights, OutlierParams, TemporalParams, clamp_box
+from denoise.frames import FrameData, read_matrices, write_frame
+from denoise.methods import METHODS, make
+from denoise.pipeline import denoise_folder
+from denoise.svgf import SVGFParams
+from imaging.image_io import write_exr
 
 H, W = 12, 16
 
@@ -26,8 +36,6 @@ class DenoiseCase:
 
 
 def _frame(seed: int = 0, beauty=None, normal=None, position=None, ids=None, objects=None):
-    from denoise.frames import FrameData
-
     rng = np.random.default_rng(seed)
     ys, xs = np.mgrid[0:H, 0:W].astype(np.float64)
     default_position = np.stack([xs / W, np.zeros_like(xs), -ys / H - 2], -1)
@@ -41,15 +49,14 @@ def _frame(seed: int = 0, beauty=None, normal=None, position=None, ids=None, obj
         world_to_screen=screen)
 
 
-def _run(frames, **options) -> list[np.ndarray]:
-    from denoise.filters import BilateralWindow, EdgeWeights, TemporalParams
-    from denoise.pipeline import DenoiseOptions, Denoiser
-
-    bilateral = dict(options.pop("bilateral", {"radius": 3}))
-    window = BilateralWindow(radius=bilateral.pop("radius", 3), sigma_coord=bilateral.pop("sigma_coord", 32.0))
-    edges = EdgeWeights(**bilateral)
-    temporal = TemporalParams(**options.pop("temporal_params", {}))
-    denoiser = Denoiser(DenoiseOptions(edges=edges, window=window, temporal_params=temporal, **options))
+def _run(frames, method: str = "atrous", bilateral: dict | None = None, temporal_params: dict | None = None,
+         **props) -> list[np.ndarray]:
+    """``method`` over ``frames``; ``bilateral`` and ``temporal_params`` are
+    parameters of the methods that have them (a 7x7 bilateral window unless given)."""
+    cls = METHODS[method]
+    given = {"radius": 3, **(bilateral or {}), **(temporal_params or {})}
+    keys = {o.key for o in cls.all_options()}
+    denoiser = cls(**{k: v for k, v in given.items() if k in keys}, **props)
     return [denoiser.step(f) for f in frames]
 
 
@@ -126,8 +133,6 @@ def singular_matrix():
 
 def matrix_file_error(content: bytes, expect: str):
     def check():
-        from denoise.frames import read_matrices
-
         with tempfile.TemporaryDirectory() as tmp:
             path = Path(tmp) / "matrix_0.mat"
             path.write_bytes(content)
@@ -151,16 +156,13 @@ def different_sizes():
 
 
 def missing_file():
-    from denoise.frames import write_frame
-    from denoise.pipeline import denoise_folder
-
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
         for i in (0, 1, 2):
             write_frame(folder, i, _frame(i))
         (folder / "normal_1.exr").unlink()
         try:
-            denoise_folder(folder, folder / "out")
+            denoise_folder(folder, folder / "out", make("atrous"))
         except FrameError as error:
             return "frame 1 lacks normal_1.exr" in str(error), str(error)
         (folder / "beauty_1.exr").unlink()
@@ -168,10 +170,6 @@ def missing_file():
 
 
 def hdr_clamp():
-    from denoise.filters import clamp_box
-
-    import mitsuba as mi
-
     rng = np.random.default_rng(15)
     # noise of 1 on 1e6: E[x^2] - E[x]^2 in float32 would be pure cancellation (1e12 has a spacing of 65536)
     base = 1e6 * np.ones((H, W, 3)) + rng.normal(0, 1.0, (H, W, 3))
@@ -206,14 +204,10 @@ def static_drift(count: int):
 def bad_parameter(argv: list[str], expect: str):
     """``python -m denoise`` with an out-of-range parameter: one line, exit 2."""
     def check():
-        import contextlib
-        import io
-
-        from denoise.__main__ import main
 
         err = io.StringIO()
         with tempfile.TemporaryDirectory() as tmp, contextlib.redirect_stderr(err):
-            code = main([tmp, str(Path(tmp) / "out")] + argv)
+            code = denoise_main([tmp, str(Path(tmp) / "out")] + argv)
         text = err.getvalue()
         return code == 2 and text.count("\n") == 1 and expect in text, f"exit {code}: {text.strip()}"
     return check
@@ -221,9 +215,6 @@ def bad_parameter(argv: list[str], expect: str):
 
 def parameter_type_checks():
     """Each parameter type refuses nonsense when built from Python too (UsageError)."""
-    from denoise.filters import AtrousLevels, BilateralWindow, EdgeWeights, OutlierParams, TemporalParams
-    from denoise.svgf import SVGFParams
-
     attempts = [lambda: AtrousLevels(0), lambda: AtrousLevels(2.5), lambda: BilateralWindow(radius=65),
                 lambda: EdgeWeights(sigma_normal=float("nan")), lambda: TemporalParams(clamp_radius=0),
                 lambda: OutlierParams(k=0), lambda: SVGFParams(alpha_moments=0),
@@ -240,16 +231,13 @@ def parameter_type_checks():
 def damaged_folder(damage, expect: str):
     """A frame folder damaged by ``damage(folder)``: a FrameError naming the file."""
     def check():
-        from denoise.frames import write_frame
-        from denoise.pipeline import denoise_folder
-
         with tempfile.TemporaryDirectory() as tmp:
             folder = Path(tmp)
             for i in (0, 1):
                 write_frame(folder, i, _frame(i))
             damage(folder)
             try:
-                denoise_folder(folder, folder / "out")
+                denoise_folder(folder, folder / "out", make("atrous"))
             except FrameError as error:
                 return expect in str(error) and "\n" not in str(error), str(error)
         return False, "no error"
@@ -265,15 +253,11 @@ def _truncate(name: str):
 
 def _ids(value):
     def damage(folder: Path):
-        from imaging.image_io import write_exr
-
         write_exr(folder / "ID_1.exr", {"": np.full((H, W), value, np.float32)})
     return damage
 
 
 def _resized(folder: Path):
-    from denoise.frames import write_frame
-
     big = _frame(3)
     big = replace(big, beauty=np.zeros((H + 2, W, 3)), normal=np.zeros((H + 2, W, 3)),
                   position=np.zeros((H + 2, W, 3)), depth=np.ones((H + 2, W)), ids=np.zeros((H + 2, W), np.int32))
@@ -281,8 +265,6 @@ def _resized(folder: Path):
 
 
 def _one_buffer_resized(folder: Path):
-    from imaging.image_io import write_exr
-
     write_exr(folder / "depth_0.exr", {"": np.ones((H, W + 1), np.float32)})
 
 
@@ -325,9 +307,6 @@ def huge_values(method: str):
 def albedo_damage(require: bool, expect: str):
     """Albedo for some frames only, or (with ``--demodulate``) for none: a FrameError."""
     def check():
-        from denoise.frames import write_frame
-        from denoise.pipeline import denoise_folder
-
         with tempfile.TemporaryDirectory() as tmp:
             folder = Path(tmp)
             for i in (0, 1):
@@ -335,7 +314,7 @@ def albedo_damage(require: bool, expect: str):
                 write_frame(folder, i, replace(frame, albedo=np.full_like(frame.beauty, 0.5)) if i == 0 and not require
                             else frame)
             try:
-                denoise_folder(folder, folder / "out", require_albedo=require)
+                denoise_folder(folder, folder / "out", make("atrous"), require_albedo=require)
             except FrameError as error:
                 ok = expect in str(error) and "\n" not in str(error) and not (folder / "out").exists()
                 return ok, str(error)
@@ -406,7 +385,5 @@ def denoise_cases() -> list[DenoiseCase]:
     ]
 
 
-def _outliers():
-    from denoise.filters import OutlierParams
-
-    return OutlierParams(k=1.0)
+def _outliers() -> float:
+    return 1.0

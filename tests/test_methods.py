@@ -1,0 +1,176 @@
+"""The registry of denoising methods: one class per method, and everything
+that lists methods (``python -m denoise``, the benchmark, the docs) made from it."""
+from __future__ import annotations
+
+import inspect
+from pathlib import Path
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+import pytest
+
+from core.numbers import ascii_int
+from denoise.filters import check_whole, pack
+from denoise.methods import METHODS, DenoisingMethod, Option, benchmark_names, from_name, make, register
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+class Box(DenoisingMethod):
+    """A (2 box_radius + 1)² box filter of each frame, no history: a method
+    defined outside the package.
+
+    Parameters:
+
+    - ``--box-radius`` (int 1..4, 1): the box's half width.
+    """
+    name = "box"
+    description = "a box filter defined by tests/test_methods.py"
+    options = (Option("--box-radius", 1, "the box's half width, 1..4", kind=ascii_int, group="box"),)
+    benchmark = ("box",)
+
+    def __init__(self, **props):
+        super().__init__(**props)
+        check_whole("box", "--box-radius", self.props["box_radius"], 1, 4)
+        self.radius = self.props["box_radius"]
+
+    def filter(self, arrays, frame, index, valid):
+        packed = pack(arrays.color)
+        total = mi.Vector3f(0.0)
+        for dy in range(-self.radius, self.radius + 1):
+            for dx in range(-self.radius, self.radius + 1):
+                total += arrays.gather(packed, arrays.x + dx, arrays.y + dy)
+        result = total / (2 * self.radius + 1) ** 2
+        dr.eval(result)
+        return arrays.tensor(result)
+
+
+@pytest.fixture
+def registered_box():
+    """:class:`Box` in the registry for one test."""
+    before = dict(METHODS)
+    register(Box)
+    yield Box
+    METHODS.clear()
+    METHODS.update(before)
+
+
+@pytest.fixture
+def exported(variant_llvm_ad_rgb, tmp_path):
+    """A small sequence exported by ``denoise.export`` (32x18, 2 frames)."""
+    from denoise.export import Spec, export
+
+    folder = tmp_path / "glossy_shadow"
+    export(Spec.load(ROOT / "scenes" / "sequences" / "glossy_shadow.json", size=(32, 18), frames=2, reference_spp=2),
+           folder)
+    return folder
+
+
+def box_numpy(image: np.ndarray, radius: int) -> np.ndarray:
+    padded = np.pad(image.astype(np.float64), ((radius, radius), (radius, radius), (0, 0)), mode="edge")
+    h, w = image.shape[:2]
+    return sum(padded[radius + dy:radius + dy + h, radius + dx:radius + dx + w]
+               for dy in range(-radius, radius + 1) for dx in range(-radius, radius + 1)) / (2 * radius + 1) ** 2
+
+
+def test_a_method_defined_here_is_listed_and_runs(registered_box, exported, tmp_path, capsys):
+    """Registering one class is all it takes: ``--method box`` and its option in
+    ``--help``, the command runs it on an exported folder with its parameter,
+    and refuses a bad value in one line."""
+    from denoise.__main__ import main
+    from denoise.frames import read_frame
+    from denoise.methods.listing import method_list
+    from imaging.image_io import read_exr_rgb
+
+    with pytest.raises(SystemExit) as exit_code:
+        main(["--help"])
+    assert exit_code.value.code == 0
+    text = capsys.readouterr().out
+    assert "  box " in text and "a box filter defined by tests/test_methods.py" in text
+    assert "box (box):" in text and "--box-radius" in text and "{bilateral,atrous,svgf,oidn,oidn-guided,box}" in text
+    assert "`box`" in method_list() and "box" in benchmark_names()
+
+    assert main([str(exported), str(tmp_path / "out"), "--method", "box", "--box-radius", "2"]) == 0
+    for i in (0, 1):
+        result = read_exr_rgb(tmp_path / "out" / f"result_{i}.exr")
+        expected = box_numpy(read_frame(exported, i).beauty, 2)
+        assert np.max(np.abs(result - expected)) < 1e-5
+        assert np.max(np.abs(result - box_numpy(read_frame(exported, i).beauty, 1))) > 1e-3  # the radius counted
+    capsys.readouterr()
+    assert main([str(exported), str(tmp_path / "bad"), "--method", "box", "--box-radius", "9"]) == 2
+    err = capsys.readouterr().err
+    assert err == "python -m denoise: error: box: --box-radius must be a whole number from 1 to 4, got 9\n"
+
+
+def test_a_method_name_is_registered_once(registered_box):
+    class Other(Box):
+        pass
+
+    with pytest.raises(TypeError, match="taken by Box"):
+        register(Other)
+
+    class Nameless(DenoisingMethod):
+        pass
+
+    with pytest.raises(TypeError, match="needs a name"):
+        register(Nameless)
+
+
+def test_the_docs_page_is_the_registry():
+    """docs/denoising_methods.md's method list is what ``python -m denoise.methods --write`` makes."""
+    from denoise.methods.listing import DOC, with_method_list
+
+    text = DOC.read_text()
+    assert text == with_method_list(text), "run python -m denoise.methods --write"
+
+
+@pytest.mark.parametrize("name", list(METHODS))
+def test_each_method_documents_its_options(name):
+    """A method's docstring names each of its options; its description is one line."""
+    cls = METHODS[name]
+    doc = inspect.getdoc(cls)
+    assert "Parameters:" in doc
+    for option in cls.options:
+        assert f"``{option.flag}``" in doc, option.flag
+    assert cls.description and "\n" not in cls.description
+
+
+def test_benchmark_names_make_their_methods():
+    """Every benchmark name of the registry makes its method, with what the name says."""
+    from denoise.methods.atrous import Atrous
+    from denoise.methods.oidn import OIDNMethod
+    from denoise.methods.svgf import SVGF
+
+    names = benchmark_names()
+    assert len(set(names)) == len(names)
+    for name in names:
+        from_name(name)
+    method = from_name("demod+outliers+atrous+temporal")
+    assert isinstance(method, Atrous) and method.temporal and method.demodulate and method.outliers.k == 2.0
+    assert not from_name("atrous").temporal
+    svgf = from_name("svgf")
+    assert isinstance(svgf, SVGF) and svgf.temporal and svgf.demodulate  # temporal by nature, always demodulates
+    for quality in ("fast", "balanced", "high"):
+        oidn = from_name(f"oidn-{quality}")
+        assert isinstance(oidn, OIDNMethod) and oidn.params.quality == quality and not oidn.temporal
+    guided = from_name("oidn-guided")
+    assert guided.temporal and guided.temporal_params.clamp_radius == 1 and guided.params.quality == "high"
+    for bad in ("nosuch", "atrous+svgf", "atrous+later", "oidn-medium"):
+        with pytest.raises(Exception, match="unknown method"):
+            from_name(bad)
+
+
+def test_oidn_quality_reaches_its_parameters(tmp_path, capsys):
+    """``--oidn-quality`` is OIDNParams.quality (default high); a bad one is one line."""
+    from core.errors import UsageError
+    from denoise.__main__ import main
+    from denoise.oidn import OIDNParams
+
+    assert make("oidn").params == OIDNParams(quality="high")
+    assert make("oidn-guided", oidn_quality="fast").params.quality == "fast"
+    with pytest.raises(UsageError, match="oidn: quality must be one of fast, balanced, high, got 'best'"):
+        OIDNParams(quality="best")
+    assert main([str(tmp_path), str(tmp_path / "out"), "--method", "oidn", "--oidn-quality", "best"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "--oidn-quality: invalid choice: 'best'" in err
