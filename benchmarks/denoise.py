@@ -48,7 +48,7 @@ import numpy as np
 from benchmarks import check_json, write_json
 from imaging.colour import side_by_side
 from imaging.image_io import read_exr_rgb as read_rgb, write_image, write_video
-from validation.metrics import flip_error, relmse
+from validation.metrics import flip_error, relmse, stability, temporal_relmse
 
 ROOT = Path(__file__).resolve().parent.parent
 SEQUENCES = sorted((ROOT / "scenes" / "sequences").glob("*.json"))
@@ -90,30 +90,6 @@ def make_method(name: str):
     from denoise.pipeline import Denoiser, parse_method
 
     return RawMethod() if name == "raw" else Denoiser(parse_method(name))
-
-
-def back_projected(frames, images) -> list[tuple[np.ndarray, np.ndarray]]:
-    """For frames 1.., (image t at the pixels that keep history, image t-1 at
-    the pixels they came from), through our back projection."""
-    import mitsuba as mi
-
-    from denoise.filters import reproject
-
-    def tensor(a):
-        return mi.TensorXf(np.ascontiguousarray(a, np.float32))
-
-    pairs = []
-    for before, after, previous, current in zip(frames, frames[1:], images, images[1:]):
-        index, valid = reproject(tensor(after.position), tensor(after.ids), tensor(before.ids),
-                                 after.object_to_world, before.object_to_world, before.world_to_screen)
-        index, valid = np.array(index), np.array(valid, bool)
-        pairs.append((current.reshape(-1, 3)[valid], previous.reshape(-1, 3)[index[valid]]))
-    return pairs
-
-
-def temporal_relmse(frames, images) -> list[float]:
-    """Per frame from 1: relMSE between an image and the previous one back-projected onto it."""
-    return [relmse(current, previous) if len(current) else 0.0 for current, previous in back_projected(frames, images)]
 
 
 def reference_noise(reference: Path, indices) -> list[float]:
@@ -159,7 +135,7 @@ def run_sequence(folder: Path, name: str, methods=METHODS, outputs: dict | None 
         flicker = temporal_relmse(frames, results)
         for row, value in zip(rows[-len(frames) + 1:], flicker):
             row["temporal"] = value
-        figures["stability"][method] = float(np.mean(flicker) / max(figures["reference_temporal"], 1e-12))
+        figures["stability"][method] = stability(flicker, reference_temporal)
         if outputs is not None:
             outputs[method] = results
     if outputs is not None:
