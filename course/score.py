@@ -15,7 +15,6 @@ and exit code 2.
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -115,7 +114,7 @@ def table(scores: list[ImageScore]) -> list[str]:
         if s.missing:
             lines.append(f"| {s.name} | missing | | | fails |")
         else:
-            lines.append(f"| {s.name} | {s.bad} | {100 * s.bad / s.pixels:.3f} % | {s.flip:.4f} | "
+            lines.append(f"| {s.name} | {s.bad} | {100 * s.bad / s.pixels:.3f} % | {s.flip:.5f} | "
                          f"{'meets' if s.passes else 'fails'} |")
     return lines
 
@@ -149,12 +148,8 @@ def write_report(report: Path, scores: list[ImageScore], folder: Path, reference
     assets = report.parent / report.stem
     assets.mkdir(parents=True, exist_ok=True)
     link = assets.name
-
-    def relative(path: Path) -> str:
-        return os.path.relpath(path.resolve(), report.parent.resolve())
-
     lines = [f"# Scores of {folder}", "",
-             f"Against `{relative(reference)}` ({len(scores)} images). {verdict(scores)}.", "",
+             f"Against `{reference}` ({len(scores)} images). {verdict(scores)}.", "",
              f"| image | pixels > {TOLERANCE}/255 off | mean FLIP | course's bar | reference | yours | FLIP heat map |",
              "|---|---|---|---|---|---|---|"]
     for s in scores:
@@ -172,7 +167,7 @@ def write_report(report: Path, scores: list[ImageScore], folder: Path, reference
             cells.append(f"[![FLIP]({link}/{stem}_flip_small.png)]({link}/{stem}_flip.png)")
         else:
             cells.append("")
-        lines.append(f"| {s.name} | {s.bad} ({100 * s.bad / s.pixels:.3f} %) | {s.flip:.4f} | "
+        lines.append(f"| {s.name} | {s.bad} ({100 * s.bad / s.pixels:.3f} %) | {s.flip:.5f} | "
                      f"{'meets' if s.passes else '**fails**'} | " + " | ".join(cells) + " |")
     with atomic_path(report, ".md") as tmp:
         tmp.write_text("\n".join(lines) + "\n")
