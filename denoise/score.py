@@ -102,7 +102,7 @@ def result_paths(results: Path, pattern: str, indices: list[int]) -> list[Path]:
     paths = [results / pattern.format(i=i) for i in indices]
     missing = [p for p in paths if not p.is_file()]
     if missing:
-        more = f" (and {len(missing) - 1} more of the {len(paths)} frames the reference has)" if len(missing) > 1 else ""
+        more = f" (and {len(missing) - 1} more of the reference's {len(paths)} frames)" if len(missing) > 1 else ""
         raise FrameError(f"{missing[0]}: missing{more}")
     return paths
 

@@ -4,6 +4,7 @@ The command is run in-process through its ``main`` (the error contract
 included); the images are the course's own, copied and altered."""
 from __future__ import annotations
 
+import re
 import shutil
 import subprocess
 import sys
@@ -136,7 +137,7 @@ def test_bad_inputs_are_one_line_and_exit_2(subset, tmp_path, capsys, case, expe
     status, out, err = score(capsys, *arguments)
     assert status == 2 and out == ""
     assert err.count("\n") == 1 and err.startswith("python -m course.score: error: "), err
-    assert __import__("re").search(expected, err), err
+    assert re.search(expected, err), err
 
 
 def test_runs_as_a_module(subset):

@@ -2,6 +2,8 @@
 one committed filter reused per size, and bad inputs refused in one line."""
 from __future__ import annotations
 
+import time
+
 import numpy as np
 import pytest
 
@@ -63,8 +65,6 @@ def test_fast_and_high_are_different_networks():
     image, (albedo, normal) = hdr_image(4, h=96, w=128), guides(96, 128)
     outputs, seconds = {}, {}
     for quality in ("fast", "high"):
-        import time
-
         denoiser = OIDN(OIDNParams(quality=quality))
         denoiser.set_inputs(image, albedo, normal)
         denoiser.execute()  # warm-up
