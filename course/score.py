@@ -178,7 +178,8 @@ def _parser() -> argparse.ArgumentParser:
 
     parser = ArgumentParser(prog=PROG, description=__doc__.split("\n", 1)[0].split(": ", 1)[1],
                             formatter_class=argparse.RawDescriptionHelpFormatter,
-                            epilog="example: python -m course.score out/mine --report out/mine/score.md")
+                            epilog="exit status: 0 when every image meets the course's bar, 1 when one fails or is "
+                                   "missing, 2 on an error\nexample: python -m course.score out/mine")
     parser.add_argument("folder", type=Path, metavar="DIR", help="your images (a01.png, a01n.png, a01d.png, ...)")
     parser.add_argument("--reference", type=Path, metavar="DIR",
                         help="the images to compare with (default: the course's sample_out)")
