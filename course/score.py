@@ -26,7 +26,7 @@ if __name__ == "__main__":  # started by a Python without the project's packages
 import numpy as np
 
 from core.errors import FrameError
-from course import root
+from course import ENVIRONMENT, root
 from imaging.image_io import IMAGE_DECODE_ERRORS, atomic_path, read_png, write_image
 from validation.metrics import MAX_BAD_FRACTION, TOLERANCE, bad_pixels, flip_error, flip_heat_map
 
@@ -195,6 +195,9 @@ def _main(argv: list[str] | None) -> int:
     if not args.folder.is_dir():
         raise FrameError(f"{args.folder}: not a folder")
     reference = args.reference or root() / "sample_out"
+    if args.reference is None and not reference.is_dir():
+        raise FrameError(f"the course's sample_out is not at {reference}: set ${ENVIRONMENT} to the course folder "
+                         "or pass --reference DIR")
     count = len(reference_images(reference))  # checked before the first image
     report = args.report or args.folder / "score.md"
     check_writable("--report", report)

@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from course import ENVIRONMENT
 from course.score import main
 from imaging.image_io import read_png, write_image
 
@@ -138,6 +139,14 @@ def test_bad_inputs_are_one_line_and_exit_2(subset, tmp_path, capsys, case, expe
     assert status == 2 and out == ""
     assert err.count("\n") == 1 and err.startswith("python -m course.score: error: "), err
     assert re.search(expected, err), err
+
+
+def test_without_the_course_the_default_reference_is_named(tmp_path, monkeypatch, capsys):
+    monkeypatch.setenv(ENVIRONMENT, str(tmp_path / "no_course"))
+    (tmp_path / "mine").mkdir()
+    status, out, err = score(capsys, tmp_path / "mine")
+    assert status == 2 and err.count("\n") == 1
+    assert f"the course's sample_out is not at {tmp_path / 'no_course' / 'sample_out'}: set $COURSE_ROOT" in err
 
 
 def test_runs_as_a_module(subset):
