@@ -47,7 +47,6 @@ if __name__ == "__main__" and not __package__:
     sys.path[0] = str(Path(__file__).resolve().parents[1])
 
 import drjit as dr
-import mitsuba as mi
 import numpy as np
 
 from benchmarks import check_json, machine, write_json
@@ -56,14 +55,13 @@ from core.entry import ArgumentParser
 from core.errors import OutputError, UsageError
 from core.markdown import replace_section
 from denoise.export import Spec, export, reference_folder
-from denoise.filters import reproject
 from denoise.frames import frame_indices, read_frame
 from denoise.methods import benchmark_names, from_name
-from denoise.oidn import QUALITIES
-from renderer.variants import set_variant
+from denoise.oidn import QUALITIES, oidn_version
 from imaging.colour import side_by_side
 from imaging.image_io import read_exr_rgb as read_rgb, write_image, write_video
-from validation.metrics import flip_error, relmse
+from renderer.variants import set_variant
+from validation.metrics import flip_error, relmse, stability, temporal_relmse
 
 ROOT = Path(__file__).resolve().parent.parent
 SEQUENCES = sorted((ROOT / "scenes" / "sequences").glob("*.json"))
@@ -108,26 +106,6 @@ def make_method(name: str):
     return RawMethod() if name == "raw" else from_name(name)
 
 
-def back_projected(frames, images) -> list[tuple[np.ndarray, np.ndarray]]:
-    """For frames 1.., (image t at the pixels that keep history, image t-1 at
-    the pixels they came from), through our back projection."""
-    def tensor(a):
-        return mi.TensorXf(np.ascontiguousarray(a, np.float32))
-
-    pairs = []
-    for before, after, previous, current in zip(frames, frames[1:], images, images[1:]):
-        index, valid = reproject(tensor(after.position), tensor(after.ids), tensor(before.ids),
-                                 after.object_to_world, before.object_to_world, before.world_to_screen)
-        index, valid = np.array(index), np.array(valid, bool)
-        pairs.append((current.reshape(-1, 3)[valid], previous.reshape(-1, 3)[index[valid]]))
-    return pairs
-
-
-def temporal_relmse(frames, images) -> list[float]:
-    """Per frame from 1: relMSE between an image and the previous one back-projected onto it."""
-    return [relmse(current, previous) if len(current) else 0.0 for current, previous in back_projected(frames, images)]
-
-
 def reference_noise(reference: Path, indices) -> list[float]:
     """Per frame: relMSE(half_a, half_b) / 4, the full reference's own relMSE."""
     return [relmse(read_rgb(reference / f"half_a_{i}.exr"), read_rgb(reference / f"half_b_{i}.exr")) / 4
@@ -166,7 +144,7 @@ def run_sequence(folder: Path, name: str, methods=METHODS, outputs: dict | None 
         flicker = temporal_relmse(frames, results)
         for row, value in zip(rows[-len(frames) + 1:], flicker):
             row["temporal"] = value
-        figures["stability"][method] = float(np.mean(flicker) / max(figures["reference_temporal"], 1e-12))
+        figures["stability"][method] = stability(flicker, reference_temporal)
         if outputs is not None:
             outputs[method] = results
     if outputs is not None:
@@ -360,8 +338,8 @@ def main(argv: list[str] | None = None) -> int:
     start = time.perf_counter()
     results = {"date": datetime.date.today().isoformat(), "machine": machine(),
                "load_average_at_start": round(os.getloadavg()[0], 2),
-               "oidn": "1.4.3 through its C API: hdr on, albedo and "
-               "normal with cleanAux, filter committed once per size", "sequences": [], "results": []}
+               "oidn": f"OIDN {oidn_version()} through pyoidn: hdr on, albedo and normal with cleanAux, "
+                       "one filter per quality mode committed once per size", "sequences": [], "results": []}
     outputs_hard = None
     for spec_path in SEQUENCES:
         if args.sequences and spec_path.stem not in args.sequences:

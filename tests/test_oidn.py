@@ -1,23 +1,30 @@
-"""OIDN as users run it: HDR mode on, one committed filter reused per size."""
+"""OIDN 2 (pyoidn) as users run it: HDR mode on, the quality mode taking effect,
+one committed filter reused per size, and bad inputs refused in one line."""
 from __future__ import annotations
+
+import time
 
 import numpy as np
 import pytest
 
-oidn_module = pytest.importorskip("denoise.oidn")
+from core.errors import FrameError, UsageError
+from denoise.oidn import OIDN, QUALITIES, OIDNParams
 
 
-def hdr_image(seed=0, level=20.0):
+def hdr_image(seed=0, level=20.0, h=48, w=64):
     """A bright noisy HDR image: values far above 1 (OIDN's LDR mode clips at 1)."""
     rng = np.random.default_rng(seed)
-    ys, xs = np.mgrid[0:48, 0:64]
+    ys, xs = np.mgrid[0:h, 0:w]
     base = level * (1.0 + 0.5 * np.sin(xs / 9.0))[..., None] * np.array([1.0, 0.8, 0.6])
     return (base * rng.uniform(0.6, 1.4, base.shape)).astype(np.float32)
 
 
-def test_hdr_mode_keeps_values_above_one():
-    from denoise.oidn import OIDN
+def guides(h=48, w=64):
+    """Clean albedo and normals (a grey plane facing the camera)."""
+    return np.full((h, w, 3), 0.5, np.float32), np.tile(np.array([0, 0, 1], np.float32), (h, w, 1))
 
+
+def test_hdr_mode_keeps_values_above_one():
     image = hdr_image()
     denoiser = OIDN()
     out = denoiser(image)
@@ -26,28 +33,79 @@ def test_hdr_mode_keeps_values_above_one():
     assert out.std() < image.std()  # and it denoises
 
 
-def test_the_hdr_check_fails_in_ldr_mode():
-    """The same check on a filter in LDR mode (the old benchmark's setting): clipped at 1."""
-    from denoise.oidn import OIDN, OIDNParams
+def test_hdr_output_scales_with_the_input():
+    """Radiance x100 gives an output x100 (to 1 %): an LDR filter clips the
+    bright one at 1 (its ratio is about 6, see the next test)."""
+    dim = hdr_image(3, level=0.2)
+    denoiser = OIDN()
+    ratio = denoiser(100.0 * dim).mean() / denoiser(dim).mean()
+    assert abs(ratio / 100.0 - 1.0) < 0.01, ratio
 
+
+def test_the_hdr_checks_fail_in_ldr_mode():
+    """The same checks on a filter in LDR mode (the old benchmark's setting): clipped at 1."""
     denoiser = OIDN(OIDNParams(hdr=False))
     out = denoiser(hdr_image())
     assert not denoiser.hdr
     assert out.max() <= 1.0 + 1e-3
+    dim = hdr_image(3, level=0.2)
+    assert denoiser(100.0 * dim).mean() / denoiser(dim).mean() < 10.0
 
 
-def test_filter_created_once_per_size():
-    from denoise.oidn import OIDN
+@pytest.mark.parametrize("quality", sorted(QUALITIES))
+def test_quality_mode_is_set_on_the_filter(quality):
+    denoiser = OIDN(OIDNParams(quality=quality))
+    denoiser(hdr_image(), *guides())
+    assert denoiser.quality == quality  # read back from the library
 
+
+def test_fast_and_high_are_different_networks():
+    """With albedo and normals, ``high`` runs OIDN 2's large network: a different
+    output from ``fast`` on the same input, and a slower execute."""
+    image, (albedo, normal) = hdr_image(4, h=96, w=128), guides(96, 128)
+    outputs, seconds = {}, {}
+    for quality in ("fast", "high"):
+        denoiser = OIDN(OIDNParams(quality=quality))
+        denoiser.set_inputs(image, albedo, normal)
+        denoiser.execute()  # warm-up
+        start = time.perf_counter()
+        denoiser.execute()
+        seconds[quality] = time.perf_counter() - start
+        outputs[quality] = denoiser.output()
+    difference = np.abs(outputs["fast"] - outputs["high"]).mean() / outputs["high"].mean()
+    assert difference > 0.01, difference
+    assert seconds["high"] > seconds["fast"], seconds
+
+
+def test_an_unknown_quality_is_one_line():
+    with pytest.raises(UsageError, match=r"^unknown OIDN quality 'best'; choose from fast, balanced, high$"):
+        OIDNParams(quality="best")
+
+
+def test_filter_committed_once_per_size():
+    """Frames of one size reuse the committed filter (only executed), and its output
+    is the frame's own: the same as a fresh filter's on that frame."""
     denoiser = OIDN()
-    normal = np.tile(np.array([0, 0, 1], np.float32), (48, 64, 1))
-    albedo = np.full((48, 64, 3), 0.5, np.float32)
+    albedo, normal = guides()
     denoiser(hdr_image(1), albedo, normal)
     handle = denoiser.filter
-    denoiser(hdr_image(2), albedo, normal)
-    assert denoiser.filter == handle  # reused: only executed
+    second = denoiser(hdr_image(2), albedo, normal)
+    assert denoiser.filter is handle  # reused
+    assert np.array_equal(second, OIDN()(hdr_image(2), albedo, normal))
     denoiser(hdr_image(3)[:32], albedo[:32], normal[:32])
-    assert denoiser.key[:2] == (32, 64)  # a new size commits a new filter
+    assert denoiser.filter is not handle and denoiser.key[:2] == (32, 64)  # a new size commits a new filter
+
+
+@pytest.mark.parametrize("color, albedo, message", [
+    (np.zeros((0, 64, 3), np.float32), None, r"non-empty \(height, width, 3\) colour image, got shape \(0, 64, 3\)"),
+    (np.zeros((48, 64), np.float32), None, r"got shape \(48, 64\)"),
+    (np.zeros((48, 64, 3), np.float32), np.zeros((48, 32, 3), np.float32),
+     r"the albedo image has shape \(48, 32, 3\), the colour \(48, 64, 3\)"),
+])
+def test_bad_inputs_are_refused_in_one_line(color, albedo, message):
+    with pytest.raises(FrameError, match=message) as error:
+        OIDN().set_inputs(color, albedo)
+    assert "\n" not in str(error.value)
 
 
 def _plane_frames(count=2, h=24, w=32, seed=9):
@@ -80,16 +138,14 @@ def test_oidn_guided_matches_numpy(variant_vectorised_rgb):
     denoising; the same test with the clamp taken from the input (the guide step
     skipped) misses by far more than the tolerance."""
     import mitsuba as mi
-
-    from denoise.filters import reproject
-    from denoise.oidn import OIDN
-    from denoise.pipeline import Denoiser, parse_method
     from test_denoise import close, np_accumulate
 
+    from denoise.filters import reproject
+    from denoise.methods import from_name
+
     frames = _plane_frames()
-    options = parse_method("oidn-guided")
-    assert options.temporal and options.oidn_guided.clamp_radius == 1
-    denoiser = Denoiser(options)
+    denoiser = from_name("oidn-guided")
+    assert denoiser.temporal and denoiser.temporal_params.clamp_radius == 1
     ours = [denoiser.step(f) for f in frames]
     assert denoiser.last_execute_s > 0.0  # both runs timed
 
@@ -105,7 +161,7 @@ def test_oidn_guided_matches_numpy(variant_vectorised_rgb):
     f32 = lambda a: np.asarray(a, np.float32)  # noqa: E731 (what the pipeline hands OIDN)
     assert close(ours[0], oidn(f32(before.beauty), f32(before.albedo), f32(before.normal))) < 1e-4
     guide = oidn(f32(after.beauty), f32(after.albedo), f32(after.normal)).astype(np.float64)
-    p = options.oidn_guided
+    p = denoiser.temporal_params
     for bounds, agrees in ((guide, True), (None, False)):
         accumulated = np_accumulate(f32(after.beauty).astype(np.float64), f32(before.beauty).astype(np.float64),
                                     index, valid, p.alpha, p.k, p.clamp_radius, bounds=bounds)

@@ -1,0 +1,294 @@
+"""python -m denoise.score: any denoiser's results against a ground truth, frame by frame.
+
+    python -m denoise.score RESULTS --reference REF_DIR [--frames FRAME_DIR]
+                            [--pattern 'result_{i}.exr'] [--compare METHOD ...]
+                            [--plot FILE.png] [--json FILE]
+
+RESULTS holds one EXR per frame (the GAMES202 framework's ``result_i.exr``,
+or ``--pattern``); REF_DIR the ground truth ``beauty_i.exr`` of each frame
+scored (``python -m denoise.export`` writes it as ``OUT_reference``). Per
+frame: relMSE and mean FLIP against the truth. With ``--frames`` (the frame
+folder the results were made from: its positions, ids and matrices) also
+``temporal``, the relMSE between a result and the previous one
+back-projected onto it, and the stability figure: its mean over the
+ground truth's (1 = as steady as the truth). ``--compare METHOD ...`` runs
+our methods (``python -m denoise``'s, named as in ``benchmarks.denoise``:
+``svgf``, ``atrous+temporal``, ``oidn``, ...; ``raw`` is the noisy input) on
+the same frames and scores them beside the results. Every number comes from
+:mod:`validation.metrics`, as in ``python -m benchmarks.denoise``.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import string
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+if __name__ == "__main__":  # started by a Python without the project's packages: use ./.venv's
+    from core.launcher import use_project_python
+    use_project_python("python -m denoise.score", "denoise.score")
+
+import numpy as np
+
+from core.errors import FrameError, OutputError, UsageError
+from imaging.image_io import atomic_path, read_exr_rgb
+from validation.metrics import flip_error, relmse, stability, temporal_relmse
+
+from .methods import from_name
+
+PROG = "python -m denoise.score"
+DEFAULT_PATTERN = "result_{i}.exr"
+#: the noisy input, scored as a method
+RAW = "raw"
+
+
+@dataclass
+class MethodScore:
+    """One method's figures per frame; ``temporal`` (from the second frame on) and
+    ``stability`` are None without the frame folder."""
+    name: str
+    relmse: list[float]
+    flip: list[float]
+    temporal: list[float] | None = None
+    stability: float | None = None
+
+    def as_json(self) -> dict:
+        return {"name": self.name, "relmse": self.relmse, "flip": self.flip,
+                "temporal": None if self.temporal is None else [None] + self.temporal,
+                "mean_relmse": float(np.mean(self.relmse)), "mean_flip": float(np.mean(self.flip)),
+                "stability": self.stability}
+
+
+def check_pattern(pattern: str) -> str:
+    """A file-name pattern with one ``{i}`` field (the frame index) and no other."""
+    try:
+        fields = [name for _, name, _, _ in string.Formatter().parse(pattern) if name is not None]
+    except ValueError as error:
+        raise UsageError(f"--pattern {pattern!r}: {error}") from None
+    if fields != ["i"] or "/" in pattern:
+        raise UsageError(f"--pattern {pattern!r}: a file name with exactly one {{i}} for the frame index, "
+                         f"e.g. {DEFAULT_PATTERN!r}")
+    return pattern
+
+
+def read_rgb(path: Path) -> np.ndarray:
+    """An EXR's R, G, B as float32 (H, W, 3); a damaged file is one line naming it."""
+    if not path.is_file():
+        raise FrameError(f"{path}: missing")
+    try:
+        return read_exr_rgb(path)
+    except KeyError as error:
+        raise FrameError(f"{path}: no {error.args[0]} channel (expected R, G, B)") from None
+    except Exception as error:  # OpenEXR reports damage as RuntimeError/OSError without the name
+        raise FrameError(f"{path}: not a readable EXR ({' '.join(str(error).split()) or type(error).__name__})") \
+            from None
+
+
+def reference_indices(reference: Path) -> list[int]:
+    from .frames import frame_indices
+
+    if not reference.is_dir():
+        raise FrameError(f"--reference {reference}: not a folder")
+    indices = frame_indices(reference)
+    if not indices:
+        raise FrameError(f"--reference {reference}: no beauty_<i>.exr frames")
+    return indices
+
+
+def result_paths(results: Path, pattern: str, indices: list[int]) -> list[Path]:
+    """The result file of every frame, each checked to exist."""
+    if not results.is_dir():
+        raise FrameError(f"{results}: not a folder")
+    paths = [results / pattern.format(i=i) for i in indices]
+    missing = [p for p in paths if not p.is_file()]
+    if missing:
+        more = f" (and {len(missing) - 1} more of the reference's {len(paths)} frames)" if len(missing) > 1 else ""
+        raise FrameError(f"{missing[0]}: missing{more}")
+    return paths
+
+
+def read_sized(paths: list[Path], truth: list[np.ndarray], what: str) -> list[np.ndarray]:
+    images = []
+    for path, expected in zip(paths, truth):
+        image = read_rgb(path)
+        if image.shape != expected.shape:
+            raise FrameError(f"{path}: {image.shape[1]}x{image.shape[0]} pixels, but the {what} has "
+                             f"{expected.shape[1]}x{expected.shape[0]}")
+        images.append(image)
+    return images
+
+
+def read_frames(folder: Path, indices: list[int], truth: list[np.ndarray]):
+    """The frame folder's frames at ``indices`` (each checked, and sized like the truth)."""
+    from .frames import read_frame
+    from .pipeline import check_folder
+
+    have = set(check_folder(folder))
+    lacking = [i for i in indices if i not in have]
+    if lacking:
+        raise FrameError(f"--frames {folder}: no frame {lacking[0]}, which the reference has")
+    frames = [read_frame(folder, i) for i in indices]
+    for index, frame, expected in zip(indices, frames, truth):
+        if frame.beauty.shape != expected.shape:
+            raise FrameError(f"{folder / f'beauty_{index}.exr'}: {frame.beauty.shape[1]}x{frame.beauty.shape[0]} "
+                             f"pixels, but the reference has {expected.shape[1]}x{expected.shape[0]}")
+    return frames
+
+
+def check_methods(names: list[str]) -> None:
+    for name in names:
+        if name != RAW:
+            from_name(name)
+
+
+def run_method(name: str, frames) -> list[np.ndarray]:
+    """Our method ``name`` over ``frames`` in order (history kept), as ``benchmarks.denoise`` runs it."""
+    if name == RAW:
+        return [frame.beauty for frame in frames]
+    denoiser = from_name(name)
+    return [denoiser.step(frame) for frame in frames]
+
+
+def score_images(name: str, images: list[np.ndarray], truth: list[np.ndarray], frames=None,
+                 reference_temporal: list[float] | None = None) -> MethodScore:
+    score = MethodScore(name, [relmse(image, reference) for image, reference in zip(images, truth)],
+                        [flip_error(image, reference) for image, reference in zip(images, truth)])
+    if frames is not None:
+        score.temporal = temporal_relmse(frames, images)
+        score.stability = stability(score.temporal, reference_temporal) if score.temporal else None
+    return score
+
+
+def score_sequence(results: Path, reference: Path, frames_folder: Path | None = None,
+                   pattern: str = DEFAULT_PATTERN, compare: tuple[str, ...] = ()) -> dict:
+    """Everything the command reports: ``indices``, ``reference_temporal`` (None
+    without frames) and ``scores`` (the results', then each compared method's)."""
+    pattern = check_pattern(pattern)
+    if compare and frames_folder is None:
+        raise UsageError("--compare runs our methods on the frames: give --frames FRAME_DIR")
+    check_methods(list(compare))
+    indices = reference_indices(reference)
+    paths = result_paths(results, pattern, indices)
+    truth = [read_rgb(reference / f"beauty_{i}.exr") for i in indices]
+    images = read_sized(paths, truth, "reference")
+    frames = reference_temporal = None
+    if frames_folder is not None:
+        frames = read_frames(frames_folder, indices, truth)
+        reference_temporal = temporal_relmse(frames, truth)
+    label = results.name or str(results)
+    label = f"{label} (results)" if label in compare else label
+    scores = [score_images(label, images, truth, frames, reference_temporal)]
+    for name in compare:
+        scores.append(score_images(name, run_method(name, frames), truth, frames, reference_temporal))
+    return {"indices": indices, "reference_temporal": reference_temporal, "scores": scores}
+
+
+def tables(report: dict) -> list[str]:
+    """Per frame, then per method (means and stability), as Markdown tables."""
+    indices, scores = report["indices"], report["scores"]
+    lines = ["| method | frame | relMSE | FLIP | temporal |", "|---|---|---|---|---|"]
+    for s in scores:
+        temporal = [None] + s.temporal if s.temporal is not None else [None] * len(indices)
+        for k, index in enumerate(indices):
+            lines.append(f"| {s.name} | {index} | {s.relmse[k]:.5f} | {s.flip[k]:.4f} | "
+                         + ("" if temporal[k] is None else f"{temporal[k]:.5f}") + " |")
+    lines += ["", "| method | mean relMSE | mean FLIP | temporal stability |", "|---|---|---|---|"]
+    for s in scores:
+        lines.append(f"| {s.name} | {np.mean(s.relmse):.5f} | {np.mean(s.flip):.4f} | "
+                     + ("n/a (no --frames)" if s.stability is None else f"{s.stability:.2f}") + " |")
+    return lines
+
+
+def write_plot(path: Path, report: dict) -> None:
+    """relMSE, FLIP and (with frames) temporal relMSE per frame, a line per method."""
+    from matplotlib.figure import Figure  # without pyplot: no display, no global state
+    from matplotlib.ticker import MaxNLocator
+
+    indices, scores = report["indices"], report["scores"]
+    panels = [("relMSE", "relmse"), ("mean FLIP", "flip")]
+    if report["reference_temporal"] is not None:
+        panels.append(("temporal relMSE", "temporal"))
+    figure = Figure(figsize=(4.2 * len(panels), 3.4), layout="constrained")
+    for axes, (title, key) in zip(figure.subplots(1, len(panels), squeeze=False)[0], panels):
+        for k, s in enumerate(scores):
+            values = getattr(s, key)
+            axes.plot(indices[len(indices) - len(values):], values, marker="o", label=s.name,
+                      linewidth=2.5 if k == 0 else 1.2)  # the results scored stand out from ours
+        if key == "temporal":
+            axes.plot(indices[1:], report["reference_temporal"], "k--", label="ground truth")
+        axes.set(title=title, xlabel="frame", yscale="log" if key != "flip" else "linear")
+        axes.xaxis.set_major_locator(MaxNLocator(integer=True))
+        axes.grid(alpha=0.3)
+    figure.legend(*axes.get_legend_handles_labels(), loc="outside right upper", fontsize="small")
+    with atomic_path(path, ".png") as tmp:
+        figure.savefig(tmp, format="png", dpi=110)
+
+
+def write_json(path: Path, report: dict, arguments: dict) -> None:
+    data = {**arguments, "indices": report["indices"], "reference_temporal": report["reference_temporal"],
+            "methods": [s.as_json() for s in report["scores"]]}
+    with atomic_path(path, ".json") as tmp:
+        tmp.write_text(json.dumps(data, indent=2) + "\n")
+
+
+def _parser() -> argparse.ArgumentParser:
+    from core.entry import ArgumentParser
+
+    parser = ArgumentParser(prog=PROG, description=__doc__.split("\n", 1)[0].split(": ", 1)[1],
+                            formatter_class=argparse.RawDescriptionHelpFormatter,
+                            epilog="example: python -m denoise.score out/mine --reference out/seq_reference "
+                                   "--frames out/seq --compare svgf oidn --plot out/mine.png")
+    parser.add_argument("results", type=Path, metavar="RESULTS", help="the folder of per-frame results (EXR)")
+    parser.add_argument("--reference", type=Path, metavar="REF_DIR", required=True,
+                        help="the ground truth: beauty_i.exr per frame")
+    parser.add_argument("--frames", type=Path, metavar="FRAME_DIR",
+                        help="the frames the results were made from (temporal stability, --compare)")
+    parser.add_argument("--pattern", default=DEFAULT_PATTERN, help=f"result file names (default {DEFAULT_PATTERN})")
+    parser.add_argument("--compare", nargs="+", metavar="METHOD", default=[],
+                        help="our methods, run on --frames and scored beside the results (e.g. svgf oidn raw)")
+    parser.add_argument("--plot", type=Path, metavar="FILE.png", help="write the per-frame figures as a plot")
+    parser.add_argument("--json", type=Path, metavar="FILE", help="write every number as JSON")
+    parser.add_argument("--variant", help="Mitsuba variant (default: llvm_ad_rgb where usable)")
+    return parser
+
+
+def _main(argv: list[str] | None) -> int:
+    from renderer.checks import check_writable
+
+    args = _parser().parse_args(argv)
+    if args.plot is not None and args.plot.suffix.lower() != ".png":
+        raise UsageError(f"--plot writes PNG: name it .png, got {args.plot}")
+    for flag, path in (("--plot", args.plot), ("--json", args.json)):
+        if path is not None:
+            if path.is_dir():
+                raise OutputError(f"{flag} {path}: a folder, not a file")
+            check_writable(flag, path)
+    check_pattern(args.pattern)  # the cheap checks before Dr.Jit starts
+    if args.compare and args.frames is None:
+        raise UsageError("--compare runs our methods on the frames: give --frames FRAME_DIR")
+    check_methods(args.compare)
+    if args.frames is not None:  # back projection and our methods run in Dr.Jit
+        from renderer.variants import set_variant
+
+        set_variant(args.variant, quiet=True)
+    report = score_sequence(args.results, args.reference, args.frames, args.pattern, tuple(args.compare))
+    print("\n".join(tables(report)))
+    if args.plot is not None:
+        write_plot(args.plot, report)
+    if args.json is not None:
+        write_json(args.json, report, {"results": str(args.results), "reference": str(args.reference),
+                                       "frames": None if args.frames is None else str(args.frames),
+                                       "pattern": args.pattern})
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    from core.entry import run
+
+    return run(PROG, lambda: _main(argv))
+
+
+if __name__ == "__main__":
+    sys.exit(main())

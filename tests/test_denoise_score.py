@@ -1,0 +1,188 @@
+"""python -m denoise.score: a denoiser's per-frame results against a ground truth.
+
+The figures are checked against ``python -m benchmarks.denoise`` on the same
+exported sequence (run as its command), and the temporal figure against
+NumPy on frames whose back projection is known."""
+from __future__ import annotations
+
+import json
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from denoise.frames import FrameData, write_frame
+from denoise.score import main
+from imaging.image_io import write_exr
+from validation.metrics import relmse
+
+ROOT = Path(__file__).resolve().parent.parent
+#: the benchmark's figures and ours agree to this (they are the same computation)
+AGREEMENT = 1e-6
+
+
+def score(capsys, *arguments) -> tuple[int, str, str]:
+    status = main([str(a) for a in arguments])
+    captured = capsys.readouterr()
+    return status, captured.out, captured.err
+
+
+def test_matches_the_benchmark_on_an_exported_sequence(variant_vectorised_rgb, tmp_path, capsys):
+    """Export a small sequence and score it with ``benchmarks.denoise --quick``; denoise it
+    with ``python -m denoise --method svgf``; ``denoise.score`` on those results, and on
+    ``--compare svgf oidn raw``, gives the benchmark's relMSE, FLIP, temporal relMSE and
+    stability of those methods, frame by frame."""
+    from denoise.__main__ import main as denoise_main
+
+    work, benchmark = tmp_path / "work", tmp_path / "benchmark.json"
+    finished = subprocess.run([sys.executable, "-m", "benchmarks.denoise", "--quick", "--no-timing", "--sequences",
+                               "dolly_lamps", "--work", str(work), "--json", str(benchmark)],
+                              cwd=ROOT, capture_output=True, text=True, timeout=900)
+    assert finished.returncode == 0, finished.stderr[-3000:]
+    frames = work / "dolly_lamps_96x54_16spp_quick"
+    assert denoise_main([str(frames), str(tmp_path / "svgf_results"), "--method", "svgf"]) == 0
+    ours = tmp_path / "score.json"
+    status, out, err = score(capsys, tmp_path / "svgf_results", "--reference", f"{frames}_reference", "--frames",
+                             frames, "--compare", "svgf", "oidn", "raw", "--json", ours, "--plot", tmp_path / "p.png")
+    assert status == 0 and err == "", err
+    expected = json.loads(benchmark.read_text())
+    rows = {(r["method"], r["frame"]): r for r in expected["results"]}
+    stability = expected["sequences"][0]["stability"]
+    methods = json.loads(ours.read_text())["methods"]
+    assert [m["name"] for m in methods] == ["svgf_results", "svgf", "oidn", "raw"]
+    for m in methods:
+        method = "svgf" if m["name"] == "svgf_results" else m["name"]
+        for key in ("relmse", "flip", "temporal"):
+            benchmark_values = [rows[(method, k)][key] for k in range(4)]
+            assert benchmark_values[0] is None or key != "temporal"
+            assert m[key][0] is None or key != "temporal"
+            got, want = np.array(m[key][key == "temporal":]), np.array(benchmark_values[key == "temporal":])
+            assert np.abs(got - want).max() <= AGREEMENT, (m["name"], key, got, want)
+        assert abs(m["stability"] - stability[method]) <= AGREEMENT * stability[method]
+    assert "| svgf_results | 0.0" in out and (tmp_path / "p.png").stat().st_size > 10_000
+
+
+# -- frames whose back projection is known ---------------------------------------------
+H, W = 12, 16
+
+
+def plane_frames(count=3):
+    """A static plane seen through the identity world-to-screen matrix: pixel (x, y) sees
+    (x + 0.5, y + 0.5, 1) and keeps its own history, except where the previous frame
+    saw the background (id -1: a corner of frame 0)."""
+    ys, xs = np.mgrid[0:H, 0:W]
+    position = np.stack([xs + 0.5, ys + 0.5, np.ones((H, W))], -1).astype(np.float32)
+    frames = []
+    for i in range(count):
+        ids = np.zeros((H, W), np.int32)
+        if i == 0:
+            ids[:3, :5] = -1
+        frames.append(FrameData(np.full((H, W, 3), 0.5, np.float32), np.tile(np.float32([0, 0, 1]), (H, W, 1)),
+                                position, np.ones((H, W), np.float32), ids, [np.eye(4)], np.eye(4), np.eye(4)))
+    return frames
+
+
+@pytest.fixture
+def sequence(tmp_path):
+    """(frames folder, reference folder, results folder, results, truth) of 3 frames."""
+    rng = np.random.default_rng(7)
+    folders = [tmp_path / name for name in ("frames", "reference", "results")]
+    results, truth = [], []
+    for i, frame in enumerate(plane_frames()):
+        write_frame(folders[0], i, frame)
+        truth.append(rng.uniform(0.5, 1.5, (H, W, 3)).astype(np.float32))
+        results.append((truth[-1] * rng.uniform(0.8, 1.2, (H, W, 3))).astype(np.float32))
+        write_exr(folders[1] / f"beauty_{i}.exr", {"": truth[-1]})
+        write_exr(folders[2] / f"result_{i}.exr", {"": results[-1]})
+    return (*folders, results, truth)
+
+
+def numpy_temporal(images):
+    """relMSE between consecutive images where the back projection keeps history (the identity
+    mapping, minus frame 0's background corner for frame 1)."""
+    values = []
+    for t in range(1, len(images)):
+        keep = np.ones((H, W), bool)
+        if t == 1:
+            keep[:3, :5] = False
+        values.append(relmse(images[t][keep], images[t - 1][keep]))
+    return values
+
+
+def test_temporal_figures_match_numpy(variant_vectorised_rgb, sequence, tmp_path, capsys):
+    frames, reference, results, images, truth = sequence
+    status, out, _ = score(capsys, results, "--reference", reference, "--frames", frames, "--json", tmp_path / "s.json")
+    assert status == 0
+    (ours,) = json.loads((tmp_path / "s.json").read_text())["methods"]
+    expected = numpy_temporal(images)
+    assert ours["temporal"][0] is None and np.allclose(ours["temporal"][1:], expected, rtol=1e-6)
+    assert np.isclose(ours["stability"], np.mean(expected) / np.mean(numpy_temporal(truth)), rtol=1e-6)
+    assert np.allclose(ours["relmse"], [relmse(a, b) for a, b in zip(images, truth)], rtol=1e-9)
+    assert f"| results | 2 | {ours['relmse'][2]:.5f} |" in out
+
+
+def test_without_frames_there_is_no_temporal_figure(sequence, tmp_path, capsys):
+    _, reference, results, _, _ = sequence
+    status, out, _ = score(capsys, results, "--reference", reference, "--json", tmp_path / "s.json")
+    assert status == 0 and "| results | " in out and "n/a (no --frames)" in out
+    (ours,) = json.loads((tmp_path / "s.json").read_text())["methods"]
+    assert ours["temporal"] is None and ours["stability"] is None and len(ours["flip"]) == 3
+
+
+def test_a_pattern_names_the_results(sequence, capsys):
+    _, reference, results, images, truth = sequence
+    for i, image in enumerate(images):
+        (results / f"result_{i}.exr").rename(results / f"frame_{i:04d}.exr")
+    status, out, _ = score(capsys, results, "--reference", reference, "--pattern", "frame_{i:04d}.exr")
+    assert status == 0 and f"| results | 1 | {relmse(images[1], truth[1]):.5f} |" in out
+
+
+@pytest.mark.parametrize("case, message", [
+    ("no results", r"nowhere: not a folder"),
+    ("no reference", r"--reference .*nowhere: not a folder"),
+    ("empty reference", r"--reference .*frames: no beauty_<i>\.exr frames"),
+    ("missing result", r"results/result_1\.exr: missing$"),
+    ("smaller result", r"results/result_2\.exr: 8x12 pixels, but the reference has 16x12"),
+    ("damaged result", r"results/result_0\.exr: not a readable EXR \("),
+    ("no channels", r"results/result_0\.exr: no R channel \(expected R, G, B\)"),
+    ("pattern", r"--pattern 'result\.exr': a file name with exactly one \{i\}"),
+    ("compare without frames", r"--compare runs our methods on the frames: give --frames FRAME_DIR"),
+    ("unknown method", r"unknown method 'best'"),
+    ("plot", r"--plot writes PNG: name it \.png, got .*p\.jpg"),
+])
+def test_bad_inputs_are_one_line_and_exit_2(sequence, tmp_path, capsys, case, message):
+    frames, reference, results, images, _ = sequence
+    arguments = [results, "--reference", reference]
+    if case == "no results":
+        arguments[0] = tmp_path / "nowhere"
+    elif case == "no reference":
+        arguments[2] = tmp_path / "nowhere"
+    elif case == "empty reference":
+        (tmp_path / "frames").mkdir(exist_ok=True)
+        arguments[2] = tmp_path / "results" / ".." / "frames"
+        for path in frames.glob("beauty_*.exr"):
+            path.rename(path.with_name(path.name.replace("beauty", "moved")))
+    elif case == "missing result":
+        (results / "result_1.exr").unlink()
+    elif case == "smaller result":
+        write_exr(results / "result_2.exr", {"": images[2][:, :8]})
+    elif case == "damaged result":
+        path = results / "result_0.exr"
+        path.write_bytes(path.read_bytes()[:300])
+    elif case == "no channels":
+        write_exr(results / "result_0.exr", {"depth": images[0][..., 0]})
+    elif case == "pattern":
+        arguments += ["--pattern", "result.exr"]
+    elif case == "compare without frames":
+        arguments += ["--compare", "svgf"]
+    elif case == "unknown method":
+        arguments += ["--frames", frames, "--compare", "best"]
+    elif case == "plot":
+        arguments += ["--plot", tmp_path / "p.jpg"]
+    status, out, err = score(capsys, *arguments)
+    assert status == 2 and out == ""
+    assert err.count("\n") == 1 and err.startswith("python -m denoise.score: error: "), err
+    assert re.search(message, err.strip()), err
