@@ -33,7 +33,7 @@ def score(capsys, *arguments) -> tuple[int, str, str]:
 def test_matches_the_benchmark_on_an_exported_sequence(variant_vectorised_rgb, tmp_path, capsys):
     """Export a small sequence and score it with ``benchmarks.denoise --quick``; denoise it
     with ``python -m denoise --method svgf``; ``denoise.score`` on those results, and on
-    ``--compare svgf oidn raw``, gives the benchmark's relMSE, FLIP, temporal relMSE and
+    ``--compare svgf oidn-high raw``, gives the benchmark's relMSE, FLIP, temporal relMSE and
     stability of those methods, frame by frame."""
     from denoise.__main__ import main as denoise_main
 
@@ -46,13 +46,13 @@ def test_matches_the_benchmark_on_an_exported_sequence(variant_vectorised_rgb, t
     assert denoise_main([str(frames), str(tmp_path / "svgf_results"), "--method", "svgf"]) == 0
     ours = tmp_path / "score.json"
     status, out, err = score(capsys, tmp_path / "svgf_results", "--reference", f"{frames}_reference", "--frames",
-                             frames, "--compare", "svgf", "oidn", "raw", "--json", ours, "--plot", tmp_path / "p.png")
+                             frames, "--compare", "svgf", "oidn-high", "raw", "--json", ours, "--plot", tmp_path / "p.png")
     assert status == 0 and err == "", err
     expected = json.loads(benchmark.read_text())
     rows = {(r["method"], r["frame"]): r for r in expected["results"]}
     stability = expected["sequences"][0]["stability"]
     methods = json.loads(ours.read_text())["methods"]
-    assert [m["name"] for m in methods] == ["svgf_results", "svgf", "oidn", "raw"]
+    assert [m["name"] for m in methods] == ["svgf_results", "svgf", "oidn-high", "raw"]
     for m in methods:
         method = "svgf" if m["name"] == "svgf_results" else m["name"]
         for key in ("relmse", "flip", "temporal"):
