@@ -6,7 +6,7 @@
 The same small dataset (the sequences in ``scenes/sequences/``, shortened) is
 exported twice: in this process without Dask, and through a ``LocalCluster``
 of ``--workers`` processes with one task each. Every render runs on one Dr.Jit
-thread (:data:`denoise.export.RENDER_THREADS`: Dr.Jit's sums follow the
+thread (:data:`denoise.export.sequence.RENDER_THREADS`: Dr.Jit's sums follow the
 thread count, and the bytes must not), so the in-process export uses one core
 and the cluster's ideal is ``workers`` times faster. Prints and writes (``--json``)::
 
@@ -50,9 +50,9 @@ def _noop(x: int) -> int:
 
 def _warm(variant: str, threads: int) -> str:
     """Imports the project and sets the variant on a worker (its start-up, not a task's cost)."""
-    from denoise.export import _prepare
+    from denoise.export.tasks import prepare_process
 
-    _prepare(variant, threads)
+    prepare_process(variant, threads)
     return variant
 
 
@@ -73,8 +73,10 @@ def round_trip(client, count: int = 40) -> float:
 
 def measure(frames: int, size: tuple[int, int], reference_spp: int, batch_spp: int, workers: int,
             work: Path, spp: int = 1) -> dict:
-    from denoise.dataset import dask_client
-    from denoise.export import RENDER_THREADS, Spec, export_sequences, sequences_for
+    from denoise.export.cluster import dask_client
+    from denoise.export.runners import export_sequences, sequences_for
+    from denoise.export.sequence import RENDER_THREADS
+    from denoise.export.spec import Spec
     from renderer.variants import set_variant
 
     variant = set_variant(None, quiet=True)

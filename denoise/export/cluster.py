@@ -1,7 +1,7 @@
-"""The Dask side of :mod:`denoise.export`: its tasks on a Dask distributed cluster.
+"""The export's tasks on a Dask distributed cluster.
 
 Every frame is one task (G-buffers and noisy beauty) plus one task per
-ground-truth batch (see :func:`denoise.export.plan`). They are submitted as
+ground-truth batch (see :func:`denoise.export.store.plan`). They are submitted as
 Dask futures and collected with ``as_completed``; this process writes each
 result as it arrives (atomically), so only the scene files need to be
 readable on the workers, at the same path. Dask reschedules the tasks of a
@@ -10,7 +10,7 @@ next run submits only what is missing.
 
 Without a scheduler address a ``LocalCluster`` is started: one worker process
 per core (or ``workers``), one task at a time each. Every render runs on one
-Dr.Jit thread (:data:`denoise.export.RENDER_THREADS`), so on an existing
+Dr.Jit thread (:data:`denoise.export.sequence.RENDER_THREADS`), so on an existing
 cluster start one single-threaded worker per core:
 ``dask worker ADDRESS --nworkers -1 --nthreads 1`` on each machine.
 """
@@ -24,12 +24,13 @@ from typing import Callable, Iterator
 
 from core.errors import UsageError
 
-from .export import Recorder, Task, progress_bar, run_task
+from .recorder import Recorder, progress_bar
+from .tasks import Task, run_task
 
 
 def has_dashboard() -> bool:
     """Dask serves its dashboard only where bokeh is installed."""
-    try:
+    try:  # a probe: bokeh is optional
         import bokeh  # noqa: F401
     except ImportError:
         return False
@@ -39,7 +40,7 @@ def has_dashboard() -> bool:
 @contextmanager
 def dask_client(scheduler: str | None = None, workers: int | None = None) -> Iterator[tuple[object, int | None]]:
     """(a Dask client, the Dr.Jit thread count each worker should use)."""
-    from distributed import Client, LocalCluster
+    from distributed import Client, LocalCluster  # Dask loads only for cluster exports
 
     cluster = None
     if scheduler:
@@ -66,7 +67,7 @@ def dask_client(scheduler: str | None = None, workers: int | None = None) -> Ite
 def run_futures(client, tasks: list[Task], recorder: Recorder, after_task: Callable[[Task], None] | None = None,
                 total_frames: int = 0) -> None:
     """Submits ``tasks`` (earlier frames first) and records results as they complete."""
-    from distributed import as_completed
+    from distributed import as_completed  # Dask loads only for cluster exports
 
     futures = {}
     for order, task in enumerate(tasks):
@@ -86,7 +87,7 @@ def run_futures(client, tasks: list[Task], recorder: Recorder, after_task: Calla
             client.cancel(list(futures))
 
 
-def describe(client, scheduler: str | None = None) -> dict:
+def cluster_description(client, scheduler: str | None = None) -> dict:
     """What the manifest records about the cluster (and the dashboard's link, on stderr)."""
     info = client.scheduler_info()
     if has_dashboard():
