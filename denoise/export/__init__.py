@@ -18,10 +18,16 @@ The spec is JSON::
                  "dolly": 1.5,          # along the view direction
                  "pan": [0.5, 0, 0]},   # a translation
       "objects": {"2": {"translate": [0.8, 0, 0],
-                        "rotate": {"axis": [0, 1, 0], "degrees": 45}}}   # about its centre
+                        "rotate": {"axis": [0, 1, 0], "degrees": 45}}},  # about its centre
+      "lights": {"0": {"translate": [2, 0, 0],     # a point light moves
+                       "scale": 0.2,               # its colour times 1 -> 0.2
+                       "frames": [5, 6]},          # only between frames 5 and 6
+                 "1": {"rotate": {"axis": [0, 1, 0], "degrees": 30}}}   # a directional light turns
     }
 
-Every motion is linear in time from frame 0 to the last frame. One spec
+Objects and lights are named by their position in the scene's ``Group`` and
+``Lights`` blocks. Every motion is linear in time from frame 0 to the last
+frame; a light's change with ``"frames": [a, b]`` runs between frames a and b. One spec
 writes the frame folder ``OUT`` and its ground truth ``OUT_reference``;
 several specs (a dataset) write ``OUT/<spec name>`` and
 ``OUT/<spec name>_reference`` each, and ``OUT/dataset.json`` lists them all.

@@ -11,7 +11,7 @@ import math
 import re
 from pathlib import Path
 
-from converters.model import Scene
+from converters.model import DirectionalLight, PointLight, Scene
 from core.errors import SpecError
 
 # Limits: Mitsuba indexes one render's samples with 32-bit integers
@@ -77,6 +77,7 @@ class Spec:
     seed: int = 0
     camera: dict = dataclasses.field(default_factory=dict)
     objects: dict = dataclasses.field(default_factory=dict)
+    lights: dict = dataclasses.field(default_factory=dict)
 
     @staticmethod
     def load(path: Path, **overrides) -> "Spec":
@@ -161,14 +162,65 @@ class Spec:
                     raise SpecError(f"{_key_in(source, name + '.rotate.axis')}: expected a non-zero axis")
                 _number(rotate["degrees"], f"{name}.rotate.degrees", source)
 
+        self._check_lights(source)
+
+    def _check_lights(self, source: str) -> None:
+        if not isinstance(self.lights, dict):
+            raise SpecError(f"{_key_in(source, 'lights')}: expected an object, found {self.lights!r}")
+        for key, change in self.lights.items():
+            name = f"lights.{key}"
+            if not re.fullmatch(r"\d{1,9}", str(key)):
+                raise SpecError(f"{_key_in(source, name)}: expected a light index (0, 1, ...), found {key!r}")
+            change = _keys(change, name, source, {"translate", "rotate", "scale", "frames"})
+            if "translate" in change:
+                _vector(change["translate"], f"{name}.translate", source)
+            if "rotate" in change:
+                rotate = _keys(change["rotate"], f"{name}.rotate", source, {"axis", "degrees"})
+                if "axis" not in rotate or "degrees" not in rotate:
+                    raise SpecError(f"{_key_in(source, name + '.rotate')}: expected \"axis\" and \"degrees\"")
+                if not any(_vector(rotate["axis"], f"{name}.rotate.axis", source)):
+                    raise SpecError(f"{_key_in(source, name + '.rotate.axis')}: expected a non-zero axis")
+                _number(rotate["degrees"], f"{name}.rotate.degrees", source)
+            if "scale" in change and _number(change["scale"], f"{name}.scale", source) < 0:
+                raise SpecError(f"{_key_in(source, name + '.scale')}: expected a factor >= 0 for the light's "
+                                f"colour, found {change['scale']}")
+            if "frames" in change:
+                frames = change["frames"]
+                if not isinstance(frames, (list, tuple)) or len(frames) != 2:
+                    raise SpecError(f"{_key_in(source, name + '.frames')}: expected [first, last], found {frames!r}")
+                last = self.frames - 1
+                first = _int(frames[0], f"{name}.frames[0]", source, 0, last)
+                end = _int(frames[1], f"{name}.frames[1]", source, 0, last)
+                if end <= first:
+                    raise SpecError(f"{_key_in(source, name + '.frames')}: expected a first frame before the "
+                                    f"last, found {list(frames)}")
+
     def check_scene(self, scene: Scene, source: str = "spec") -> None:
-        """The object indices the spec moves exist in ``scene``."""
+        """The object and light indices the spec moves exist in ``scene``, and
+        each light's change suits its kind (a point light moves, a directional one turns)."""
         for key in self.objects:
             if int(key) >= len(scene.objects):
                 raise SpecError(f"{_key_in(source, f'objects.{key}')}: object {int(key)} does not exist "
                                 f"(the scene has {len(scene.objects)}: 0..{len(scene.objects) - 1})")
+        for key, change in self.lights.items():
+            k = int(key)
+            if k >= len(scene.lights):
+                have = f"0..{len(scene.lights) - 1}" if scene.lights else "no lights"
+                raise SpecError(f"{_key_in(source, f'lights.{key}')}: light {k} does not exist "
+                                f"(the scene has {len(scene.lights)}: {have})")
+            light = scene.lights[k]
+            if "translate" in change and not isinstance(light, PointLight):
+                raise SpecError(f"{_key_in(source, f'lights.{key}.translate')}: light {k} is a directional light, "
+                                f"which has no position (turn it with \"rotate\")")
+            if "rotate" in change and not isinstance(light, DirectionalLight):
+                raise SpecError(f"{_key_in(source, f'lights.{key}.rotate')}: light {k} is a point light, "
+                                f"which has no direction (move it with \"translate\")")
 
     def as_json(self) -> dict:
+        """The spec as recorded in ``sequence.json`` (and hashed into the seeds):
+        without ``lights`` when no light changes, as before lights could."""
         data = dataclasses.asdict(self)
         data["size"] = list(self.size)
+        if not data["lights"]:
+            del data["lights"]
         return data
