@@ -10,9 +10,9 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from ..frames import write_frame
 from .sequence import EXPORT_FORMAT, Sequence, seed
-from .store import assemble_reference, batch_path, frame_done, reference_done, save_batch, write_record
+from .store import (assemble_reference, batch_path, frame_done, reference_done, save_batch, write_frame_files,
+                    write_record)
 from .tasks import Task
 
 
@@ -50,7 +50,7 @@ class Recorder:
         self.rendered[sequence.name].add(task.frame)
         target = Path(sequence.target)
         if task.kind == "frame":
-            write_frame(target, task.frame, result)
+            write_frame_files(target, task.frame, result)
         else:
             save_batch(batch_path(sequence, task.frame, task.batch), result)
             assemble_reference(sequence, task.frame)

@@ -13,7 +13,8 @@ from .cluster import cluster_description, dask_client, run_futures
 from .recorder import Recorder, progress_bar
 from .sequence import DEFAULT_BATCH_SPP, Sequence
 from .spec import MAX_SAMPLES_PER_RENDER, MAX_SPP, Spec
-from .store import claim_folder, plan
+from .files import locked, remove_staging
+from .store import check_folder, claim_folder, plan, recover
 from .tasks import Task, course_scene, run_task
 
 
@@ -54,7 +55,20 @@ def sequences_for(specs: list[tuple[str, Spec]], out: Path, data: Path | None = 
         spec.check_scene(course_scene(str(path)), name)
         target = out if len(specs) == 1 else out / name
         result.append(Sequence(name, spec, str(path), str(target), batch_spp, whitted, variant or mi.variant()))
+    check_distinct_folders(result)
     return result
+
+
+def check_distinct_folders(sequences: list[Sequence]) -> None:
+    """Raises :class:`SpecError` where one sequence's frame or ground-truth
+    folder is another's (a spec named ``a_reference`` beside ``a``)."""
+    owners: dict[Path, tuple[str, str, Path]] = {}
+    for sequence in sequences:
+        for role, folder in (("frame folder", Path(sequence.target)), ("ground truth", sequence.reference)):
+            other = owners.setdefault(folder.resolve(), (sequence.name, role, folder))
+            if other[0] != sequence.name:
+                raise SpecError(f"{folder}: would be both {other[0]}'s {other[1]} and {sequence.name}'s {role}; "
+                                f"rename one of the specs")
 
 
 def export_sequences(sequences: list[Sequence], force: bool = False, scheduler: str | None = None,
@@ -64,17 +78,27 @@ def export_sequences(sequences: list[Sequence], force: bool = False, scheduler: 
     """Renders what is missing of ``sequences`` (in this process with ``local``,
     else on Dask: ``client``, a scheduler address or a new LocalCluster of
     ``workers``); returns the indices of the frames that had work done, per
-    sequence name. ``threads``: Dr.Jit threads per process that runs tasks."""
-    if local or client is not None:
-        return _export(sequences, force, manifest, after_task, client, threads)
-    with dask_client(scheduler, workers) as (client, threads):
-        return _export(sequences, force, manifest, after_task, client, threads, scheduler or "LocalCluster")
+    sequence name. ``threads``: Dr.Jit threads per process that runs tasks.
+    Folders that refuse the sequences are refused before anything is written;
+    while it runs the export holds every folder's lock."""
+    if not force:
+        for sequence in sequences:
+            check_folder(sequence)
+    with locked([folder for s in sequences for folder in (Path(s.target), s.reference)]):
+        for sequence in sequences:
+            claim_folder(sequence, force)
+            recover(sequence)
+        if manifest is not None:
+            remove_staging(manifest.parent)
+        if local or client is not None:
+            return _run(sequences, manifest, after_task, client, threads)
+        with dask_client(scheduler, workers) as (client, threads):
+            return _run(sequences, manifest, after_task, client, threads, scheduler or "LocalCluster")
 
 
-def _export(sequences: list[Sequence], force: bool, manifest: Path | None, after_task, client, threads,
-            scheduler: str | None = None) -> dict[str, list[int]]:
-    for sequence in sequences:
-        claim_folder(sequence, force)
+def _run(sequences: list[Sequence], manifest: Path | None, after_task, client, threads,
+         scheduler: str | None = None) -> dict[str, list[int]]:
+    """Runs the missing tasks of claimed ``sequences``; writes the manifest."""
     recorder = Recorder(sequences, manifest)
     frames = sum(s.spec.frames for s in sequences)
     tasks = [t for s in sequences for t in plan(s, threads)]

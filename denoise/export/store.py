@@ -6,6 +6,12 @@ A sequence writes its frames into ``target`` and its ground truth into
 until a frame's last one is in, and are then summed (in batch order, in
 float64) into the halves and the reference. ``target/sequence.json`` records
 the settings: an export with other settings is refused.
+
+Every file is written crash-safely (:func:`denoise.export.files.publish`), and
+the file that marks a part complete is written last: ``matrix_i.mat`` for a
+frame's buffers, ``beauty_i.exr`` for its reference (after both halves). So
+after a kill at any instant a rerun (:func:`recover`, then :func:`plan`)
+ends with the bytes of an uninterrupted run.
 """
 from __future__ import annotations
 
@@ -17,9 +23,10 @@ from pathlib import Path
 import numpy as np
 
 from core.errors import SpecError
-from imaging.image_io import atomic_path, write_exr
+from imaging.image_io import write_exr
 
-from ..frames import BUFFERS
+from ..frames import BUFFERS, FrameData, write_matrices
+from .files import publish, remove_staging
 from .sequence import Sequence, reference_folder, seed
 from .tasks import Task
 
@@ -30,7 +37,7 @@ def batch_path(sequence: Sequence, frame: int, batch: int) -> Path:
 
 
 def frame_done(target: Path, index: int) -> bool:
-    """The frame's buffers are written (not its reference)."""
+    """The frame's buffers are written (not its reference); ``matrix_i.mat`` comes last."""
     files = [target / f"{name}_{index}.exr" for name in BUFFERS] + [target / f"matrix_{index}.mat",
                                                                    target / f"albedo_{index}.exr"]
     return all(f.exists() for f in files)
@@ -40,7 +47,7 @@ REFERENCE_FILES = ("beauty", "half_a", "half_b")
 
 
 def reference_done(target: Path, index: int) -> bool:
-    """The frame's reference and both its halves are written."""
+    """The frame's reference and both its halves are written; ``beauty_i.exr`` comes last."""
     return all((reference_folder(target) / f"{name}_{index}.exr").exists() for name in REFERENCE_FILES)
 
 
@@ -49,9 +56,18 @@ def _json_bytes(data) -> bytes:
 
 
 def write_record(path: Path, data) -> None:
-    """Writes ``data`` as sorted, indented JSON (atomically)."""
-    with atomic_path(path, ".json") as tmp:
-        tmp.write_bytes(_json_bytes(data))
+    """Writes ``data`` as sorted, indented JSON (crash-safely)."""
+    publish(path, lambda staging: staging.write_bytes(_json_bytes(data)))
+
+
+def write_frame_files(target: Path, index: int, frame: FrameData) -> None:
+    """Writes one frame's buffers in the course's layout (and ``albedo_i.exr``),
+    ``matrix_i.mat`` last: its presence marks the frame complete."""
+    for name, data in (("beauty", frame.beauty), ("normal", frame.normal), ("position", frame.position),
+                       ("depth", frame.depth), ("ID", frame.ids.astype(np.float32)), ("albedo", frame.albedo)):
+        publish(target / f"{name}_{index}.exr", lambda staging, data=data: write_exr(staging, {"": data}))
+    publish(target / f"matrix_{index}.mat", lambda staging: write_matrices(
+        staging, frame.object_to_world, frame.world_to_camera, frame.world_to_screen))
 
 
 def _our_files(sequence: Sequence) -> list[Path]:
@@ -94,13 +110,11 @@ def _comparable(settings: dict, other: dict) -> dict:
     return settings
 
 
-def claim_folder(sequence: Sequence, force: bool = False) -> None:
-    """Checks that ``sequence`` may write into its folders (the same settings
-    as before, or a fresh folder) and records its settings there."""
+def check_folder(sequence: Sequence) -> None:
+    """Raises :class:`SpecError` unless ``sequence`` may write into its folders:
+    they are new, or were made with the same settings. Writes nothing."""
     target = Path(sequence.target)
     record = target / "sequence.json"
-    if force:
-        start_over(sequence)
     settings = sequence.settings()
     if record.exists():
         try:
@@ -112,11 +126,43 @@ def claim_folder(sequence: Sequence, force: bool = False) -> None:
             raise SpecError(f"{target}: made with other settings ({'; '.join(changed[:4])}"
                             f"{'; ...' if len(changed) > 4 else ''}); use --force to start over, or another folder")
     elif _our_files(sequence):
+        folders = sorted({path.parent for path in _our_files(sequence)})
+        if folders == [sequence.reference]:
+            raise SpecError(f"{sequence.reference}: holds ground truth, but its frame folder {target} has no "
+                            f"sequence.json (made by an older export or by hand); use --force to start over, "
+                            f"or another folder")
         raise SpecError(f"{target}: holds frames without a sequence.json (made by an older export or by hand); "
                         f"use --force to start over, or another folder")
-    target.mkdir(parents=True, exist_ok=True)
+
+
+def claim_folder(sequence: Sequence, force: bool = False) -> None:
+    """Checks that ``sequence`` may write into its folders (:func:`check_folder`;
+    ``force``: removes what an earlier export wrote instead) and records its settings there."""
+    if force:
+        start_over(sequence)
+    check_folder(sequence)
+    record = Path(sequence.target) / "sequence.json"
     if not record.exists():
-        write_record(record, settings)
+        write_record(record, sequence.settings())
+
+
+def recover(sequence: Sequence) -> None:
+    """Finishes what an interrupted export left: removes its staging files,
+    sums the frames whose batches are all in, removes the batches of frames
+    whose reference is written."""
+    target = Path(sequence.target)
+    batches = sequence.reference / ".batches"
+    for folder in (target, sequence.reference, *(sorted(batches.iterdir()) if batches.is_dir() else [])):
+        remove_staging(folder)
+    for frame in range(sequence.spec.frames):
+        if reference_done(target, frame):
+            shutil.rmtree(batches / f"{frame}", ignore_errors=True)
+        else:
+            assemble_reference(sequence, frame)
+    try:
+        batches.rmdir()  # once no frame waits
+    except OSError:
+        pass
 
 
 def plan(sequence: Sequence, threads: int | None = None) -> list[Task]:
@@ -137,15 +183,17 @@ def plan(sequence: Sequence, threads: int | None = None) -> list[Task]:
 
 
 def save_batch(path: Path, image: np.ndarray) -> None:
-    """Writes one reference batch's mean (float32 .npy, atomically)."""
-    with atomic_path(path, ".npy") as tmp:
-        with open(tmp, "wb") as file:
+    """Writes one reference batch's mean (float32 .npy, crash-safely)."""
+    def write(staging: Path) -> None:
+        with open(staging, "wb") as file:
             np.save(file, np.ascontiguousarray(image, np.float32))
+
+    publish(path, write)
 
 
 def assemble_reference(sequence: Sequence, frame: int) -> bool:
     """Sums a frame's batches (all present) into its halves and reference, in
-    batch order; removes the batches. False when a batch is still missing."""
+    batch order, the reference last; removes the batches. False when a batch is still missing."""
     paths = [batch_path(sequence, frame, b) for b in range(len(sequence.batches()))]
     if not all(p.exists() for p in paths):
         return False
@@ -155,9 +203,9 @@ def assemble_reference(sequence: Sequence, frame: int) -> bool:
         image = np.load(path).astype(np.float64) * (spp / half_spp)
         halves[half] = image if half not in halves else halves[half] + image
     folder = sequence.reference
-    write_exr(folder / f"half_a_{frame}.exr", {"": halves["a"].astype(np.float32)})
-    write_exr(folder / f"half_b_{frame}.exr", {"": halves["b"].astype(np.float32)})
-    write_exr(folder / f"beauty_{frame}.exr", {"": ((halves["a"] + halves["b"]) / 2).astype(np.float32)})
+    for name, image in (("half_a", halves["a"]), ("half_b", halves["b"]), ("beauty", (halves["a"] + halves["b"]) / 2)):
+        publish(folder / f"{name}_{frame}.exr", lambda staging, image=image: write_exr(
+            staging, {"": image.astype(np.float32)}))
     shutil.rmtree(paths[0].parent, ignore_errors=True)
     try:
         paths[0].parent.parent.rmdir()  # .batches, once no frame waits
