@@ -18,7 +18,10 @@ from __future__ import annotations
 
 import logging
 import os
+import signal
 import sys
+import threading
+import time
 from contextlib import contextmanager
 from typing import Callable, Iterator
 
@@ -26,6 +29,9 @@ from core.errors import UsageError
 
 from .recorder import Recorder, progress_bar
 from .tasks import Task, run_task
+
+#: seconds between looks for a finished task (and for Ctrl-C)
+POLL_S = 0.05
 
 
 def has_dashboard() -> bool:
@@ -35,6 +41,14 @@ def has_dashboard() -> bool:
     except ImportError:
         return False
     return True
+
+
+def dask_setup(worker) -> None:
+    """Dask's preload hook, run in each worker process of our LocalCluster as
+    it starts: the process leaves the terminal's process group, so that Ctrl-C
+    reaches the export alone, which then stops the cluster (in the group every
+    worker would print a traceback, and Mitsuba its warning on stdout)."""
+    os.setpgid(0, 0)
 
 
 @contextmanager
@@ -53,15 +67,57 @@ def dask_client(scheduler: str | None = None, workers: int | None = None) -> Ite
         cores = os.cpu_count() or 1
         workers = workers or cores
         cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                               dashboard_address=":0", silence_logs=logging.ERROR)
+                               dashboard_address=":0", silence_logs=logging.ERROR, preload=[__name__])
         client = Client(cluster)
         threads = max(1, cores // workers)
     try:
         yield client, threads
+    except BaseException:
+        # interrupted or failed: the user gets one line from the command, not the
+        # errors Dask logs while it drops the cancelled work and shuts down
+        for name in ("distributed", "tornado", "asyncio"):
+            logging.getLogger(name).setLevel(logging.CRITICAL)
+        raise
     finally:
         client.close()
         if cluster is not None:
             cluster.close()
+
+
+@contextmanager
+def deferred_signals() -> Iterator[Callable[[], None]]:
+    """Within it, SIGINT and SIGTERM are only noted; the function it yields
+    raises a noted one (through its previous handler: KeyboardInterrupt for
+    Ctrl-C) where it is called. Raised wherever the main thread happened to
+    be, the exception could land in one of Dask's finalizers, which swallow it,
+    and the export would go on."""
+    noted: list[int] = []
+    previous = {}
+    if threading.current_thread() is threading.main_thread():
+        for signum in (signal.SIGINT, signal.SIGTERM):
+            handler = signal.getsignal(signum)
+            if handler is not signal.SIG_IGN:
+                previous[signum] = signal.signal(signum, lambda number, frame: noted.append(number))
+
+    def restore() -> None:
+        for number, handler in previous.items():
+            signal.signal(number, handler)
+        previous.clear()
+
+    def raise_noted() -> None:
+        if not noted:
+            return
+        handler = previous.get(noted[0], signal.SIG_DFL)
+        restore()
+        if callable(handler):
+            handler(noted[0], None)  # the command's handlers raise
+        else:
+            os.kill(os.getpid(), noted[0])  # the default action: ends the process
+
+    try:
+        yield raise_noted
+    finally:
+        restore()
 
 
 def run_futures(client, tasks: list[Task], recorder: Recorder, after_task: Callable[[Task], None] | None = None,
@@ -74,14 +130,21 @@ def run_futures(client, tasks: list[Task], recorder: Recorder, after_task: Calla
         future = client.submit(run_task, task, key=task.name, priority=len(tasks) - order)
         futures[future] = task
     try:
-        with progress_bar(len(tasks), total_frames) as bar:
-            for future, (result, timing) in as_completed(futures, with_results=True):
+        with deferred_signals() as raise_noted, progress_bar(len(tasks), total_frames) as bar:
+            completed = as_completed(futures, with_results=True)
+            while not completed.is_empty():
+                raise_noted()
+                if not completed.has_ready():
+                    time.sleep(POLL_S)
+                    continue
+                future, (result, timing) = next(completed)
                 task = futures.pop(future)
                 recorder.record(task, result, timing)
                 bar.update()
                 bar.set_postfix(frames=f"{recorder.frames_done()}/{total_frames}", refresh=False)
                 if after_task:
                     after_task(task)
+            raise_noted()
     finally:
         if futures:  # interrupted: the cluster stops working for us
             client.cancel(list(futures))
