@@ -22,6 +22,9 @@ DEFAULT_BATCH_SPP = 64
 #: follows the thread count, so every pass renders on one thread and
 #: parallelism comes from processes (docs/export.md has the measurements).
 RENDER_THREADS = 1
+#: the most samples per pixel one render accumulates (its film sums in
+#: float32); larger passes are split and summed in float64 (docs/export.md)
+MAX_SPP_PER_RENDER = 1024
 
 
 def versions() -> dict:
@@ -52,6 +55,7 @@ class Sequence:
                 "batch_spp": self.batch_spp, "batches": [spp for _, spp in self.batches()],
                 "noisy_integrator": "whitted" if self.whitted else "path", "gbuffer": "whitted AOVs at pixel centres",
                 "variant": self.variant, "versions": versions(), "render_threads": RENDER_THREADS,
+                "spp_per_render": MAX_SPP_PER_RENDER,
                 "seeds": "sha256(key/frame/pass/batch) -> uint31; key = sha256 of this file's other settings",
                 "scene_sha256": hashlib.sha256(Path(self.scene_path).read_bytes()).hexdigest()}
 
@@ -62,7 +66,8 @@ class Sequence:
         settings.pop("versions")
         settings.pop("seeds")
         settings.pop("scene_file")  # the same scene moved elsewhere renders the same noise
-        settings.pop("scene_sha256")  # (recorded after the first folders were made: not part of their seeds)
+        settings.pop("scene_sha256")
+        settings.pop("spp_per_render")  # below it a pass is one render, as before the limit; above, other seeds  # (recorded after the first folders were made: not part of their seeds)
         return hashlib.sha256(json.dumps(settings, sort_keys=True).encode()).hexdigest()
 
     def batches(self) -> list[tuple[str, int]]:
@@ -76,6 +81,12 @@ class Sequence:
 def seed(key: str, frame: int, stream: str, batch: int = 0) -> int:
     """A sampler seed from the sequence key, the frame, the pass and the batch."""
     digest = hashlib.sha256(f"{key}/{frame}/{stream}/{batch}".encode()).digest()
+    return int.from_bytes(digest[:4], "little") & 0x7FFFFFFF
+
+
+def part_seed(seed: int, part: int) -> int:
+    """The seed of part ``part`` (1, 2, ...) of a pass split into several renders."""
+    digest = hashlib.sha256(f"{seed}/part/{part}".encode()).digest()
     return int.from_bytes(digest[:4], "little") & 0x7FFFFFFF
 
 

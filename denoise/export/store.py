@@ -103,10 +103,15 @@ def _differences(old: dict, new: dict, prefix: str = "") -> list[str]:
 def _comparable(settings: dict, other: dict) -> dict:
     """``settings`` as compared with ``other``: without the scene's path (a
     checkout elsewhere, e.g. another git worktree, holds the same scene under
-    another path) but with its content's hash where both record one."""
+    another path) but with its content's hash where both record one, and its
+    samples per render where they matter."""
     settings = {k: v for k, v in settings.items() if k != "scene_file"}
     if "scene_sha256" not in other:
         settings.pop("scene_sha256", None)
+    # a folder from before passes were split renders the same while no pass is split
+    if "spp_per_render" not in other and "spp_per_render" in settings:
+        if max([settings["spp"], *settings["batches"]]) <= settings["spp_per_render"]:
+            settings.pop("spp_per_render")
     return settings
 
 

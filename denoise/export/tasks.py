@@ -23,7 +23,7 @@ from renderer.variants import set_variant
 
 from ..frames import FrameData, camera_matrices, depth_range
 from .animation import animate
-from .sequence import RENDER_THREADS, Sequence
+from .sequence import MAX_SPP_PER_RENDER, RENDER_THREADS, Sequence, part_seed
 
 #: the layers the G-buffer pass writes (whitted's AOVs at pixel centres)
 GBUFFER_AOVS = ("depth", "normal", "position", "id", "albedo")
@@ -110,6 +110,27 @@ def _sensor(mi_scene, jitter: bool):
     return next(s for s in mi_scene.sensors() if s.id() == wanted)
 
 
+def render_mean(mi_scene, integrator, sensor, spp: int, seed: int) -> np.ndarray:
+    """The (H, W, 3) mean of ``spp`` samples per pixel. Mitsuba's film sums
+    a pixel's samples in float32, whose rounding grows with their count, so
+    a render accumulates at most :data:`MAX_SPP_PER_RENDER` samples: more are
+    split into parts of that many (the first seeded ``seed``, part k
+    ``part_seed(seed, k)``), whose means are summed in float64."""
+    # Mitsuba loads on first use (see prepare_process)
+    import mitsuba as mi
+
+    if spp <= MAX_SPP_PER_RENDER:
+        return np.array(mi.render(mi_scene, integrator=integrator, sensor=sensor, spp=spp, seed=seed),
+                        np.float32)[..., :3]
+    total = None
+    for part, first in enumerate(range(0, spp, MAX_SPP_PER_RENDER)):
+        count = min(MAX_SPP_PER_RENDER, spp - first)
+        image = np.array(mi.render(mi_scene, integrator=integrator, sensor=sensor, spp=count,
+                                   seed=seed if part == 0 else part_seed(seed, part)), np.float64)[..., :3]
+        total = image * count if total is None else total + image * count
+    return (total / spp).astype(np.float32)
+
+
 def worker_address() -> str:
     """The Dask worker running this task, or "local"."""
     # looked up where it is used: Dask is not installed or loaded for local exports
@@ -156,8 +177,7 @@ def _render_task(task: Task) -> tuple[object, dict]:
         width, height = sequence.spec.size
         image = np.array(mi.render(mi_scene, sensor=_sensor(mi_scene, False), spp=1, seed=0), np.float32)
         layers = split_layers(image, GBUFFER_AOVS)
-        beauty = np.array(mi.render(mi_scene, integrator=integrator, sensor=jittered, spp=task.spp,
-                                    seed=task.seed), np.float32)[..., :3]
+        beauty = render_mean(mi_scene, integrator, jittered, task.spp, task.seed)
         world_to_camera, world_to_screen = camera_matrices(scene.camera, width, height, *depth_range(
             scene.camera, layers["position"][layers["id"] >= 0]))
         result = FrameData(beauty, layers["normal"], layers["position"], layers["depth"],
@@ -165,8 +185,7 @@ def _render_task(task: Task) -> tuple[object, dict]:
                            world_to_screen)
         result.albedo = layers["albedo"]  # not in the course's layout; OIDN uses it
     elif task.kind == "batch":
-        result = np.array(mi.render(mi_scene, integrator=integrator, sensor=jittered, spp=task.spp,
-                                    seed=task.seed), np.float32)[..., :3]
+        result = render_mean(mi_scene, integrator, jittered, task.spp, task.seed)
     else:
         raise ValueError(f"unknown task kind {task.kind!r}")
     end = time.perf_counter()
