@@ -38,6 +38,14 @@ import time
 from pathlib import Path
 
 from benchmarks import check_json, write_json
+from core import entry
+from core.entry import ArgumentParser
+from denoise.export.cluster import dask_client
+from denoise.export.runners import export_sequences, sequences_for
+from denoise.export.sequence import RENDER_THREADS
+from denoise.export.spec import Spec
+from denoise.export.tasks import prepare_process
+from renderer.variants import set_variant
 
 ROOT = Path(__file__).resolve().parent.parent
 #: the dataset: two of our sequences (fixed, so that adding a sequence does not change the benchmark)
@@ -50,8 +58,6 @@ def _noop(x: int) -> int:
 
 def _warm(variant: str, threads: int) -> str:
     """Imports the project and sets the variant on a worker (its start-up, not a task's cost)."""
-    from denoise.export.tasks import prepare_process
-
     prepare_process(variant, threads)
     return variant
 
@@ -73,12 +79,6 @@ def round_trip(client, count: int = 40) -> float:
 
 def measure(frames: int, size: tuple[int, int], reference_spp: int, batch_spp: int, workers: int,
             work: Path, spp: int = 1) -> dict:
-    from denoise.export.cluster import dask_client
-    from denoise.export.runners import export_sequences, sequences_for
-    from denoise.export.sequence import RENDER_THREADS
-    from denoise.export.spec import Spec
-    from renderer.variants import set_variant
-
     variant = set_variant(None, quiet=True)
     overrides = dict(frames=frames, size=size, reference_spp=reference_spp, spp=spp)
     specs = [(path.stem, Spec.load(path, **overrides)) for path in SEQUENCES]
@@ -126,8 +126,6 @@ def measure(frames: int, size: tuple[int, int], reference_spp: int, batch_spp: i
 
 
 def main(argv: list[str] | None = None) -> int:
-    from core.entry import ArgumentParser
-
     parser = ArgumentParser(prog="python -m benchmarks.scaleout", description=__doc__.split("\n\n")[0])
     parser.add_argument("--json", type=Path, metavar="PATH")
     parser.add_argument("--frames", type=int, default=4)
@@ -150,6 +148,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    from core import entry
-
     sys.exit(entry.run("python -m benchmarks.scaleout", main))
