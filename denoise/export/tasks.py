@@ -19,6 +19,7 @@ from converters.course_scene import load_scene
 from converters.description import RenderOptions, scene_dict
 from converters.model import Scene
 from converters.scene_variants import with_path_tracer, without_ambient
+from core.entry import hold_signals
 from renderer.variants import set_variant
 
 from ..frames import FrameData, camera_matrices, depth_range
@@ -110,24 +111,33 @@ def _sensor(mi_scene, jitter: bool):
     return next(s for s in mi_scene.sensors() if s.id() == wanted)
 
 
+def render_held(mi_scene, integrator, sensor, spp: int, seed: int) -> np.ndarray:
+    """One ``mi.render`` (``integrator`` None: the scene's) as an (H, W, C)
+    float32 array. Ctrl-C makes Mitsuba cancel a render and return what it
+    has: the signal is held until the render is back and raised then, before
+    that image can be used."""
+    # Mitsuba loads on first use (see prepare_process)
+    import mitsuba as mi
+
+    with hold_signals():
+        image = mi.render(mi_scene, integrator=integrator, sensor=sensor, spp=spp, seed=seed)
+    return np.array(image, np.float32)
+
+
 def render_mean(mi_scene, integrator, sensor, spp: int, seed: int) -> np.ndarray:
     """The (H, W, 3) mean of ``spp`` samples per pixel. Mitsuba's film sums
     a pixel's samples in float32, whose rounding grows with their count, so
     a render accumulates at most :data:`MAX_SPP_PER_RENDER` samples: more are
     split into parts of that many (the first seeded ``seed``, part k
     ``part_seed(seed, k)``), whose means are summed in float64."""
-    # Mitsuba loads on first use (see prepare_process)
-    import mitsuba as mi
-
     if spp <= MAX_SPP_PER_RENDER:
-        return np.array(mi.render(mi_scene, integrator=integrator, sensor=sensor, spp=spp, seed=seed),
-                        np.float32)[..., :3]
+        return render_held(mi_scene, integrator, sensor, spp, seed)[..., :3]
     total = None
     for part, first in enumerate(range(0, spp, MAX_SPP_PER_RENDER)):
         count = min(MAX_SPP_PER_RENDER, spp - first)
-        image = np.array(mi.render(mi_scene, integrator=integrator, sensor=sensor, spp=count,
-                                   seed=seed if part == 0 else part_seed(seed, part)), np.float64)[..., :3]
-        total = image * count if total is None else total + image * count
+        image = render_held(mi_scene, integrator, sensor, count, seed if part == 0 else part_seed(seed, part))
+        image = image[..., :3].astype(np.float64) * count
+        total = image if total is None else total + image
     return (total / spp).astype(np.float32)
 
 
@@ -162,10 +172,7 @@ def run_task(task: Task) -> tuple[object, dict]:
 
 def _render_task(task: Task) -> tuple[object, dict]:
     """Renders one task; returns (its result, its timing)."""
-    # Mitsuba loads on first use (see prepare_process)
-    import mitsuba as mi
-
-    from renderer.job import split_layers
+    from renderer.job import split_layers  # loads Mitsuba: on first use (see prepare_process)
 
     start = time.perf_counter()
     sequence = task.sequence
@@ -175,7 +182,7 @@ def _render_task(task: Task) -> tuple[object, dict]:
     jittered = _sensor(mi_scene, sequence.spec.jitter)
     if task.kind == "frame":
         width, height = sequence.spec.size
-        image = np.array(mi.render(mi_scene, sensor=_sensor(mi_scene, False), spp=1, seed=0), np.float32)
+        image = render_held(mi_scene, None, _sensor(mi_scene, False), 1, 0)
         layers = split_layers(image, GBUFFER_AOVS)
         beauty = render_mean(mi_scene, integrator, jittered, task.spp, task.seed)
         world_to_camera, world_to_screen = camera_matrices(scene.camera, width, height, *depth_range(
