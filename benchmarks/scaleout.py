@@ -6,7 +6,7 @@
 The same small dataset (the sequences in ``scenes/sequences/``, shortened) is
 exported twice: in this process without Dask, and through a ``LocalCluster``
 of ``--workers`` processes with one task each. Every render runs on one Dr.Jit
-thread (:data:`denoise.export.RENDER_THREADS`: Dr.Jit's sums follow the
+thread (:data:`denoise.export.sequence.RENDER_THREADS`: Dr.Jit's sums follow the
 thread count, and the bytes must not), so the in-process export uses one core
 and the cluster's ideal is ``workers`` times faster. Prints and writes (``--json``)::
 
@@ -42,6 +42,14 @@ if __name__ == "__main__" and not __package__:
     sys.path[0] = str(Path(__file__).resolve().parents[1])
 
 from benchmarks import check_json, write_json
+from core import entry
+from core.entry import ArgumentParser
+from denoise.export.cluster import dask_client
+from denoise.export.runners import export_sequences, sequences_for
+from denoise.export.sequence import RENDER_THREADS
+from denoise.export.spec import Spec
+from denoise.export.tasks import prepare_process
+from renderer.variants import set_variant
 
 ROOT = Path(__file__).resolve().parent.parent
 #: the dataset: two of our sequences (fixed, so that adding a sequence does not change the benchmark)
@@ -54,9 +62,7 @@ def _noop(x: int) -> int:
 
 def _warm(variant: str, threads: int) -> str:
     """Imports the project and sets the variant on a worker (its start-up, not a task's cost)."""
-    from denoise.export import _prepare
-
-    _prepare(variant, threads)
+    prepare_process(variant, threads)
     return variant
 
 
@@ -77,10 +83,6 @@ def round_trip(client, count: int = 40) -> float:
 
 def measure(frames: int, size: tuple[int, int], reference_spp: int, batch_spp: int, workers: int,
             work: Path, spp: int = 1) -> dict:
-    from denoise.dataset import dask_client
-    from denoise.export import RENDER_THREADS, Spec, export_sequences, sequences_for
-    from renderer.variants import set_variant
-
     variant = set_variant(None, quiet=True)
     overrides = dict(frames=frames, size=size, reference_spp=reference_spp, spp=spp)
     specs = [(path.stem, Spec.load(path, **overrides)) for path in SEQUENCES]
@@ -128,8 +130,6 @@ def measure(frames: int, size: tuple[int, int], reference_spp: int, batch_spp: i
 
 
 def main(argv: list[str] | None = None) -> int:
-    from core.entry import ArgumentParser
-
     parser = ArgumentParser(prog="python -m benchmarks.scaleout", description=__doc__.split("\n\n")[0])
     parser.add_argument("--json", type=Path, metavar="PATH")
     parser.add_argument("--frames", type=int, default=4)
@@ -152,6 +152,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    from core import entry
-
     sys.exit(entry.run("python -m benchmarks.scaleout", main))

@@ -71,7 +71,7 @@ def halves_look_independent(a: np.ndarray, b: np.ndarray) -> bool:
 
 def test_halves_check_fails_when_seeds_repeat(tmp_path, uninterrupted, monkeypatch):
     """The check above on purpose-broken seeds (batch ignored): the halves come out equal."""
-    import denoise.export as export_module
+    import denoise.export.store as export_module
     from denoise.export import reference_folder
 
     monkeypatch.setattr(export_module, "seed", lambda key, frame, stream, batch=0: 7 + frame)
@@ -224,7 +224,7 @@ def test_interrupted_export_resumes_with_only_the_missing_tasks(tmp_path, uninte
 def test_resume_check_fails_when_finished_batches_are_ignored(tmp_path, monkeypatch):
     """The resume test's count on purpose-broken resuming (every batch redone):
     more than the missing tasks are planned."""
-    import denoise.export as export_module
+    import denoise.export.store as export_module
     from denoise.export import Spec, plan, sequences_for
 
     target = tmp_path / "seq"
@@ -273,7 +273,7 @@ def test_thread_check_fails_without_single_threaded_passes(uninterrupted, monkey
     import drjit as dr
     import mitsuba as mi
 
-    import denoise.export as export_module
+    import denoise.export.tasks as export_module
 
     if not dr.is_jit_v(mi.Float):
         pytest.skip("scalar_rgb renders on one thread whatever the thread count: the mutation cannot show")

@@ -55,7 +55,7 @@ def test_byte_comparison_fails_on_order_dependent_sums(tmp_path, in_process, mon
     change the bytes, so a sum that depended on the order would be caught."""
     import numpy as np
 
-    import denoise.export as export_module
+    import denoise.export.recorder as export_module
     from imaging.image_io import write_exr
 
     def sums_last_first(sequence, frame):

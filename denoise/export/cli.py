@@ -1,0 +1,62 @@
+"""The command line of :mod:`denoise.export`: ``python -m denoise.export``."""
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from core.entry import ArgumentParser, run
+from core.errors import UsageError
+from core.numbers import ascii_int
+from renderer.variants import set_variant
+
+from . import __doc__ as PACKAGE_DOC
+from .runners import export_sequences, sequences_for
+from .sequence import DEFAULT_BATCH_SPP
+from .spec import Spec
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = ArgumentParser(prog="python -m denoise.export", description=PACKAGE_DOC.split("\n\n")[0])
+    parser.add_argument("paths", type=Path, nargs="+", metavar="SPEC.json... OUT",
+                        help="one or more specs, then the output folder")
+    parser.add_argument("--frames", type=ascii_int)
+    parser.add_argument("--size", type=ascii_int, nargs=2, metavar=("W", "H"))
+    parser.add_argument("--spp", type=ascii_int)
+    parser.add_argument("--reference-spp", type=ascii_int)
+    parser.add_argument("--batch-spp", type=ascii_int, default=DEFAULT_BATCH_SPP,
+                        help=f"ground-truth samples per task (default {DEFAULT_BATCH_SPP})")
+    parser.add_argument("--whitted", action="store_true", help="noisy beauty from whitted (jittered), not path")
+    parser.add_argument("--data", type=Path, help="course data folder for course scene names")
+    parser.add_argument("--variant")
+    parser.add_argument("--force", action="store_true", help="start over in folders made with other settings")
+    where = parser.add_mutually_exclusive_group()
+    where.add_argument("--scheduler", metavar="ADDRESS", help="a running Dask scheduler (tcp://host:8786)")
+    where.add_argument("--workers", type=ascii_int, help="local Dask worker processes (default: one per core)")
+    where.add_argument("--local", action="store_true", help="render in this process, without Dask")
+    return parser
+
+
+def _main(argv: list[str] | None) -> int:
+    args = _parser().parse_args(argv)
+    if len(args.paths) < 2:
+        raise UsageError("expected one or more SPEC.json files, then the output folder")
+    *spec_paths, out = args.paths
+    if args.workers is not None and not 1 <= args.workers <= 1024:
+        raise UsageError(f"--workers: expected 1..1024, found {args.workers}")
+    overrides = dict(frames=args.frames, size=tuple(args.size) if args.size else None, spp=args.spp,
+                     reference_spp=args.reference_spp)
+    specs = [(path.stem, Spec.load(path, **overrides)) for path in spec_paths]  # all checked before any work
+    variant = set_variant(args.variant, quiet=True)
+    sequences = sequences_for(specs, out, args.data, args.whitted, args.batch_spp, variant)
+    manifest = out / "dataset.json"
+    done = export_sequences(sequences, args.force, args.scheduler, args.workers, args.local, manifest)
+    for sequence in sequences:
+        print(f"{len(done[sequence.name])} frames rendered into {sequence.target} "
+              f"(ground truth in {sequence.reference})")
+    print(f"manifest: {manifest}")
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m denoise.export``; returns the exit code."""
+    return run("python -m denoise.export", lambda: _main(argv))

@@ -1,0 +1,159 @@
+"""The export's tasks on a Dask distributed cluster.
+
+Every frame is one task (G-buffers and noisy beauty) plus one task per
+ground-truth batch (see :func:`denoise.export.store.plan`). They are submitted as
+Dask futures and collected with ``as_completed``; this process writes each
+result as it arrives (atomically), so only the scene files need to be
+readable on the workers, at the same path. Dask reschedules the tasks of a
+worker that dies; what was written survives an interrupted client, and the
+next run submits only what is missing.
+
+Without a scheduler address a ``LocalCluster`` is started: one worker process
+per core (or ``workers``), one task at a time each. Every render runs on one
+Dr.Jit thread (:data:`denoise.export.sequence.RENDER_THREADS`), so on an existing
+cluster start one single-threaded worker per core:
+``dask worker ADDRESS --nworkers -1 --nthreads 1`` on each machine.
+"""
+from __future__ import annotations
+
+import logging
+import os
+import signal
+import sys
+import threading
+import time
+from contextlib import contextmanager
+from typing import Callable, Iterator
+
+from core.errors import UsageError
+
+from .recorder import Recorder, progress_bar
+from .tasks import Task, run_task
+
+#: seconds between looks for a finished task (and for Ctrl-C)
+POLL_S = 0.05
+
+
+def has_dashboard() -> bool:
+    """Dask serves its dashboard only where bokeh is installed."""
+    try:  # a probe: bokeh is optional
+        import bokeh  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+def dask_setup(worker) -> None:
+    """Dask's preload hook, run in each worker process of our LocalCluster as
+    it starts: the process leaves the terminal's process group, so that Ctrl-C
+    reaches the export alone, which then stops the cluster (in the group every
+    worker would print a traceback, and Mitsuba its warning on stdout)."""
+    os.setpgid(0, 0)
+
+
+@contextmanager
+def dask_client(scheduler: str | None = None, workers: int | None = None) -> Iterator[tuple[object, int | None]]:
+    """(a Dask client, the Dr.Jit thread count each worker should use)."""
+    from distributed import Client, LocalCluster  # Dask loads only for cluster exports
+
+    cluster = None
+    if scheduler:
+        try:
+            client = Client(scheduler, timeout="15s")
+        except (OSError, TimeoutError) as error:
+            raise UsageError(f"--scheduler {scheduler}: cannot reach a Dask scheduler there ({error})") from None
+        threads = None
+    else:
+        cores = os.cpu_count() or 1
+        workers = workers or cores
+        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                               dashboard_address=":0", silence_logs=logging.ERROR, preload=[__name__])
+        client = Client(cluster)
+        threads = max(1, cores // workers)
+    try:
+        yield client, threads
+    except BaseException:
+        # interrupted or failed: the user gets one line from the command, not the
+        # errors Dask logs while it drops the cancelled work and shuts down
+        for name in ("distributed", "tornado", "asyncio"):
+            logging.getLogger(name).setLevel(logging.CRITICAL)
+        raise
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()
+
+
+@contextmanager
+def deferred_signals() -> Iterator[Callable[[], None]]:
+    """Within it, SIGINT and SIGTERM are only noted; the function it yields
+    raises a noted one (through its previous handler: KeyboardInterrupt for
+    Ctrl-C) where it is called. Raised wherever the main thread happened to
+    be, the exception could land in one of Dask's finalizers, which swallow it,
+    and the export would go on."""
+    noted: list[int] = []
+    previous = {}
+    if threading.current_thread() is threading.main_thread():
+        for signum in (signal.SIGINT, signal.SIGTERM):
+            handler = signal.getsignal(signum)
+            if handler is not signal.SIG_IGN:
+                previous[signum] = signal.signal(signum, lambda number, frame: noted.append(number))
+
+    def restore() -> None:
+        for number, handler in previous.items():
+            signal.signal(number, handler)
+        previous.clear()
+
+    def raise_noted() -> None:
+        if not noted:
+            return
+        handler = previous.get(noted[0], signal.SIG_DFL)
+        restore()
+        if callable(handler):
+            handler(noted[0], None)  # the command's handlers raise
+        else:
+            os.kill(os.getpid(), noted[0])  # the default action: ends the process
+
+    try:
+        yield raise_noted
+    finally:
+        restore()
+
+
+def run_futures(client, tasks: list[Task], recorder: Recorder, after_task: Callable[[Task], None] | None = None,
+                total_frames: int = 0) -> None:
+    """Submits ``tasks`` (earlier frames first) and records results as they complete."""
+    from distributed import as_completed  # Dask loads only for cluster exports
+
+    futures = {}
+    for order, task in enumerate(tasks):
+        future = client.submit(run_task, task, key=task.name, priority=len(tasks) - order)
+        futures[future] = task
+    try:
+        with deferred_signals() as raise_noted, progress_bar(len(tasks), total_frames) as bar:
+            completed = as_completed(futures, with_results=True)
+            while not completed.is_empty():
+                raise_noted()
+                if not completed.has_ready():
+                    time.sleep(POLL_S)
+                    continue
+                future, (result, timing) = next(completed)
+                task = futures.pop(future)
+                recorder.record(task, result, timing)
+                bar.update()
+                bar.set_postfix(frames=f"{recorder.frames_done()}/{total_frames}", refresh=False)
+                if after_task:
+                    after_task(task)
+            raise_noted()
+    finally:
+        if futures:  # interrupted: the cluster stops working for us
+            client.cancel(list(futures))
+
+
+def cluster_description(client, scheduler: str | None = None) -> dict:
+    """What the manifest records about the cluster (and the dashboard's link, on stderr)."""
+    info = client.scheduler_info()
+    if has_dashboard():
+        print(f"denoise.export: Dask dashboard at {client.dashboard_link}", file=sys.stderr)
+    return {"runner": "dask", "scheduler": scheduler or info.get("address"),
+            "workers": len(info.get("workers", {}))}

@@ -1,0 +1,121 @@
+"""Crash-safe files for the export: every file appears complete or not at all,
+stale staging files are recognised, and one export at a time holds a folder.
+
+A kill at any instant (``kill -9``, a power cut after the fsyncs) leaves each
+file either absent, as it was, or complete under its final name: it is
+written under a staging name beside it, flushed to disk, renamed into place,
+and the folder flushed. What a kill leaves behind is a staging file, which
+the next run removes (:func:`remove_staging`).
+"""
+from __future__ import annotations
+
+import fcntl
+import os
+import re
+from contextlib import ExitStack, contextmanager
+from pathlib import Path
+from typing import Callable, Iterator
+
+from core.errors import OutputError
+
+#: ends the name of a file being written (``.beauty_0.exr.partial``)
+STAGING = ".partial"
+#: the lock file an export holds in each folder it writes
+LOCK_NAME = ".export.lock"
+#: a staging file, or the temporary file ``imaging.image_io.atomic_path`` makes
+#: beside a target (``.NAME.1a2b3c4d.exr``), of a file the export writes
+_STAGED = re.compile(r"\.\.?(?:beauty|normal|position|depth|ID|albedo|matrix|half_a|half_b|batch|sequence|dataset)"
+                     r"[\w.]*?(?:\.partial(?:\.[0-9a-f]{8}\.\w+)?|\.[0-9a-f]{8}\.\w+)")
+
+
+def _fsync(path: Path, flags: int = os.O_RDONLY) -> None:
+    descriptor = os.open(path, flags)
+    try:
+        os.fsync(descriptor)
+    finally:
+        os.close(descriptor)
+
+
+def publish(path: Path, write: Callable[[Path], None]) -> None:
+    """Writes ``path`` crash-safely: ``write(staging)`` fills a staging file
+    beside it, which is flushed, renamed to ``path``, and the folder flushed.
+    A failure removes the staging file, keeps an earlier ``path`` and is an
+    :class:`OutputError` naming ``path``."""
+    path = Path(path)
+    staging = path.with_name(f".{path.name}{STAGING}")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        write(staging)
+        _fsync(staging)
+        os.replace(staging, path)
+        _fsync(path.parent, os.O_RDONLY | os.O_DIRECTORY)
+    except BaseException as error:
+        staging.unlink(missing_ok=True)
+        if isinstance(error, OSError):
+            raise OutputError(f"{path}: cannot write: {error.strerror or error}") from None
+        raise
+
+
+def is_staging(name: str) -> bool:
+    """A file name that only a write the export did not finish leaves."""
+    return _STAGED.fullmatch(name) is not None
+
+
+def remove_staging(folder: Path) -> list[Path]:
+    """Removes the staging files an interrupted export left in ``folder``; returns them."""
+    if not folder.is_dir():
+        return []
+    stale = [p for p in folder.iterdir() if p.is_file() and is_staging(p.name)]
+    for path in stale:
+        path.unlink(missing_ok=True)
+    return stale
+
+
+class FolderBusy(OutputError):
+    """Another export holds a folder's lock."""
+
+
+def _lock(folder: Path) -> int:
+    """The descriptor of ``folder``'s lock file, locked; raises :class:`FolderBusy`."""
+    path = folder / LOCK_NAME
+    while True:
+        try:
+            folder.mkdir(parents=True, exist_ok=True)
+            descriptor = os.open(path, os.O_RDWR | os.O_CREAT, 0o666)
+        except OSError as error:
+            raise OutputError(f"{folder}: cannot write there: {error.strerror or error}") from None
+        try:
+            fcntl.flock(descriptor, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            os.close(descriptor)
+            raise FolderBusy(f"{folder}: another export is writing into this folder; wait for it to "
+                             f"finish, or export into another folder") from None
+        try:
+            if os.stat(path).st_ino == os.fstat(descriptor).st_ino:
+                return descriptor
+        except FileNotFoundError:
+            pass
+        os.close(descriptor)  # the holder removed that file as it finished: lock the new one
+
+
+def _unlock(folder: Path, descriptor: int) -> None:
+    """Removes the lock file while still holding it (so that no one waits on a
+    file no one else sees), then releases it."""
+    try:
+        (folder / LOCK_NAME).unlink(missing_ok=True)
+    finally:
+        os.close(descriptor)
+
+
+@contextmanager
+def locked(folders: list[Path]) -> Iterator[None]:
+    """Holds the export's lock (``flock`` on :data:`LOCK_NAME`) in every folder
+    of ``folders`` (made where missing); raises :class:`FolderBusy` naming the
+    first folder another process holds. The lock file goes when the export
+    ends; the lock itself goes with its process, however it ends (a lock file
+    a killed export left behind locks nothing)."""
+    with ExitStack() as stack:
+        for folder in sorted({Path(f).absolute() for f in folders}):
+            descriptor = _lock(folder)
+            stack.callback(_unlock, folder, descriptor)
+        yield

@@ -1,0 +1,128 @@
+"""Running an export: the sequences of a dataset checked and claimed, their
+missing tasks run in this process or on Dask, the manifest written."""
+from __future__ import annotations
+
+import time
+from pathlib import Path
+from typing import Callable
+
+from core.errors import SpecError
+from course import data_dir, resolve_scene
+
+from .cluster import cluster_description, dask_client, run_futures
+from .recorder import Recorder, progress_bar
+from .sequence import DEFAULT_BATCH_SPP, Sequence
+from .spec import MAX_SAMPLES_PER_RENDER, MAX_SPP, Spec
+from .files import locked, remove_staging
+from .store import check_folder, claim_folder, plan, recover
+from .tasks import Task, course_scene, run_task
+
+
+def run_local(tasks: list[Task], recorder: Recorder, after_task: Callable[[Task], None] | None = None,
+              total_frames: int = 0) -> None:
+    """Runs ``tasks`` one after the other in this process (no Dask)."""
+    with progress_bar(len(tasks), total_frames) as bar:
+        for task in tasks:
+            result, timing = run_task(task)
+            recorder.record(task, result, timing)
+            bar.update()
+            bar.set_postfix(frames=f"{recorder.frames_done()}/{total_frames}", refresh=False)
+            if after_task:
+                after_task(task)
+
+
+def sequences_for(specs: list[tuple[str, Spec]], out: Path, data: Path | None = None, whitted: bool = False,
+                  batch_spp: int = DEFAULT_BATCH_SPP, variant: str | None = None) -> list[Sequence]:
+    """One :class:`Sequence` per (name, spec); one spec writes ``out`` itself,
+    several write ``out/<name>``. Scenes are loaded and checked here, before any work."""
+    # Mitsuba loads on first use: the command chooses the libLLVM before Dr.Jit starts
+    import mitsuba as mi
+
+    if batch_spp < 1 or batch_spp > MAX_SPP:
+        raise SpecError(f"--batch-spp: expected 1..{MAX_SPP}, found {batch_spp}")
+    names = [name for name, _ in specs]
+    twice = sorted({n for n in names if names.count(n) > 1})
+    if twice:
+        raise SpecError(f"two specs named {', '.join(twice)} would share one folder; rename one")
+    result = []
+    for name, spec in specs:
+        spec.check(name)
+        width, height = spec.size
+        if width * height * min(batch_spp, spec.reference_spp // 2) > MAX_SAMPLES_PER_RENDER:
+            raise SpecError(f"{name}: {width}x{height} at {batch_spp} spp per batch is more than "
+                            f"{MAX_SAMPLES_PER_RENDER} samples in one render; lower --batch-spp")
+        path = resolve_scene(spec.scene, data_dir(data)).resolve()
+        spec.check_scene(course_scene(str(path)), name)
+        target = out if len(specs) == 1 else out / name
+        result.append(Sequence(name, spec, str(path), str(target), batch_spp, whitted, variant or mi.variant()))
+    check_distinct_folders(result)
+    return result
+
+
+def check_distinct_folders(sequences: list[Sequence]) -> None:
+    """Raises :class:`SpecError` where one sequence's frame or ground-truth
+    folder is another's (a spec named ``a_reference`` beside ``a``)."""
+    owners: dict[Path, tuple[str, str, Path]] = {}
+    for sequence in sequences:
+        for role, folder in (("frame folder", Path(sequence.target)), ("ground truth", sequence.reference)):
+            other = owners.setdefault(folder.resolve(), (sequence.name, role, folder))
+            if other[0] != sequence.name:
+                raise SpecError(f"{folder}: would be both {other[0]}'s {other[1]} and {sequence.name}'s {role}; "
+                                f"rename one of the specs")
+
+
+def export_sequences(sequences: list[Sequence], force: bool = False, scheduler: str | None = None,
+                     workers: int | None = None, local: bool = False, manifest: Path | None = None,
+                     after_task: Callable[[Task], None] | None = None, client=None,
+                     threads: int | None = None) -> dict[str, list[int]]:
+    """Renders what is missing of ``sequences`` (in this process with ``local``,
+    else on Dask: ``client``, a scheduler address or a new LocalCluster of
+    ``workers``); returns the indices of the frames that had work done, per
+    sequence name. ``threads``: Dr.Jit threads per process that runs tasks.
+    Folders that refuse the sequences are refused before anything is written;
+    while it runs the export holds every folder's lock."""
+    if not force:
+        for sequence in sequences:
+            check_folder(sequence)
+    with locked([folder for s in sequences for folder in (Path(s.target), s.reference)]):
+        for sequence in sequences:
+            claim_folder(sequence, force)
+            recover(sequence)
+        if manifest is not None:
+            remove_staging(manifest.parent)
+        if local or client is not None:
+            return _run(sequences, manifest, after_task, client, threads)
+        with dask_client(scheduler, workers) as (client, threads):
+            return _run(sequences, manifest, after_task, client, threads, scheduler or "LocalCluster")
+
+
+def _run(sequences: list[Sequence], manifest: Path | None, after_task, client, threads,
+         scheduler: str | None = None) -> dict[str, list[int]]:
+    """Runs the missing tasks of claimed ``sequences``; writes the manifest."""
+    recorder = Recorder(sequences, manifest)
+    frames = sum(s.spec.frames for s in sequences)
+    tasks = [t for s in sequences for t in plan(s, threads)]
+    extra: dict = {"started": recorder.run_id, "tasks": len(tasks), "drjit_threads": threads}
+    start = time.perf_counter()
+    try:
+        if client is None:
+            extra.update(runner="local")
+            run_local(tasks, recorder, after_task, frames)
+        else:
+            extra.update(cluster_description(client, scheduler))
+            run_futures(client, tasks, recorder, after_task, frames)
+    finally:
+        extra["wall_s"] = round(time.perf_counter() - start, 3)
+        recorder.write(extra)
+    return {name: sorted(frames) for name, frames in recorder.rendered.items()}
+
+
+def export(spec: Spec, target: Path, data: Path | None = None, whitted: bool = False, force: bool = False,
+           batch_spp: int = DEFAULT_BATCH_SPP, **where) -> list[int]:
+    """Renders the missing frames of one sequence into ``target`` in this
+    process (``where``: ``scheduler=``/``workers=`` for Dask); returns their indices."""
+    where.setdefault("local", not where.get("scheduler") and not where.get("workers"))
+    target = Path(target)
+    sequences = sequences_for([(target.name, spec)], target, data, whitted, batch_spp)
+    done = export_sequences(sequences, force, manifest=target / "dataset.json", **where)
+    return done[target.name]

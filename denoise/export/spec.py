@@ -1,0 +1,226 @@
+"""The sequence spec: its schema, and the checks that refuse a bad one before any work.
+
+Every problem is a :class:`SpecError` naming the file and the key
+(``spec.json: camera.dolly: expected a finite number, found nan``).
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import re
+from pathlib import Path
+
+from converters.model import DirectionalLight, PointLight, Scene
+from core.errors import SpecError
+
+# Limits: Mitsuba indexes one render's samples with 32-bit integers
+MAX_SIDE = 16384
+MAX_SAMPLES_PER_RENDER = 2 ** 31
+MAX_FRAMES = 100_000
+MAX_SPP = 1 << 20
+MAX_BOUNCES = 64
+
+
+def _key_in(source: str, key: str) -> str:
+    """Where a problem is: ``source: key`` (the key alone without a source)."""
+    return f"{source}: {key}" if source else key
+
+
+def _int(value, name: str, source: str, low: int, high: int) -> int:
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise SpecError(f"{_key_in(source, name)}: expected an integer, found {value!r}")
+    if not low <= value <= high:
+        raise SpecError(f"{_key_in(source, name)}: expected {low}..{high}, found {value}")
+    return value
+
+
+def _number(value, name: str, source: str) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) \
+            or abs(value) > 1e30:
+        raise SpecError(f"{_key_in(source, name)}: expected a finite number, found {value!r}")
+    return float(value)
+
+
+def _vector(value, name: str, source: str) -> list[float]:
+    if not isinstance(value, (list, tuple)) or len(value) != 3:
+        raise SpecError(f"{_key_in(source, name)}: expected [x, y, z], found {value!r}")
+    return [_number(v, f"{name}[{k}]", source) for k, v in enumerate(value)]
+
+
+def _bool(value, name: str, source: str) -> bool:
+    if not isinstance(value, bool):
+        raise SpecError(f"{_key_in(source, name)}: expected true or false, found {value!r}")
+    return value
+
+
+def _keys(value, name: str, source: str, known: set[str]) -> dict:
+    if not isinstance(value, dict):
+        raise SpecError(f"{_key_in(source, name)}: expected an object, found {value!r}")
+    unknown = set(value) - known
+    if unknown:
+        raise SpecError(f"{_key_in(source, name)}: unknown keys {', '.join(sorted(unknown))} "
+                        f"(known: {', '.join(sorted(known))})")
+    return value
+
+
+@dataclasses.dataclass(frozen=True)
+class Spec:
+    scene: str
+    frames: int = 8
+    size: tuple[int, int] = (1280, 720)
+    spp: int = 1
+    reference_spp: int = 256
+    bounces: int = 3
+    shadows: bool = True
+    jitter: bool = True  # sub-pixel sample positions (false: pixel centres, like the G-buffers)
+    seed: int = 0
+    camera: dict = dataclasses.field(default_factory=dict)
+    objects: dict = dataclasses.field(default_factory=dict)
+    lights: dict = dataclasses.field(default_factory=dict)
+
+    @staticmethod
+    def load(path: Path, **overrides) -> "Spec":
+        """The spec in ``path`` with ``overrides`` (None: keep), checked (:class:`SpecError`)."""
+        path = Path(path)
+        try:
+            data = json.loads(path.read_text())
+        except json.JSONDecodeError as error:
+            raise SpecError(f"{path}:{error.lineno}:{error.colno}: {error.msg}") from None
+        if not isinstance(data, dict):
+            raise SpecError(f"{path}: expected a JSON object, found {type(data).__name__}")
+        data.update({k: v for k, v in overrides.items() if v is not None})
+        return Spec.from_dict(data, str(path))
+
+    @staticmethod
+    def from_dict(data: dict, source: str = "spec") -> "Spec":
+        if not isinstance(data, dict):
+            raise SpecError(f"{source}: expected an object, found {data!r}")
+        known = {f.name for f in dataclasses.fields(Spec)}
+        unknown = set(data) - known
+        if unknown:
+            raise SpecError(f"{source}: unknown keys {', '.join(sorted(unknown))} (known: {', '.join(sorted(known))})")
+        if "scene" not in data:
+            raise SpecError(f"{source}: no \"scene\" (a scene name or .txt path)")
+        data = dict(data)
+        if "size" in data:
+            size = data["size"]
+            if not isinstance(size, (list, tuple)) or len(size) != 2:
+                raise SpecError(f"{_key_in(source, 'size')}: expected [width, height], found {size!r}")
+            data["size"] = tuple(size)
+        spec = Spec(**data)
+        spec.check(source)
+        return spec
+
+    def check(self, source: str = "spec") -> None:
+        """Raises :class:`SpecError` for anything out of range, before any work."""
+        if not isinstance(self.scene, str) or not self.scene:
+            raise SpecError(f"{_key_in(source, 'scene')}: expected a scene name or path, found {self.scene!r}")
+        _int(self.frames, "frames", source, 1, MAX_FRAMES)
+        if not isinstance(self.size, (list, tuple)) or len(self.size) != 2:
+            raise SpecError(f"{_key_in(source, 'size')}: expected [width, height], found {self.size!r}")
+        width = _int(self.size[0], "size[0] (width)", source, 1, MAX_SIDE)
+        height = _int(self.size[1], "size[1] (height)", source, 1, MAX_SIDE)
+        spp = _int(self.spp, "spp", source, 1, MAX_SPP)
+        reference = _int(self.reference_spp, "reference_spp", source, 2, MAX_SPP)
+        if reference % 2:
+            raise SpecError(f"{_key_in(source, 'reference_spp')}: expected an even number (two equal halves "
+                            f"estimate the reference's noise), found {reference}")
+        if width * height * spp > MAX_SAMPLES_PER_RENDER:
+            raise SpecError(f"{_key_in(source, 'spp')}: {width}x{height} at {spp} spp is more than "
+                            f"{MAX_SAMPLES_PER_RENDER} samples in one render")
+        _int(self.bounces, "bounces", source, 0, MAX_BOUNCES)
+        _bool(self.shadows, "shadows", source)
+        _bool(self.jitter, "jitter", source)
+        _int(self.seed, "seed", source, 0, 2 ** 31 - 1)
+        camera = _keys(self.camera, "camera", source, {"orbit", "dolly", "pan"})
+        if "orbit" in camera:
+            orbit = _keys(camera["orbit"], "camera.orbit", source, {"center", "degrees"})
+            if "degrees" not in orbit:
+                raise SpecError(f"{_key_in(source, 'camera.orbit')}: no \"degrees\"")
+            _number(orbit["degrees"], "camera.orbit.degrees", source)
+            if "center" in orbit:
+                _vector(orbit["center"], "camera.orbit.center", source)
+        if "dolly" in camera:
+            _number(camera["dolly"], "camera.dolly", source)
+        if "pan" in camera:
+            _vector(camera["pan"], "camera.pan", source)
+        if not isinstance(self.objects, dict):
+            raise SpecError(f"{_key_in(source, 'objects')}: expected an object, found {self.objects!r}")
+        for key, move in self.objects.items():
+            name = f"objects.{key}"
+            if not re.fullmatch(r"\d{1,9}", str(key)):
+                raise SpecError(f"{_key_in(source, name)}: expected an object index (0, 1, ...), found {key!r}")
+            move = _keys(move, name, source, {"translate", "rotate"})
+            if "translate" in move:
+                _vector(move["translate"], f"{name}.translate", source)
+            if "rotate" in move:
+                rotate = _keys(move["rotate"], f"{name}.rotate", source, {"axis", "degrees"})
+                if "axis" not in rotate or "degrees" not in rotate:
+                    raise SpecError(f"{_key_in(source, name + '.rotate')}: expected \"axis\" and \"degrees\"")
+                if not any(_vector(rotate["axis"], f"{name}.rotate.axis", source)):
+                    raise SpecError(f"{_key_in(source, name + '.rotate.axis')}: expected a non-zero axis")
+                _number(rotate["degrees"], f"{name}.rotate.degrees", source)
+
+        self._check_lights(source)
+
+    def _check_lights(self, source: str) -> None:
+        if not isinstance(self.lights, dict):
+            raise SpecError(f"{_key_in(source, 'lights')}: expected an object, found {self.lights!r}")
+        for key, change in self.lights.items():
+            name = f"lights.{key}"
+            if not re.fullmatch(r"\d{1,9}", str(key)):
+                raise SpecError(f"{_key_in(source, name)}: expected a light index (0, 1, ...), found {key!r}")
+            change = _keys(change, name, source, {"translate", "rotate", "scale", "frames"})
+            if "translate" in change:
+                _vector(change["translate"], f"{name}.translate", source)
+            if "rotate" in change:
+                rotate = _keys(change["rotate"], f"{name}.rotate", source, {"axis", "degrees"})
+                if "axis" not in rotate or "degrees" not in rotate:
+                    raise SpecError(f"{_key_in(source, name + '.rotate')}: expected \"axis\" and \"degrees\"")
+                if not any(_vector(rotate["axis"], f"{name}.rotate.axis", source)):
+                    raise SpecError(f"{_key_in(source, name + '.rotate.axis')}: expected a non-zero axis")
+                _number(rotate["degrees"], f"{name}.rotate.degrees", source)
+            if "scale" in change and _number(change["scale"], f"{name}.scale", source) < 0:
+                raise SpecError(f"{_key_in(source, name + '.scale')}: expected a factor >= 0 for the light's "
+                                f"colour, found {change['scale']}")
+            if "frames" in change:
+                frames = change["frames"]
+                if not isinstance(frames, (list, tuple)) or len(frames) != 2:
+                    raise SpecError(f"{_key_in(source, name + '.frames')}: expected [first, last], found {frames!r}")
+                last = self.frames - 1
+                first = _int(frames[0], f"{name}.frames[0]", source, 0, last)
+                end = _int(frames[1], f"{name}.frames[1]", source, 0, last)
+                if end <= first:
+                    raise SpecError(f"{_key_in(source, name + '.frames')}: expected a first frame before the "
+                                    f"last, found {list(frames)}")
+
+    def check_scene(self, scene: Scene, source: str = "spec") -> None:
+        """The object and light indices the spec moves exist in ``scene``, and
+        each light's change suits its kind (a point light moves, a directional one turns)."""
+        for key in self.objects:
+            if int(key) >= len(scene.objects):
+                raise SpecError(f"{_key_in(source, f'objects.{key}')}: object {int(key)} does not exist "
+                                f"(the scene has {len(scene.objects)}: 0..{len(scene.objects) - 1})")
+        for key, change in self.lights.items():
+            k = int(key)
+            if k >= len(scene.lights):
+                have = f"0..{len(scene.lights) - 1}" if scene.lights else "no lights"
+                raise SpecError(f"{_key_in(source, f'lights.{key}')}: light {k} does not exist "
+                                f"(the scene has {len(scene.lights)}: {have})")
+            light = scene.lights[k]
+            if "translate" in change and not isinstance(light, PointLight):
+                raise SpecError(f"{_key_in(source, f'lights.{key}.translate')}: light {k} is a directional light, "
+                                f"which has no position (turn it with \"rotate\")")
+            if "rotate" in change and not isinstance(light, DirectionalLight):
+                raise SpecError(f"{_key_in(source, f'lights.{key}.rotate')}: light {k} is a point light, "
+                                f"which has no direction (move it with \"translate\")")
+
+    def as_json(self) -> dict:
+        """The spec as recorded in ``sequence.json`` (and hashed into the seeds):
+        without ``lights`` when no light changes, as before lights could."""
+        data = dataclasses.asdict(self)
+        data["size"] = list(self.size)
+        if not data["lights"]:
+            del data["lights"]
+        return data

@@ -1,0 +1,219 @@
+"""The folders of an export: what is done, claiming and resuming them, and
+writing results into them.
+
+A sequence writes its frames into ``target`` and its ground truth into
+``target_reference``; reference batches wait in ``target_reference/.batches``
+until a frame's last one is in, and are then summed (in batch order, in
+float64) into the halves and the reference. ``target/sequence.json`` records
+the settings: an export with other settings is refused.
+
+Every file is written crash-safely (:func:`denoise.export.files.publish`), and
+the file that marks a part complete is written last: ``matrix_i.mat`` for a
+frame's buffers, ``beauty_i.exr`` for its reference (after both halves). So
+after a kill at any instant a rerun (:func:`recover`, then :func:`plan`)
+ends with the bytes of an uninterrupted run.
+"""
+from __future__ import annotations
+
+import json
+import re
+import shutil
+from pathlib import Path
+
+import numpy as np
+
+from core.errors import SpecError
+from imaging.image_io import write_exr
+
+from ..frames import BUFFERS, FrameData, write_matrices
+from .files import publish, remove_staging
+from .sequence import Sequence, reference_folder, seed
+from .tasks import Task
+
+
+def batch_path(sequence: Sequence, frame: int, batch: int) -> Path:
+    """Where a reference batch waits until its frame's batches are all in."""
+    return sequence.reference / ".batches" / f"{frame}" / f"batch_{batch}.npy"
+
+
+def frame_done(target: Path, index: int) -> bool:
+    """The frame's buffers are written (not its reference); ``matrix_i.mat`` comes last."""
+    files = [target / f"{name}_{index}.exr" for name in BUFFERS] + [target / f"matrix_{index}.mat",
+                                                                   target / f"albedo_{index}.exr"]
+    return all(f.exists() for f in files)
+
+
+REFERENCE_FILES = ("beauty", "half_a", "half_b")
+
+
+def reference_done(target: Path, index: int) -> bool:
+    """The frame's reference and both its halves are written; ``beauty_i.exr`` comes last."""
+    return all((reference_folder(target) / f"{name}_{index}.exr").exists() for name in REFERENCE_FILES)
+
+
+def _json_bytes(data) -> bytes:
+    return (json.dumps(data, indent=2, sort_keys=True) + "\n").encode()
+
+
+def write_record(path: Path, data) -> None:
+    """Writes ``data`` as sorted, indented JSON (crash-safely)."""
+    publish(path, lambda staging: staging.write_bytes(_json_bytes(data)))
+
+
+def write_frame_files(target: Path, index: int, frame: FrameData) -> None:
+    """Writes one frame's buffers in the course's layout (and ``albedo_i.exr``),
+    ``matrix_i.mat`` last: its presence marks the frame complete."""
+    for name, data in (("beauty", frame.beauty), ("normal", frame.normal), ("position", frame.position),
+                       ("depth", frame.depth), ("ID", frame.ids.astype(np.float32)), ("albedo", frame.albedo)):
+        publish(target / f"{name}_{index}.exr", lambda staging, data=data: write_exr(staging, {"": data}))
+    publish(target / f"matrix_{index}.mat", lambda staging: write_matrices(
+        staging, frame.object_to_world, frame.world_to_camera, frame.world_to_screen))
+
+
+def _our_files(sequence: Sequence) -> list[Path]:
+    target, reference = Path(sequence.target), sequence.reference
+    names = "|".join(BUFFERS + ("albedo",))
+    found = []
+    if target.is_dir():
+        found += [p for p in target.iterdir() if re.fullmatch(rf"(?:{names})_\d+\.exr|matrix_\d+\.mat", p.name)]
+    if reference.is_dir():
+        found += [p for p in reference.iterdir() if re.fullmatch(r"(?:beauty|half_a|half_b)_\d+\.exr", p.name)]
+    return found
+
+
+def start_over(sequence: Sequence) -> None:
+    """``--force``: removes what an earlier export wrote (only files we name)."""
+    for path in _our_files(sequence):
+        path.unlink()
+    shutil.rmtree(sequence.reference / ".batches", ignore_errors=True)
+    (Path(sequence.target) / "sequence.json").unlink(missing_ok=True)
+
+
+def _differences(old: dict, new: dict, prefix: str = "") -> list[str]:
+    found = []
+    for key in sorted(set(old) | set(new)):
+        a, b = old.get(key), new.get(key)
+        if isinstance(a, dict) and isinstance(b, dict):
+            found += _differences(a, b, f"{prefix}{key}.")
+        elif a != b:
+            found.append(f"{prefix}{key} {json.dumps(a)} -> {json.dumps(b)}")
+    return found
+
+
+def _comparable(settings: dict, other: dict) -> dict:
+    """``settings`` as compared with ``other``: without the scene's path (a
+    checkout elsewhere, e.g. another git worktree, holds the same scene under
+    another path) but with its content's hash where both record one, and its
+    samples per render where they matter."""
+    settings = {k: v for k, v in settings.items() if k != "scene_file"}
+    if "scene_sha256" not in other:
+        settings.pop("scene_sha256", None)
+    # a folder from before passes were split renders the same while no pass is split
+    if "spp_per_render" not in other and "spp_per_render" in settings:
+        if max([settings["spp"], *settings["batches"]]) <= settings["spp_per_render"]:
+            settings.pop("spp_per_render")
+    return settings
+
+
+def check_folder(sequence: Sequence) -> None:
+    """Raises :class:`SpecError` unless ``sequence`` may write into its folders:
+    they are new, or were made with the same settings. Writes nothing."""
+    target = Path(sequence.target)
+    record = target / "sequence.json"
+    settings = sequence.settings()
+    if record.exists():
+        try:
+            old = json.loads(record.read_text())
+        except json.JSONDecodeError:
+            old = {"unreadable": True}
+        if _comparable(old, settings) != _comparable(settings, old):
+            changed = _differences(_comparable(old, settings), _comparable(settings, old))
+            raise SpecError(f"{target}: made with other settings ({'; '.join(changed[:4])}"
+                            f"{'; ...' if len(changed) > 4 else ''}); use --force to start over, or another folder")
+    elif _our_files(sequence):
+        folders = sorted({path.parent for path in _our_files(sequence)})
+        if folders == [sequence.reference]:
+            raise SpecError(f"{sequence.reference}: holds ground truth, but its frame folder {target} has no "
+                            f"sequence.json (made by an older export or by hand); use --force to start over, "
+                            f"or another folder")
+        raise SpecError(f"{target}: holds frames without a sequence.json (made by an older export or by hand); "
+                        f"use --force to start over, or another folder")
+
+
+def claim_folder(sequence: Sequence, force: bool = False) -> None:
+    """Checks that ``sequence`` may write into its folders (:func:`check_folder`;
+    ``force``: removes what an earlier export wrote instead) and records its settings there."""
+    if force:
+        start_over(sequence)
+    check_folder(sequence)
+    record = Path(sequence.target) / "sequence.json"
+    if not record.exists():
+        write_record(record, sequence.settings())
+
+
+def recover(sequence: Sequence) -> None:
+    """Finishes what an interrupted export left: removes its staging files,
+    sums the frames whose batches are all in, removes the batches of frames
+    whose reference is written."""
+    target = Path(sequence.target)
+    batches = sequence.reference / ".batches"
+    for folder in (target, sequence.reference, *(sorted(batches.iterdir()) if batches.is_dir() else [])):
+        remove_staging(folder)
+    for frame in range(sequence.spec.frames):
+        if reference_done(target, frame):
+            shutil.rmtree(batches / f"{frame}", ignore_errors=True)
+        else:
+            assemble_reference(sequence, frame)
+    try:
+        batches.rmdir()  # once no frame waits
+    except OSError:
+        pass
+
+
+def plan(sequence: Sequence, threads: int | None = None) -> list[Task]:
+    """The tasks still to do for ``sequence``, frame by frame."""
+    target = Path(sequence.target)
+    tasks = []
+    key = sequence.key
+    for frame in range(sequence.spec.frames):
+        if not frame_done(target, frame):
+            tasks.append(Task(sequence, frame, "frame", spp=sequence.spec.spp, seed=seed(key, frame, "noisy"),
+                              threads=threads))
+        if reference_done(target, frame):
+            continue
+        for batch, (_, spp) in enumerate(sequence.batches()):
+            if not batch_path(sequence, frame, batch).exists():
+                tasks.append(Task(sequence, frame, "batch", batch, spp, seed(key, frame, "reference", batch), threads))
+    return tasks
+
+
+def save_batch(path: Path, image: np.ndarray) -> None:
+    """Writes one reference batch's mean (float32 .npy, crash-safely)."""
+    def write(staging: Path) -> None:
+        with open(staging, "wb") as file:
+            np.save(file, np.ascontiguousarray(image, np.float32))
+
+    publish(path, write)
+
+
+def assemble_reference(sequence: Sequence, frame: int) -> bool:
+    """Sums a frame's batches (all present) into its halves and reference, in
+    batch order, the reference last; removes the batches. False when a batch is still missing."""
+    paths = [batch_path(sequence, frame, b) for b in range(len(sequence.batches()))]
+    if not all(p.exists() for p in paths):
+        return False
+    half_spp = sequence.spec.reference_spp // 2
+    halves = {}
+    for (half, spp), path in zip(sequence.batches(), paths):
+        image = np.load(path).astype(np.float64) * (spp / half_spp)
+        halves[half] = image if half not in halves else halves[half] + image
+    folder = sequence.reference
+    for name, image in (("half_a", halves["a"]), ("half_b", halves["b"]), ("beauty", (halves["a"] + halves["b"]) / 2)):
+        publish(folder / f"{name}_{frame}.exr", lambda staging, image=image: write_exr(
+            staging, {"": image.astype(np.float32)}))
+    shutil.rmtree(paths[0].parent, ignore_errors=True)
+    try:
+        paths[0].parent.parent.rmdir()  # .batches, once no frame waits
+    except OSError:
+        pass
+    return True
