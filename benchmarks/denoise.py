@@ -73,12 +73,18 @@ BASELINE = "oidn-high"
 #: the hard sequence: the results page's still and video
 HARD = "glossy_shadow"
 STILL_METHODS = ("raw", "atrous+temporal", "svgf", BASELINE)
-QUALITY = dict(size=(320, 180), frames=8)
+#: each sequence at this size, over its own frames
+QUALITY = dict(size=(320, 180))
 #: ground-truth samples per pixel per sequence (two halves of half as many; the reference
 #: noise falls as 1/spp, and docs/denoising_methods.md has the run these were chosen from);
 #: --reference-spp overrides
-REFERENCE_SPP = {"dolly_lamps": 2048, "orbit_transforms": 1536, "glossy_shadow": 2048}
-QUICK = dict(size=(96, 54), frames=4, reference_spp=16)
+REFERENCE_SPP = {"dolly_lamps": 2048, "orbit_transforms": 1536, "glossy_shadow": 2048, "moving_lamp": 2048,
+                 "light_switch": 2048, "long_orbit": 2048}
+QUICK = dict(size=(96, 54), reference_spp=16)
+#: the quick run's longest sequence (a light switched at frames [5, 6] still switches)
+QUICK_FRAMES = 8
+#: a method has responded to a sudden change once its relMSE stays within this factor of its value before
+RESPONSE_FACTOR = 1.5
 TIMING = dict(size=(1280, 720), frames=9, reference_spp=2)
 QUICK_TIMING = dict(size=(160, 90), frames=3, reference_spp=2)
 #: the reference's own noise must be at most this fraction of the best method's relMSE
@@ -187,6 +193,29 @@ def run_timing(folder: Path, methods=TIMED) -> dict:
     timing["bars"] = {m: {"ratio": timing["ratio_to_oidn"][m], "bar": bar, "met": timing["ratio_to_oidn"][m] <= bar}
                       for m, bar in SPEED_BARS.items() if m in timing["ms"]}
     return timing
+
+
+def sudden_change(spec) -> tuple[int, int] | None:
+    """``(a, b)`` of the spec's light change over one frame (``"frames": [a, b]`` with
+    ``b = a + 1``): frame ``a`` is the last before it, ``b`` the first after; None without one."""
+    windows = [tuple(change["frames"]) for change in spec.lights.values() if "frames" in change]
+    windows = [(a, b) for a, b in windows if b == a + 1]
+    return min(windows) if windows else None
+
+
+def response(rows: list[dict], method: str, switch: tuple[int, int]) -> int | None:
+    """Frames after a sudden change until ``method``'s relMSE is back, to stay, within
+    :data:`RESPONSE_FACTOR` times its value on the last frame before (0: at once);
+    None if it is not back by the last frame."""
+    before, after = switch
+    values = {r["frame"]: r["relmse"] for r in rows if r["method"] == method}
+    bound = RESPONSE_FACTOR * values[before]
+    late = [frame for frame in sorted(values) if frame >= after and values[frame] > bound]
+    if not late:
+        return 0
+    if late[-1] == max(values):
+        return None
+    return late[-1] + 1 - after
 
 
 def _mean(rows, sequence, method, key):
@@ -345,6 +374,8 @@ def main(argv: list[str] | None = None) -> int:
         if args.sequences and spec_path.stem not in args.sequences:
             continue
         settings = dict(quality)
+        if args.quick:
+            settings["frames"] = min(QUICK_FRAMES, Spec.load(spec_path).frames)
         if args.reference_spp is not None:
             settings["reference_spp"] = args.reference_spp
         elif not args.quick:
@@ -359,6 +390,10 @@ def main(argv: list[str] | None = None) -> int:
         rows, figures = run_sequence(folder, spec_path.stem, outputs=outputs)
         if outputs is not None:
             outputs_hard = outputs
+        switch = sudden_change(spec)
+        if switch is not None:
+            figures["switch"] = list(switch)
+            figures["response"] = {m: response(rows, m, switch) for m in dict.fromkeys(r["method"] for r in rows)}
         results["sequences"].append({"name": spec_path.stem, "spec": str(spec_path.relative_to(ROOT)),
                                      "size": list(spec.size), "frames": spec.frames, "spp": spec.spp,
                                      "reference_spp": spec.reference_spp, **figures})
