@@ -78,8 +78,8 @@ QUALITY = dict(size=(320, 180))
 #: ground-truth samples per pixel per sequence (two halves of half as many; the reference
 #: noise falls as 1/spp, and docs/denoising_methods.md has the run these were chosen from);
 #: --reference-spp overrides
-REFERENCE_SPP = {"dolly_lamps": 2048, "orbit_transforms": 1536, "glossy_shadow": 2048, "moving_lamp": 2048,
-                 "light_switch": 2048, "long_orbit": 2048}
+REFERENCE_SPP = {"dolly_lamps": 2048, "orbit_transforms": 1536, "glossy_shadow": 2048, "moving_lamp": 1024,
+                 "light_switch": 2048, "long_orbit": 1024}
 QUICK = dict(size=(96, 54), reference_spp=16)
 #: the quick run's longest sequence (a light switched at frames [5, 6] still switches)
 QUICK_FRAMES = 8

@@ -1,11 +1,11 @@
 from __future__ import annotations
 
-import re
 import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from .aovs import AOV_CHANNELS, OBJECT_ID_PREFIX, parse_aovs
+from .aovs import AOV_CHANNELS, parse_aovs
+from .scene_analysis import POINT, SceneAnalysis, analyse_scene, scene_state
 
 #: the longest ray (Mitsuba's "largest" float32)
 FLOAT32_MAX = float(np.finfo(np.float32).max)
@@ -17,18 +17,6 @@ MAX_RADIANCE = 2.0 ** 100
 #: A few (~8) float32 rounding units of a coordinate, relative to its magnitude
 ROUNDING = 2.0 ** -21
 
-#: Light kinds of the light table (the symbolic light loop)
-POINT, DIRECTIONAL = 0, 1
-
-_OBJECT_ID = re.compile(OBJECT_ID_PREFIX + r"(\d+)(?:_part\d+)?")
-
-
-def object_index(shape: mi.Shape, position: int) -> int:
-    """Object id of a shape: ``k`` from its id ``object_<k>`` or ``object_<k>_part<j>``
-    (the converter's names), else its position in the scene."""
-    match = _OBJECT_ID.fullmatch(shape.id())
-    return int(match.group(1)) if match else position
-
 
 def parse_epsilons(text: str) -> list[float]:
     values = [float(v) for v in text.replace(",", " ").split()]
@@ -38,93 +26,11 @@ def parse_epsilons(text: str) -> list[float]:
     return values
 
 
-class LightTable:
-    """Point and directional lights as Dr.Jit arrays, for the symbolic light loop.
-
-    (Plain classes, not dataclasses: Dr.Jit would take a dataclass's arrays
-    for loop state.)"""
-
-    def __init__(self, kinds: list[int], vectors: list[float], values: list[float]):
-        self.count = len(kinds)
-        self.count_opaque = dr.opaque(mi.UInt32, self.count)
-        # flat tensors: indexing ".array[i]" gathers in vectorised variants and reads in scalar ones
-        self.kinds = mi.TensorXu(np.array(kinds, np.uint32))  # POINT or DIRECTIONAL
-        self.vectors = mi.TensorXf(np.array(vectors, np.float32))  # 3 per light: position, or unit direction towards it
-        self.values = mi.TensorXf(np.array(values, np.float32))  # 3 per light: intensity (point) or irradiance
-
-    def vector(self, table: mi.TensorXf, index: mi.UInt32):
-        return mi.Vector3f(table.array[3 * index], table.array[3 * index + 1], table.array[3 * index + 2])
-
-
-class SceneAnalysis:
-    """What the kernel needs to know about one scene, kept while the scene holds
-    the same shapes and emitters (never looked up by ``id(scene)``) and, at
-    each render, has the same :func:`scene_state`. The light table's values
-    are read once: a point or directional light changed through
-    ``mi.traverse`` is seen at once when it is unrolled (up to
-    ``max_unrolled_lights``), after :meth:`WhittedIntegrator.forget` in the
-    symbolic light loop."""
-
-    def __init__(self, shapes, emitters, unrolled, table, mirrors, slots, tables):
-        self.shapes = shapes  # held, so that their identity shows the analysis belongs to a scene
-        self.emitters = emitters
-        self.unrolled = unrolled  # delta lights shaded one by one (Python loop at trace time)
-        self.table: LightTable | None = table  # point and directional lights shaded in a symbolic loop
-        self.mirrors = mirrors  # any mirror lobe
-        self.slots = slots  # shape id -> row of the per-shape tables (scalar variants; 0: no shape)
-        self.tables = tables  # "ids", "epsilons", "scales" -> mi.TensorXf, one row per shape slot
-        self.bsphere = (0.0, 0.0, 0.0, 0.0)  # scene's bounding sphere (centre, radius), for directional lights
-        self.state: tuple = ()  # scene_state() when analysed
-
-    def belongs_to(self, scene: mi.Scene) -> bool:
-        shapes, emitters = scene.shapes(), scene.emitters()
-        return (len(shapes) == len(self.shapes) and len(emitters) == len(self.emitters)
-                and all(a is b for a, b in zip(shapes, self.shapes))
-                and all(a is b for a, b in zip(emitters, self.emitters)))
-
-    def shape_slot(self, si: mi.SurfaceInteraction3f) -> mi.UInt32:
-        """Row of the hit shape in :attr:`tables` (0: none). The one place where
-        variants differ: a vectorised shape pointer is its registry index, a
-        scalar one is the shape itself."""
-        if dr.is_jit_v(mi.Float):
-            return dr.reinterpret_array(mi.UInt32, si.shape)
-        return 0 if si.shape is None else self.slots[si.shape.id()]
-
-    def per_shape(self, si: mi.SurfaceInteraction3f, name: str) -> mi.Float:
-        """The hit shape's entry of table ``ids``, ``epsilons`` or ``scales``."""
-        return self.tables[name].array[self.shape_slot(si)]
-
-
-def scene_state(scene: mi.Scene) -> tuple:
-    """What parameter updates may change of an analysis, cheap to read once per
-    render: each shape's BSDF flags (mirror lobes) and the scene's bounding box
-    (the shapes' scales, the directional lights' reach)."""
-    box = scene.bbox()
-    return (tuple(int(s.bsdf().flags()) if s.bsdf() is not None else -1 for s in scene.shapes()),
-            tuple(_vector(box.min)), tuple(_vector(box.max)))
-
-
 def none_active(mask) -> bool:
     """Dr.Jit's C++ ``dr::none_or<false>(mask)``: true only for a one-lane mask
     (scalar variants trace one ray per call) that is off, where a miss has no
     BSDF to call; a vectorised mask never ends the kernel early."""
     return not dr.is_array_v(mask) and not mask
-
-
-def _light_kind(light: mi.Emitter) -> int | None:
-    """POINT or DIRECTIONAL for Mitsuba's ``point`` and ``directional`` emitters with
-    constant colours, else None (shaded through the emitter's own methods)."""
-    name = str(light).split("[", 1)[0]
-    params = mi.traverse(light)
-    if name == "PointLight" and "intensity.value" in params:
-        return POINT
-    if name == "DirectionalEmitter" and "irradiance.value" in params:
-        return DIRECTIONAL
-    return None
-
-
-def _vector(value) -> list[float]:
-    return [float(v) for v in np.asarray(value, np.float64).reshape(-1)[:3]]
 
 
 class WhittedIntegrator(mi.SamplingIntegrator):
@@ -259,67 +165,19 @@ class WhittedIntegrator(mi.SamplingIntegrator):
 
     # -- scene analysis (trace time) ----------------------------------------
     def analyse(self, scene: mi.Scene) -> SceneAnalysis:
-        """Lights, mirrors and per-shape tables of ``scene``, reused (scalar
-        variants call :meth:`sample` once per ray) while the scene still holds
-        exactly the same shapes and emitters, and renewed by :meth:`render`
-        when its :func:`scene_state` changed. The analysis holds those
-        objects, so a new scene at a freed one's address is never mistaken
+        """Lights, mirrors and per-shape tables of ``scene`` (:func:`analyse_scene`),
+        reused (scalar variants call :meth:`sample` once per ray) while the scene
+        still holds exactly the same shapes and emitters, and renewed by
+        :meth:`render` when its :func:`scene_state` changed. The analysis holds
+        those objects, so a new scene at a freed one's address is never mistaken
         for it."""
-        if self._analysed is not None and self._analysed.belongs_to(scene):
-            return self._analysed
-        shapes, emitters = scene.shapes(), scene.emitters()
-        lights = [e for e in emitters if mi.has_flag(e.flags(), mi.EmitterFlags.Delta)]
-        kinds = [_light_kind(light) for light in lights]
-        looped = sum(k is not None for k in kinds) > self.max_unrolled_lights
-        unrolled = [light for light, kind in zip(lights, kinds) if not (looped and kind is not None)]
-        table = self.light_table([(l, k) for l, k in zip(lights, kinds) if k is not None]) if looped else None
-        mirrors = any(s.bsdf() is not None and mi.has_flag(s.bsdf().flags(), mi.BSDFFlags.DeltaReflection)
-                      for s in shapes)
-        # table rows: a vectorised shape pointer is a registry index (0: none), a scalar
-        # one is numbered here
-        if dr.is_jit_v(mi.Float):
-            rows = [int(v) for v in np.array(dr.reinterpret_array(mi.UInt32, scene.shapes_dr())).reshape(-1)]
-        else:
-            rows = list(range(1, len(shapes) + 1))
-        columns = {"ids": np.full(max(rows, default=0) + 1, -1.0, np.float32)}
-        columns["epsilons"] = np.full_like(columns["ids"], self.ray_epsilon)
-        columns["scales"] = np.zeros_like(columns["ids"])
-        for position, (shape, row) in enumerate(zip(shapes, rows)):
-            k = object_index(shape, position)
-            columns["ids"][row] = k
-            columns["epsilons"][row] = self.ray_epsilons[k] if k < len(self.ray_epsilons) else self.ray_epsilon
-            box = shape.bbox()
-            columns["scales"][row] = float(max(dr.max(dr.abs(box.min)), dr.max(dr.abs(box.max))))
-        tables = {name: mi.TensorXf(values) for name, values in columns.items()}
-        slots = {shape.id(): row for shape, row in zip(shapes, rows)}
-        analysis = SceneAnalysis(shapes, emitters, unrolled, table, mirrors, slots, tables)
-        analysis.state = scene_state(scene)
-        if shapes:
-            sphere = scene.bbox().bounding_sphere()
-            analysis.bsphere = (*_vector(sphere.center), float(sphere.radius))
-        self._analysed = analysis
-        return analysis
+        if self._analysed is None or not self._analysed.belongs_to(scene):
+            self._analysed = analyse_scene(scene, self.max_unrolled_lights, self.ray_epsilon, self.ray_epsilons)
+        return self._analysed
 
     def forget(self) -> None:
         """Drops the scene analysis: the next render or ``sample`` makes a new one."""
         self._analysed = None
-
-    @staticmethod
-    def light_table(lights: list) -> LightTable:
-        # (values read one by one: evaluating them together makes one kernel with
-        # thousands of outputs, which LLVM compiles for a minute)
-        kinds, vectors, values = [], [], []
-        for light, kind in lights:
-            params = mi.traverse(light)
-            kinds.append(kind)
-            if kind == POINT:
-                vectors += _vector(params["position"])
-                values += _vector(params["intensity.value"])
-            else:
-                # the directional emitter's travel direction is its to_world's +z
-                vectors += [-v for v in _vector(params["to_world"] @ mi.Vector3f(0.0, 0.0, 1.0))]
-                values += _vector(params["irradiance.value"])
-        return LightTable(kinds, vectors, values)
 
     def delta_lights(self, scene: mi.Scene) -> list[mi.Emitter]:
         """The delta lights unrolled into the kernel (all of them, below the loop threshold)."""
