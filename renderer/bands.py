@@ -4,25 +4,48 @@ A Python integrator in a scalar variant makes one Python call per ray, and
 the GIL keeps those on one core however many threads Mitsuba starts. Bands
 of rows rendered by one process per core use them all: each worker loads the
 scene once, then renders bands through a cropped copy of the sensor.
+
+A scalar ``mi.render`` cannot be interrupted (Python sees a signal only when
+it returns), so every render of more than :data:`MIN_WORK` ray casts runs in
+workers, even on one core: the main process only waits for bands, Ctrl-C
+and SIGTERM reach it there, and leaving the pool terminates the workers
+mid-band. Workers never see SIGINT themselves (a terminal's Ctrl-C goes to
+the whole process group): it is blocked in them, so that they print no
+traceback of their own.
 """
 from __future__ import annotations
 
 import multiprocessing
 import os
+import signal
 
 import numpy as np
 from tqdm import tqdm
 
-#: Fewer samples than this render in-process (starting workers costs ~1 s)
-MIN_SAMPLES = 100_000
+#: Renders of less work than this (ray casts, as :func:`description_work`
+#: counts them) render in-process: they take well under a second, less than
+#: starting workers does
+MIN_WORK = 60_000
 BANDS_PER_WORKER = 12
 
 _scene = None
 _description = None
 
 
-def worth_it(width: int, height: int, spp: int) -> bool:
-    return (os.cpu_count() or 1) > 1 and width * height * spp >= MIN_SAMPLES
+def description_work(description: dict) -> int:
+    """The most ray casts a render of ``description`` may take: each sample a
+    camera ray and up to ``bounces`` mirror rays, each shaded by every light."""
+    film = description["sensor"]["film"]
+    spp = description["sensor"].get("sampler", {}).get("sample_count", 1)
+    bounces = description.get("integrator", {}).get("bounces", 0)
+    lights = sum(1 for value in description.values()
+                 if isinstance(value, dict) and value.get("type") in ("point", "directional"))
+    return film["width"] * film["height"] * spp * (1 + bounces) * (1 + lights)
+
+
+def worth_it(description: dict) -> bool:
+    """Whether to render in workers (see the module's docstring)."""
+    return description_work(description) >= MIN_WORK
 
 
 def _start(description: dict, variant: str) -> None:
@@ -62,7 +85,14 @@ def render_in_bands(description: dict, variant: str, workers: int | None = None)
     edges = np.linspace(0, height, bands + 1).round().astype(int)
     image, counts = None, {}
     context = multiprocessing.get_context("spawn")  # no fork after Dr.Jit started its threads
-    with context.Pool(workers, initializer=_start, initargs=(description, variant)) as pool, \
+    # the workers inherit a blocked SIGINT; the main process unblocks it (a
+    # Ctrl-C meanwhile arrives now) and, leaving the pool, terminates them
+    signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    try:
+        pool = context.Pool(workers, initializer=_start, initargs=(description, variant))
+    finally:
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+    with pool, \
             tqdm(total=height, desc="Rendering", unit="row", delay=1.0, leave=False, disable=None) as bar:
         for y0, band, band_counts in pool.imap_unordered(_render_band, list(zip(edges[:-1], edges[1:]))):
             if image is None:

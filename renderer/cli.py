@@ -296,8 +296,9 @@ def jobs_from_batch(parser: argparse.ArgumentParser, path: Path, memory: int | N
             good.append(BatchLine(where, pairs))
         except ToolkitError as error:
             errors.append(f"{where}: {one_line(error)}")
-    if not good and not errors:
-        errors.append(f"{path}: no command lines")
+    if not good and not errors:  # one line saying so, not a count of bad lines that do not exist
+        raise UsageError(f"--batch {path}: no course command lines in it (only blank lines, comments "
+                         "and shell lines); nothing to render")
     return good, errors
 
 

@@ -21,7 +21,8 @@ from converters.model import PointLight
 from core.errors import SceneError
 from imaging.image_io import CUBE_FACES
 from validation.metrics import TOLERANCE, bad_fraction
-from validation.stress_cases import DEFAULTS, Case, scene as base_scene
+from validation.stress_cases_inputs import contract_problems, run_render_cli
+from validation.stress_scene import DEFAULTS, Case, scene as base_scene
 
 #: "file:line:col: message", one line
 LOCATED = re.compile(r"^[^\n]+:\d+:\d+: [^\n]+$")
@@ -221,7 +222,6 @@ def fuzz_cli(examples: int, seed: int = 0) -> int:
 
     from hypothesis import HealthCheck, given, settings, strategies as st
 
-    from validation.stress_cases_inputs import contract_problems, run_render_cli
 
     folder = Path(tempfile.mkdtemp(prefix="stress-cli-"))
     (folder / "s.txt").write_text(base_scene())
