@@ -17,7 +17,7 @@ import sys
 from pathlib import Path
 
 from benchmarks import check_json, write_json
-from core.entry import ArgumentParser
+from core.entry import ArgumentParser, native_start_up
 from core.errors import UsageError
 from core.numbers import ascii_int
 from validation.stress import fuzz, fuzz_cli, run_case
@@ -28,7 +28,8 @@ from validation.stress_denoise import denoise_cases
 def run(fuzz_examples: int, quick: bool, only: list[str] | None = None) -> dict:
     from renderer.variants import set_variant
 
-    set_variant(None, quiet=True)
+    with native_start_up():
+        set_variant(None, quiet=True)
 
     def wanted(case) -> bool:
         return (case.fast or not quick) and (not only or case.name in only)

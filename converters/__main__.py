@@ -27,7 +27,7 @@ if __name__ == "__main__":  # started by a Python without the project's packages
     from core.launcher import use_project_python
     use_project_python("converters", "converters")
 
-from core.entry import ArgumentParser, run
+from core.entry import ArgumentParser, native_start_up, run
 from core.numbers import ascii_int
 from core.errors import OutputError, UsageError
 
@@ -171,7 +171,8 @@ def _main(argv: list[str] | None) -> int:
     if missing:
         raise UsageError(f"no scene file {', '.join(missing)}")
     pairs = plan_targets(args.scenes, args.output)
-    import mitsuba as mi
+    with native_start_up():  # no rendering here: Dr.Jit's notices (an unusable HOME) do not concern it
+        import mitsuba as mi
 
     if mi.variant() is None:
         mi.set_variant("scalar_rgb")  # only for the transform type; no rendering here

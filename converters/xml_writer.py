@@ -52,6 +52,11 @@ def _numbers(values) -> str:
 class _Writer:
     def __init__(self, path: Path):
         self.path = path
+        # Mitsuba resolves a relative path from the folder of the XML as it is
+        # loaded, and the system follows links before it takes a "..": so a
+        # path is made relative to that folder's real location, never to its
+        # spelling (through a link, "../x" names another folder)
+        self.folder = os.path.realpath(path.parent)
         self.mesh_dir = path.parent / f"{path.stem}_meshes"
         self.files: list[Path] = []
         self.lines: list[str] = []
@@ -72,7 +77,7 @@ class _Writer:
             self.emit(depth, f'<float {attr} value="{_number(value)}"/>')
         elif isinstance(value, str):
             if name in ("filename", "folder") and Path(value).is_absolute():
-                value = os.path.relpath(value, self.path.parent)  # portable: relative to the XML
+                value = os.path.relpath(os.path.realpath(value), self.folder)  # portable: relative to the XML
             self.emit(depth, f"<string {attr} value={quoteattr(value)}/>")
         elif isinstance(value, (list, tuple)) and len(value) == 3:
             tag = "point" if name in ("origin", "center", "position") else "vector"

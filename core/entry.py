@@ -13,6 +13,9 @@
   chain (``__cause__`` / ``__context__``) holds such an interruption counts
   as one: native extensions (Dr.Jit's start-up) wrap it in an ImportError or
   SystemError.
+- :func:`native_start_up` keeps a native library's own start-up notices
+  (Dr.Jit's "could not use ~/.drjit as the kernel cache directory" where
+  HOME is unusable) off stderr, unless the start-up fails;
 - before ``run`` starts (the imports of a script), :func:`exit_on_signals`
   makes both signals print the same line and exit at once (nothing is
   written yet); :func:`hold_signals` defers them past code that must not be
@@ -24,8 +27,10 @@ from __future__ import annotations
 
 import argparse
 import os
+import re
 import signal
 import sys
+import tempfile
 import threading
 from contextlib import contextmanager
 from typing import Callable, Iterator
@@ -91,6 +96,41 @@ def hold_signals() -> Iterator[None]:
                 handler(signum, None)  # e.g. Python's SIGINT handler raises KeyboardInterrupt
             elif handler == signal.SIG_DFL:
                 signal.raise_signal(signum)
+
+
+#: A line of Dr.Jit's own logging (``jit_init(): could not use ...``)
+NATIVE_NOTICE = re.compile(r"^jit_\w+\(\): ")
+
+
+@contextmanager
+def native_start_up(quiet: bool = True) -> Iterator[None]:
+    """Runs a native library's start-up (``import drjit``) with file
+    descriptor 2 captured: Dr.Jit writes its notices there directly, where
+    ``sys.stderr`` cannot catch them. Afterwards the captured text is written
+    back, less Dr.Jit's own notices when ``quiet``; if the block fails, all of it."""
+    try:
+        sys.stderr.flush()
+        capture = tempfile.TemporaryFile()
+        saved = os.dup(2)
+    except OSError:  # no temporary file (a full disk): the notices stay
+        yield
+        return
+    failed = True
+    try:
+        os.dup2(capture.fileno(), 2)
+        try:
+            yield
+            failed = False
+        finally:
+            os.dup2(saved, 2)
+            capture.seek(0)
+            lines = capture.read().decode(errors="replace").splitlines(keepends=True)
+            kept = [line for line in lines if failed or not quiet or not NATIVE_NOTICE.match(line)]
+            if kept:
+                os.write(2, "".join(kept).encode())
+    finally:
+        os.close(saved)
+        capture.close()
 
 
 def interruption(error: BaseException) -> int | None:

@@ -17,10 +17,13 @@ from __future__ import annotations
 
 import multiprocessing
 import os
+import pickle
 import signal
 
 import numpy as np
 from tqdm import tqdm
+
+from core.entry import native_start_up
 
 #: Renders of less work than this (ray casts, as :func:`description_work`
 #: counts them) render in-process: they take well under a second, less than
@@ -48,14 +51,20 @@ def worth_it(description: dict) -> bool:
     return description_work(description) >= MIN_WORK
 
 
-def _start(description: dict, variant: str) -> None:
+def _start(pickled_description: bytes, variant: str) -> None:
+    """A worker's start-up. The description comes pickled: unpickling it
+    imports Mitsuba, whose start-up notices (once per worker: the main
+    process has said what there was to say) are held back here."""
     global _scene, _description
+    with native_start_up():
+        from renderer.variants import set_variant
+
+        set_variant(variant, quiet=True)
+        description = pickle.loads(pickled_description)
     import mitsuba as mi
 
     from converters.to_mitsuba import load_scene_dict
-    from renderer.variants import set_variant
 
-    set_variant(variant, quiet=True)
     mi.set_log_level(mi.LogLevel.Error)  # not the scalar-performance warning, once per worker
     _description = description
     _scene = load_scene_dict(description)
@@ -89,7 +98,7 @@ def render_in_bands(description: dict, variant: str, workers: int | None = None)
     # Ctrl-C meanwhile arrives now) and, leaving the pool, terminates them
     signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
     try:
-        pool = context.Pool(workers, initializer=_start, initargs=(description, variant))
+        pool = context.Pool(workers, initializer=_start, initargs=(pickle.dumps(description), variant))
     finally:
         signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
     with pool, \
