@@ -121,7 +121,8 @@ def session_processes(session: int) -> list[str]:
             fields = (entry / "stat").read_text().rsplit(")", 1)[1].split()
             state, sid = fields[0], int(fields[3])
             if sid == session and state != "Z":
-                live.append(f"{entry.name} {(entry / 'cmdline').read_bytes().replace(b'\0', b' ').decode()[:120]}")
+                command = (entry / "cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
+                live.append(f"{entry.name} {command[:120]}")
         except (OSError, IndexError, ValueError):
             continue
     return live
