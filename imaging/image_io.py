@@ -190,8 +190,8 @@ def write_video(path: str | Path, frames: list[np.ndarray], fps: int = 2) -> Non
         if done.returncode != 0:
             lines = [line.strip() for line in done.stderr.decode(errors="replace").splitlines() if line.strip()]
             last = lines[-1] if lines else f"exit status {done.returncode}"
-            if write_failure(RuntimeError(last)) is not None:
-                raise RuntimeError(last)  # a full disk: atomic_path names it
+            if write_failure(RuntimeError(" ".join(lines))) is not None:
+                raise RuntimeError(" ".join(lines))  # a full disk: atomic_path names it
             raise OutputError(f"{path}: FFmpeg could not write the video: {last}")
 
 
@@ -278,6 +278,39 @@ def write_exr(path: str | Path, layers: Mapping[str, np.ndarray]) -> None:
     with atomic_path(path, ".exr") as tmp:
         with OpenEXR.File(header, channels) as exr:
             exr.write(str(tmp))
+        if not exr_complete(tmp, EXR_ZIP_LINES):
+            # OpenEXR's stream fails its last flush silently (a full disk under a small image)
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(tmp))
+
+
+#: Scan lines per chunk of ZIP compression
+EXR_ZIP_LINES = 16
+
+
+def exr_complete(path: Path, lines_per_chunk: int) -> bool:
+    """Whether the single-part scan-line EXR at ``path`` holds every chunk its
+    offset table names, up to its last byte: a write whose end was lost is not."""
+    try:
+        with open(path, "rb") as file:
+            data = file.read()
+        if data[:4] != b"\x76\x2f\x31\x01":
+            return False
+        position, window = 8, None
+        while data[position] != 0:  # attributes: name, type, size, value
+            name_end = data.index(b"\0", position)
+            type_end = data.index(b"\0", name_end + 1)
+            (size,) = struct.unpack_from("<i", data, type_end + 1)
+            if data[position:name_end] == b"dataWindow":
+                window = struct.unpack_from("<4i", data, type_end + 5)
+            position = type_end + 5 + size
+        if window is None:
+            return False
+        chunks = -(-(window[3] - window[1] + 1) // lines_per_chunk)
+        offsets = struct.unpack_from(f"<{chunks}Q", data, position + 1)
+        _, size = struct.unpack_from("<ii", data, offsets[-1])
+        return offsets[-1] + 8 + size == len(data)
+    except (OSError, ValueError, IndexError, struct.error):
+        return False
 
 
 def read_exr(path: str | Path) -> dict[str, np.ndarray]:

@@ -51,13 +51,11 @@ class Disk:
             self.room = room
             return
         filler = self.path / "filler"
-        with open(filler, "ab") as file:
-            chunk = b"\0" * PAGE
+        with open(filler, "ab", buffering=0) as file:
             try:
                 while True:
-                    file.write(chunk)
-                    file.flush()
-            except OSError:
+                    file.write(b"\0" * PAGE)
+            except OSError:  # full
                 pass
         size = filler.stat().st_size
         os.truncate(filler, max(size - (room + PAGE - 1) // PAGE * PAGE, 0))
