@@ -19,11 +19,12 @@ import multiprocessing
 import os
 import pickle
 import signal
+from contextlib import ExitStack
 
 import numpy as np
 from tqdm import tqdm
 
-from core.entry import native_start_up
+from core.entry import hold_signals, native_start_up
 
 #: Renders of less work than this (ray casts, as :func:`description_work`
 #: counts them) render in-process: they take well under a second, less than
@@ -94,15 +95,19 @@ def render_in_bands(description: dict, variant: str, workers: int | None = None)
     edges = np.linspace(0, height, bands + 1).round().astype(int)
     image, counts = None, {}
     context = multiprocessing.get_context("spawn")  # no fork after Dr.Jit started its threads
-    # the workers inherit a blocked SIGINT; the main process unblocks it (a
-    # Ctrl-C meanwhile arrives now) and, leaving the pool, terminates them
-    signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
-    try:
-        pool = context.Pool(workers, initializer=_start, initargs=(pickle.dumps(description), variant))
-    finally:
-        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
-    with pool, \
-            tqdm(total=height, desc="Rendering", unit="row", delay=1.0, leave=False, disable=None) as bar:
+    with ExitStack() as stack:
+        # Both signals wait until the pool exists and is sure to be terminated
+        # (an interruption inside Pool() would leave its first workers); the
+        # workers inherit a blocked SIGINT (see the module's docstring)
+        with hold_signals():
+            signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+            try:
+                pool = context.Pool(workers, initializer=_start, initargs=(pickle.dumps(description), variant))
+            finally:
+                signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+            stack.enter_context(pool)  # leaving it terminates the workers
+        bar = stack.enter_context(tqdm(total=height, desc="Rendering", unit="row", delay=1.0, leave=False,
+                                       disable=None))
         for y0, band, band_counts in pool.imap_unordered(_render_band, list(zip(edges[:-1], edges[1:]))):
             if image is None:
                 image = np.zeros((height, width, band.shape[-1]), np.float32)

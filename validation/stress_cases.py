@@ -8,13 +8,15 @@ Every case states what must happen:
 - ``error``: exactly one :class:`SceneError` whose message is one line
   ``file:line:col: ...`` containing ``expect``.
 
-Used by ``tests/stress`` (the fast subset) and ``python -m benchmarks.stress``.
+Used by ``tests/stress`` (the fast subset) and ``python -m benchmarks.stress``; :func:`all_cases`
+also gathers the input, scale and system cases (``stress_cases_*``).
 """
 from __future__ import annotations
 
 from imaging.image_io import CUBE_FACES
 from validation.stress_cases_inputs import all_input_cases
 from validation.stress_cases_scale import scale_cases
+from validation.stress_cases_system import system_cases
 from validation.stress_scene import DEFAULTS, Case, material, scene
 
 __all__ = ["DEFAULTS", "Case", "material", "scene", "all_cases", "error_cases", "render_cases"]
@@ -171,4 +173,4 @@ def error_cases() -> list[Case]:
 
 
 def all_cases() -> list[Case]:
-    return render_cases() + error_cases() + scale_cases() + all_input_cases()
+    return render_cases() + error_cases() + scale_cases() + all_input_cases() + system_cases()
