@@ -70,23 +70,24 @@ def exit_on_signals(prog: str) -> None:
 
 
 @contextmanager
-def hold_signals() -> Iterator[None]:
+def hold_signals() -> Iterator[list[int]]:
     """Holds SIGINT and SIGTERM back while the block runs, and delivers them
-    (to the handlers they had) right after it.
+    (to the handlers they had) right after it. Yields the list of signals
+    held so far, so that the block can skip work that would only be thrown away.
 
     For code that an exception raised by a signal handler would break
     instead of stop: native code that runs Python callbacks (Dr.Jit's
     tracing, its start-up in ``mi.set_variant``) turns the exception into an
     ImportError, RuntimeError or SystemError with a traceback.
     """
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
     pending: list[int] = []
+    if threading.current_thread() is not threading.main_thread():
+        yield pending
+        return
     previous = {signum: signal.signal(signum, lambda signum, frame: pending.append(signum))
                 for signum in _STOP_SIGNALS}
     try:
-        yield
+        yield pending
     finally:
         for signum, handler in previous.items():
             signal.signal(signum, handler)

@@ -1,8 +1,8 @@
 """A JIT render as a sequence of kernel launches, each bounded by its work.
 
 A kernel cannot be stopped once launched, so Ctrl-C and SIGTERM take effect
-between launches: a render stops within about two launches of a signal (the
-running one, and the next, already queued). A launch is therefore sized by
+between launches: a render stops when the running launch ends (the next one
+is traced meanwhile, and launched only if no signal came). A launch is therefore sized by
 its *work*, not its sample count: a sample costs up to
 :func:`sample_work` ray casts (``(1 + bounces) x (1 + lights)``: facing
 mirrors bounce every ray the whole way). The first launch of a split render
@@ -32,7 +32,7 @@ SINGLE_LAUNCH_WORK = 1 << 22
 #: The first launch of a split render, in ray casts: short even on a slow,
 #: shared machine; later launches aim at LAUNCH_SECONDS each
 FIRST_LAUNCH_WORK = 1 << 20
-LAUNCH_SECONDS = 0.25
+LAUNCH_SECONDS = 0.5
 #: Sample indices are 32-bit in the kernel
 MAX_SAMPLES = (1 << 32) - 1
 #: Pixels visited together (rays of neighbouring pixels stay coherent)
@@ -82,6 +82,7 @@ def render_in_launches(scene, spp: int, jitter: bool, seed: int = 0, launch_samp
     camera than the scene's. The integrator gets the sensor's sampler seeded
     per launch; ``whitted`` draws nothing from it.
     """
+    import drjit as dr
     import mitsuba as mi
 
     sensor = sensor or scene.sensors()[0]
@@ -101,8 +102,9 @@ def render_in_launches(scene, spp: int, jitter: bool, seed: int = 0, launch_samp
     queued = None  # (pixels, first sample, samples each, values being computed)
     began = time.perf_counter()
     while slot < pixels or queued is not None:
-        with signals_between_launches():
-            # the next launch is traced and queued while the previous one runs
+        with signals_between_launches() as held:
+            # the next launch is traced while the previous one runs, and
+            # launched once that is read, unless a signal came meanwhile
             following = None
             if slot < pixels:
                 if within == 0 and size >= spp:
@@ -115,7 +117,7 @@ def render_in_launches(scene, spp: int, jitter: bool, seed: int = 0, launch_samp
                     within += each
                     if within == spp:
                         slot, within = slot + 1, 0
-                following = (ids, first, each, launch(scene, sensor, width, spp, jitter, seed, ids, first, each))
+                following = (ids, first, each, trace(scene, sensor, width, spp, jitter, seed, ids, first, each))
             if queued is not None:
                 ids, first, each, values = queued
                 values = read(values, len(ids) * each, channels)
@@ -128,6 +130,8 @@ def render_in_launches(scene, spp: int, jitter: bool, seed: int = 0, launch_samp
                         image[ids[0]] = partial / spp
                         partial[:] = 0.0
                 done += len(ids) * each
+            if following is not None and not held:
+                dr.eval(*following[3])  # one kernel for all channels, running in the background until read
         queued = following
         if split and progress and done:  # shown by render.py's progress bar (as Mitsuba's own renders report)
             mi.logger().log_progress(done / total, "Rendering", "", "")
@@ -138,10 +142,10 @@ def render_in_launches(scene, spp: int, jitter: bool, seed: int = 0, launch_samp
     return image.reshape(height, width, channels)
 
 
-def launch(scene, sensor, width: int, spp: int, jitter: bool, seed: int, ids: np.ndarray, first: int,
-           each: int) -> list:
+def trace(scene, sensor, width: int, spp: int, jitter: bool, seed: int, ids: np.ndarray, first: int,
+          each: int) -> list:
     """Samples ``first .. first + each - 1`` of each pixel in ``ids``, RGB then
-    AOVs: one kernel, launched (Dr.Jit's LLVM kernels run in the background until read)."""
+    AOVs, traced (not yet evaluated: ``dr.eval`` of them launches one kernel)."""
     import drjit as dr
     import mitsuba as mi
 
@@ -166,9 +170,7 @@ def launch(scene, sensor, width: int, spp: int, jitter: bool, seed: int, ids: np
         sampler.seed(dr.opaque(mi.UInt32, (seed * 0x9E3779B1 + int(ids[0]) * spp + first) & 0xFFFFFFFF), count)
         spectrum, _, aovs = scene.integrator().sample(scene, sampler, ray, None, mi.Bool(True))
         spectrum *= weight
-        values = [spectrum.x, spectrum.y, spectrum.z] + list(aovs)
-        dr.eval(*values)  # one kernel for all channels
-        return values
+        return [spectrum.x, spectrum.y, spectrum.z] + list(aovs)
 
 
 def read(values: list, count: int, channels: int) -> np.ndarray:
