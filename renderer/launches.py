@@ -118,8 +118,10 @@ def render_in_launches(scene, spp: int, jitter: bool, seed: int = 0, launch_samp
                     if within == spp:
                         slot, within = slot + 1, 0
                 following = (ids, first, each, trace(scene, sensor, width, spp, jitter, seed, ids, first, each))
+            measured = 0  # samples of the launch read now
             if queued is not None:
                 ids, first, each, values = queued
+                measured = len(ids) * each
                 values = read(values, len(ids) * each, channels)
                 if each == spp:
                     image[ids] = values if spp == 1 else values.reshape(-1, spp, channels).mean(axis=1,
@@ -135,10 +137,14 @@ def render_in_launches(scene, spp: int, jitter: bool, seed: int = 0, launch_samp
         queued = following
         if split and progress and done:  # shown by render.py's progress bar (as Mitsuba's own renders report)
             mi.logger().log_progress(done / total, "Rendering", "", "")
-        if split and launch_samples is None and done:
+        if split and launch_samples is None and measured:
+            # the launch just read ran from the end of the last pass to now: its rate sizes the
+            # next one, which grows at most to twice its size (a lagging estimate never overshoots)
             now = time.perf_counter()
             elapsed, began = max(now - began, 1e-3), now
-            size = max(int(np.clip(size * LAUNCH_SECONDS / elapsed, size // 4, size * 4)), 1)
+            size = max(int(min(measured * LAUNCH_SECONDS / elapsed, 2 * measured)), 1)
+        elif split:
+            began = time.perf_counter()
     return image.reshape(height, width, channels)
 
 
