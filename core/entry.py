@@ -27,10 +27,8 @@ from __future__ import annotations
 
 import argparse
 import os
-import re
 import signal
 import sys
-import tempfile
 import threading
 from contextlib import contextmanager
 from typing import Callable, Iterator
@@ -99,8 +97,10 @@ def hold_signals() -> Iterator[list[int]]:
                 signal.raise_signal(signum)
 
 
-#: A line of Dr.Jit's own logging (``jit_init(): could not use ...``)
-NATIVE_NOTICE = re.compile(r"^jit_\w+\(\): ")
+def is_native_notice(line: str) -> bool:
+    """A line of Dr.Jit's own logging: ``jit_init(): could not use ...``."""
+    name, _, rest = line.partition("(): ")
+    return bool(rest) and name.startswith("jit_") and name.replace("_", "").isalnum()
 
 
 @contextmanager
@@ -108,30 +108,36 @@ def native_start_up(quiet: bool = True) -> Iterator[None]:
     """Runs a native library's start-up (``import drjit``) with file
     descriptor 2 captured: Dr.Jit writes its notices there directly, where
     ``sys.stderr`` cannot catch them. Afterwards the captured text is written
-    back, less Dr.Jit's own notices when ``quiet``; if the block fails, all of it."""
+    back, less Dr.Jit's own notices when ``quiet``; if the block fails, all of it.
+
+    The capture is an in-memory file (no temporary file on a full disk, and
+    no ``tempfile`` import: this module loads before a script's signal handlers)."""
     try:
         sys.stderr.flush()
-        capture = tempfile.TemporaryFile()
+        capture = os.memfd_create("stderr")
         saved = os.dup(2)
-    except OSError:  # no temporary file (a full disk): the notices stay
+    except (OSError, AttributeError):  # no memfd here: the notices stay
         yield
         return
     failed = True
     try:
-        os.dup2(capture.fileno(), 2)
+        os.dup2(capture, 2)
         try:
             yield
             failed = False
         finally:
             os.dup2(saved, 2)
-            capture.seek(0)
-            lines = capture.read().decode(errors="replace").splitlines(keepends=True)
-            kept = [line for line in lines if failed or not quiet or not NATIVE_NOTICE.match(line)]
+            os.lseek(capture, 0, os.SEEK_SET)
+            chunks = []
+            while chunk := os.read(capture, 1 << 16):
+                chunks.append(chunk)
+            lines = b"".join(chunks).decode(errors="replace").splitlines(keepends=True)
+            kept = [line for line in lines if failed or not quiet or not is_native_notice(line)]
             if kept:
                 os.write(2, "".join(kept).encode())
     finally:
         os.close(saved)
-        capture.close()
+        os.close(capture)
 
 
 def interruption(error: BaseException) -> int | None:

@@ -30,9 +30,11 @@ def render_command(scene: Path, size: int, variant: str, output: Path) -> list[s
                   "--variant", variant, "-output", output)
 
 
-@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+@pytest.mark.parametrize("signum, group", [(signal.SIGINT, False), (signal.SIGTERM, False), (signal.SIGINT, True)],
+                         ids=["SIGINT", "SIGTERM", "Ctrl-C to the process group"])
 @pytest.mark.parametrize("variant", ["llvm_ad_rgb", "scalar_rgb"])
-def test_a_render_of_facing_mirrors_stops_within_two_seconds(tmp_path, variant, signum):
+def test_a_render_of_facing_mirrors_stops_within_two_seconds(tmp_path, variant, signum, group):
+    """The process group: a terminal's Ctrl-C also reaches the scalar variant's workers."""
     if variant.startswith("llvm_") and SCALAR_FALLBACK:
         pytest.skip("no usable libLLVM")
     scene = tmp_path / "mirrors.txt"
@@ -46,8 +48,8 @@ def test_a_render_of_facing_mirrors_stops_within_two_seconds(tmp_path, variant, 
     out = tmp_path / "out"
     out.mkdir()
     result = interrupt(render_command(scene, SIZES[variant], variant, out / "mirrors.png"),
-                       delay=start_up + 1.5, signum=signum, cwd=tmp_path)
-    print(f"{variant} {signal.Signals(signum).name}: start-up {start_up:.2f} s, exit {result.seconds:.2f} s "
+                       delay=start_up + 1.5, signum=signum, cwd=tmp_path, group=group)
+    print(f"{variant} {signal.Signals(signum).name}{' to the group' if group else ''}: start-up {start_up:.2f} s, exit {result.seconds:.2f} s "
           f"after the signal, code {result.code}")
     assert result.running, "the render ended before the signal"
     assert result.code == 128 + signum, result.stderr[-2000:]

@@ -136,16 +136,20 @@ class Interrupted:
 
 
 def interrupt(argv: list[str], delay: float, signum: int, cwd: Path = ROOT, timeout: float = 30,
-              env: dict | None = None) -> Interrupted:
+              env: dict | None = None, group: bool = False) -> Interrupted:
     """Starts ``argv`` in a session of its own, sends ``signum`` after ``delay``
-    seconds, and waits (up to ``timeout``) for it to exit."""
+    seconds (``group``: to its whole process group, as a terminal's Ctrl-C
+    does), and waits (up to ``timeout``) for it to exit."""
     with tempfile.TemporaryFile() as err:
         process = subprocess.Popen(argv, cwd=cwd, stdout=subprocess.DEVNULL, stderr=err, start_new_session=True,
                                    env={**os.environ, **(env or {})})
         try:
             time.sleep(delay)
             running = process.poll() is None
-            process.send_signal(signum)
+            if group:
+                os.killpg(process.pid, signum)
+            else:
+                process.send_signal(signum)
             sent = time.perf_counter()
             try:
                 code = process.wait(timeout=timeout)
