@@ -58,3 +58,25 @@ def test_a_render_of_facing_mirrors_stops_within_two_seconds(tmp_path, variant, 
     assert len(lines) <= 1 and "interrupted" in lines[0], result.stderr[-2000:]
     assert list(out.iterdir()) == []  # no output, no temporary file
     assert result.left == []
+
+
+#: From the imports (argparse, ~0.1 s) through Dr.Jit's start-up to the writing and the teardown
+CONVERTER_DELAYS = (0.08, 0.2, 0.4, 0.6, 0.8, 1.0, 1.3)
+
+
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+def test_the_converter_keeps_the_contract_at_any_instant(tmp_path, signum):
+    """Finished (0), or one line and 128 + signum; never a traceback, a silent
+    death in the teardown or a temporary file."""
+    outcomes = []
+    for delay in CONVERTER_DELAYS:
+        out = tmp_path / f"{delay}"
+        result = interrupt(python("-m", "converters", ROOT / "scenes" / "showcase.txt", "-o", out / "s.xml"),
+                           delay=delay, signum=signum, cwd=tmp_path)
+        outcomes.append((delay, result.code))
+        lines = result.stderr.strip().splitlines()
+        assert result.code in (0, 128 + signum), (delay, result.code, result.stderr[-2000:])
+        assert len(lines) <= 1 and (result.code == 0 or "interrupted" in lines[0]), (delay, result.stderr[-2000:])
+        assert not out.exists() or not [p for p in out.rglob(".*")]
+        assert result.left == []
+    print(signal.Signals(signum).name, outcomes)
