@@ -190,9 +190,16 @@ def run(prog: str, body: Callable[[], int | None]) -> int:
         if isinstance(error, MemoryError):
             print(f"{prog}: error: out of memory; try a smaller size or fewer samples", file=sys.stderr)
             return 2
+        if isinstance(error, BrokenPipeError) and not error.filename:
+            # stdout's reader went away (``| head``): the interpreter's last flush must not fail again
+            devnull = os.open(os.devnull, os.O_WRONLY)
+            os.dup2(devnull, sys.stdout.fileno())
+            os.close(devnull)
+            print(f"{prog}: error: standard output was closed by its reader (broken pipe)", file=sys.stderr)
+            return 2
         if isinstance(error, OSError):
-            where = f" {error.filename}" if getattr(error, "filename", None) else ""
-            print(f"{prog}: error:{where}: {error.strerror or one_line(error)}", file=sys.stderr)
+            where = f" {error.filename}:" if getattr(error, "filename", None) else ""
+            print(f"{prog}: error:{where} {error.strerror or one_line(error)}", file=sys.stderr)
             return 2
         raise
     finally:

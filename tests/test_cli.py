@@ -146,3 +146,16 @@ def test_converter_output_through_a_link_loads(variant_rgb, tmp_path):
         for path in (target, real / f"{name}.xml"):  # through the link, and by its real path
             image = np.array(mi.render(mi.load_file(str(path), optimize=False)), np.float32)
             assert image.shape[:2] == (6, 8) and np.isfinite(image).all()
+
+
+def test_stdout_closed_by_its_reader_is_one_line(tmp_path):
+    """``render.py ... | head -0``: one line, exit 2, the image written; no 'Exception ignored' at exit."""
+    read, write = os.pipe()
+    os.close(read)  # the reader has gone before the first line
+    result = subprocess.run([sys.executable, str(ROOT / "render.py"), "-input", str(ROOT / "scenes" / "showcase.txt"),
+                             "-size", "8", "6", "-output", str(tmp_path / "a.png")], stdout=write,
+                            stderr=subprocess.PIPE, text=True, timeout=300)
+    os.close(write)
+    assert result.returncode == 2 and result.stderr.splitlines() == [
+        "render.py: error: standard output was closed by its reader (broken pipe)"], result.stderr
+    assert read_png(tmp_path / "a.png").shape == (6, 8, 3)

@@ -91,10 +91,10 @@ def full_disk(parent: Path | None = None) -> Iterator[Disk]:
                 subprocess.run(["umount", "-l", str(folder)], capture_output=True)
 
 
-def run_command(argv: list[str], cwd: Path = ROOT, env: dict | None = None,
+def run_command(argv: list, cwd: Path = ROOT, env: dict | None = None,
                 preexec: Callable[[], None] | None = None, timeout: float = 300) -> tuple[int, str, str]:
     """``argv`` run to its end: (exit code, stdout, stderr)."""
-    done = subprocess.run(argv, cwd=cwd, capture_output=True, text=True, timeout=timeout,
+    done = subprocess.run([str(a) for a in argv], cwd=cwd, capture_output=True, text=True, timeout=timeout,
                           env={**os.environ, **(env or {})}, preexec_fn=preexec)
     return done.returncode, done.stdout, done.stderr
 
@@ -135,13 +135,13 @@ class Interrupted:
     running: bool  # still running when the signal was sent
 
 
-def interrupt(argv: list[str], delay: float, signum: int, cwd: Path = ROOT, timeout: float = 30,
+def interrupt(argv: list, delay: float, signum: int, cwd: Path = ROOT, timeout: float = 30,
               env: dict | None = None, group: bool = False) -> Interrupted:
     """Starts ``argv`` in a session of its own, sends ``signum`` after ``delay``
     seconds (``group``: to its whole process group, as a terminal's Ctrl-C
     does), and waits (up to ``timeout``) for it to exit."""
     with tempfile.TemporaryFile() as err:
-        process = subprocess.Popen(argv, cwd=cwd, stdout=subprocess.DEVNULL, stderr=err, start_new_session=True,
+        process = subprocess.Popen([str(a) for a in argv], cwd=cwd, stdout=subprocess.DEVNULL, stderr=err, start_new_session=True,
                                    env={**os.environ, **(env or {})})
         try:
             time.sleep(delay)
