@@ -96,15 +96,17 @@ def test_a_disk_that_fills_between_two_frames(sequence):
         assert temporary_files(disk.path) == []
 
 
-def test_the_xml_converter_keeps_the_previous_xml(tmp_path):
-    """The converter's meshes and XML: a second conversion onto a full disk keeps the first XML whole."""
+def test_the_xml_converter_keeps_the_previous_xml_and_meshes(tmp_path):
+    """Another scene converted onto the first one's XML, the disk filling
+    while its meshes are written: the first XML and its meshes stay as they were."""
     with full_disk() as disk:
         code, _, stderr = run_command(python("-m", "converters", SHOWCASE, "-o", disk.path / "s.xml"))
         assert code == 0, stderr
-        before = (disk.path / "s.xml").read_bytes()
-        disk.fill()
-        code, _, stderr = run_command(python("-m", "converters", SHOWCASE, "-o", disk.path / "s.xml", "-size",
-                                             64, 48), preexec=disk.limit)
+        before = {path: path.read_bytes() for path in disk.path.rglob("*") if path.is_file()}
+        assert len(before) > 2  # the XML and its meshes
+        disk.fill(room=3 * 4096)  # room for a mesh or two, not for all of them
+        code, _, stderr = run_command(python("-m", "converters", ROOT / "scenes" / "lamps.txt", "-o",
+                                             disk.path / "s.xml"), preexec=disk.limit)
         assert one_error_line(code, stderr, "python -m converters", disk.expect) == [], stderr
-        assert (disk.path / "s.xml").read_bytes() == before
+        assert {path: path.read_bytes() for path in before} == before
         assert temporary_files(disk.path) == []
