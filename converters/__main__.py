@@ -201,6 +201,6 @@ if __name__ == "__main__":
     code = main()
     # Done, every file complete: a signal during the interpreter's teardown (Dr.Jit's
     # shutdown takes a moment) would kill it silently, Python having restored the defaults
-    for signum in (signal.SIGINT, signal.SIGTERM):
+    for signum in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
         signal.signal(signum, signal.SIG_IGN)
     sys.exit(code)

@@ -7,7 +7,7 @@
   line) and returns 2;
 - an ``OSError`` (a file we could not read or write) prints one line naming
   the file and returns 2; ``MemoryError`` one line and 2;
-- Ctrl-C (SIGINT) and SIGTERM print one line and return 130 / 143; the
+- Ctrl-C (SIGINT), SIGTERM and SIGHUP print one line and return 130 / 143 / 129; the
   handler raises :class:`Interrupted` (a ``BaseException``), so every
   ``atomic_path`` on the way out removes its temporary file. An error whose
   chain (``__cause__`` / ``__context__``) holds such an interruption counts
@@ -50,7 +50,9 @@ def _raise_interrupted(signum, frame):
 
 #: What an interrupted command prints (after ``PROG: ``)
 INTERRUPTED = "interrupted; finished files are complete, unfinished ones were not written"
-_STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+#: SIGHUP too: a closed terminal or SSH session would otherwise kill the
+#: process at once, leaving an unfinished write's temporary file behind
+_STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 
 
 def exit_on_signals(prog: str) -> None:
@@ -172,7 +174,8 @@ def one_line(error: BaseException) -> str:
 
 def run(prog: str, body: Callable[[], int | None]) -> int:
     """Runs ``body`` under the error contract; returns the exit code."""
-    handlers = {signal.SIGINT: signal.default_int_handler, signal.SIGTERM: _raise_interrupted}
+    handlers = {signal.SIGINT: signal.default_int_handler, signal.SIGTERM: _raise_interrupted,
+                signal.SIGHUP: _raise_interrupted}
     try:
         previous = {signum: signal.signal(signum, handler) for signum, handler in handlers.items()}
     except ValueError:  # not the main thread (e.g. under a test runner's worker)

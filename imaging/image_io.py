@@ -108,7 +108,7 @@ def atomic_path(path: str | Path, suffix: str) -> Iterator[Path]:
     except FileExistsError:
         raise OutputError(f"{path}: cannot create folder {folder}: a file of that name exists") from None
     except OSError as error:
-        raise OutputError(f"{path}: cannot create folder {folder}: {error.strerror or error}") from None
+        raise OutputError(f"{path}: cannot create folder {folder}: {write_failure(error)}") from None
     if is_read_only(target):
         raise OutputError(f"{path}: the existing file is read-only")
     limit = _name_max(folder)

@@ -9,9 +9,10 @@ A scalar ``mi.render`` cannot be interrupted (Python sees a signal only when
 it returns), so every render of more than :data:`MIN_WORK` ray casts runs in
 workers, even on one core: the main process only waits for bands, Ctrl-C
 and SIGTERM reach it there, and leaving the pool terminates the workers
-mid-band. Workers never see SIGINT themselves (a terminal's Ctrl-C goes to
-the whole process group): it is blocked in them, so that they print no
-traceback of their own.
+mid-band. Workers never see SIGINT or SIGHUP themselves (a terminal sends
+them to the whole process group): they are blocked in them, so that they
+print no traceback of their own and are not replaced by the pool while the
+main process stops.
 """
 from __future__ import annotations
 
@@ -31,6 +32,8 @@ from core.entry import hold_signals, native_start_up
 #: starting workers does
 MIN_WORK = 60_000
 BANDS_PER_WORKER = 12
+#: What a terminal sends to the whole process group: blocked in the workers
+GROUP_SIGNALS = {signal.SIGINT, signal.SIGHUP}
 
 _scene = None
 _description = None
@@ -98,13 +101,13 @@ def render_in_bands(description: dict, variant: str, workers: int | None = None)
     with ExitStack() as stack:
         # Both signals wait until the pool exists and is sure to be terminated
         # (an interruption inside Pool() would leave its first workers); the
-        # workers inherit a blocked SIGINT (see the module's docstring)
+        # workers inherit GROUP_SIGNALS blocked (see the module's docstring)
         with hold_signals():
-            signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+            signal.pthread_sigmask(signal.SIG_BLOCK, GROUP_SIGNALS)
             try:
                 pool = context.Pool(workers, initializer=_start, initargs=(pickle.dumps(description), variant))
             finally:
-                signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+                signal.pthread_sigmask(signal.SIG_UNBLOCK, GROUP_SIGNALS)
             stack.enter_context(pool)  # leaving it terminates the workers
         bar = stack.enter_context(tqdm(total=height, desc="Rendering", unit="row", delay=1.0, leave=False,
                                        disable=None))
