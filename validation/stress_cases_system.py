@@ -5,7 +5,7 @@ Each :class:`SystemCase` runs real commands in subprocesses (see
 
 - a full disk under every writer: one ``PROG: error: FILE: no space left on
   device`` line, exit 2, no temporary file, the previous file intact;
-- SIGINT / SIGTERM while facing mirrors render with ``-bounces 1000``: exit
+- SIGINT / SIGTERM / SIGHUP while facing mirrors render with ``-bounces 1000``: exit
   128 + the signal within 2 s, at most one line, nothing written, no process left;
 - the converter's output through a symbolic link: the XML loads in Mitsuba;
 - an empty ``--batch`` file: one line;
@@ -85,7 +85,7 @@ def full_disk_case(name: str, prog: str, argv: Callable[[Path], list], previous:
     return SystemCase(name, run)
 
 
-def interrupt_case(variant: str, size: int, signum: int) -> SystemCase:
+def interrupt_case(variant: str, size: int, signum: int, group: bool = False) -> SystemCase:
     def run(folder: Path) -> list[str]:
         (folder / "m.txt").write_text(FACING_MIRRORS)
         command = python(RENDER, "-input", "m.txt", "-bounces", 1000, "-shadows", "--variant", variant)
@@ -96,7 +96,7 @@ def interrupt_case(variant: str, size: int, signum: int) -> SystemCase:
         out = folder / "out"
         out.mkdir()
         result = interrupt([*command, "-size", size, size, "-output", out / "m.png"], cwd=folder,
-                           delay=time.perf_counter() - start + 1.5, signum=signum)
+                           delay=time.perf_counter() - start + 1.5, signum=signum, group=group)
         lines = result.stderr.strip().splitlines()
         problems = [] if result.running else ["finished before the signal"]
         if result.code != 128 + signum:
@@ -108,7 +108,8 @@ def interrupt_case(variant: str, size: int, signum: int) -> SystemCase:
         problems += [f"{p.name} written" for p in out.iterdir()]
         problems += [f"process left: {p}" for p in result.left]
         return problems
-    name = f"{signal.Signals(signum).name} to {variant} facing mirrors, -bounces 1000"
+    name = (f"{signal.Signals(signum).name}{' to the process group' if group else ''} to {variant} facing "
+            "mirrors, -bounces 1000")
     return SystemCase(name, run)
 
 
@@ -175,4 +176,5 @@ def system_cases() -> list[SystemCase]:
     for variant, size in (("llvm_ad_rgb", 1024), ("scalar_rgb", 256)):
         for signum in (signal.SIGINT, signal.SIGTERM):
             cases.append(interrupt_case(variant, size, signum))
+        cases.append(interrupt_case(variant, size, signal.SIGHUP, group=True))
     return cases
