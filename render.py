@@ -20,6 +20,6 @@ if __name__ == "__main__":
     # Done: a signal during the interpreter's teardown (Dr.Jit's shutdown takes
     # a moment) would kill it silently, as Python restores the default handlers
     # there; every file is complete, so the exit code stays this one
-    for signum in (signal.SIGINT, signal.SIGTERM):
+    for signum in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
         signal.signal(signum, signal.SIG_IGN)
     sys.exit(code)

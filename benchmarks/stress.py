@@ -1,6 +1,6 @@
 """Stress suite: stiff and bad inputs, and a fuzzer over the scene grammar and raw bytes.
 
-    python -m benchmarks.stress [--json PATH] [--fuzz N] [--quick]
+    python -m benchmarks.stress [--json PATH] [--fuzz N] [--quick] [--only NAME]
 
 Runs every named case of :mod:`validation.stress_cases` (the renderer) and
 :mod:`validation.stress_denoise` (the denoiser), each stating its expected
@@ -21,29 +21,37 @@ if __name__ == "__main__" and not __package__:
     sys.path[0] = str(Path(__file__).resolve().parents[1])
 
 from benchmarks import check_json, write_json
+from core.entry import ArgumentParser, native_start_up
+from core.errors import UsageError
+from core.numbers import ascii_int
 from validation.stress import fuzz, fuzz_cli, run_case
 from validation.stress_cases import all_cases
+from validation.stress_denoise import denoise_cases
 
 
-def run(fuzz_examples: int, quick: bool) -> dict:
+def run(fuzz_examples: int, quick: bool, only: list[str] | None = None) -> dict:
     from renderer.variants import set_variant
 
-    set_variant(None, quiet=True)
-    from validation.stress_denoise import denoise_cases
+    with native_start_up():
+        set_variant(None, quiet=True)
 
-    cases = [c for c in all_cases() if c.fast or not quick]
+    def wanted(case) -> bool:
+        return (case.fast or not quick) and (not only or case.name in only)
+
+    cases = [c for c in all_cases() if wanted(c)]
     results = []
     for case in cases:
         passed, detail = run_case(case)
         results.append({"name": case.name, "kind": case.kind, "passed": bool(passed), "detail": detail})
     for case in denoise_cases():
-        if case.fast or not quick:
+        if wanted(case):
             passed, detail = case.check()
             results.append({"name": case.name, "kind": "denoise", "passed": bool(passed), "detail": detail})
     fuzz_inputs, fuzz_failure = 0, None
     try:
-        fuzz_inputs = fuzz(fuzz_examples)
-        fuzz_inputs += fuzz_cli(max(10, fuzz_examples // 35))
+        if fuzz_examples:
+            fuzz_inputs = fuzz(fuzz_examples)
+            fuzz_inputs += fuzz_cli(max(10, fuzz_examples // 35))
     except Exception as error:  # the first escaping input, as hypothesis reports it
         fuzz_failure = f"{type(error).__name__}: {error}"
     return {"cases": len(results), "passed": sum(r["passed"] for r in results), "fuzz_inputs": fuzz_inputs,
@@ -51,16 +59,22 @@ def run(fuzz_examples: int, quick: bool) -> dict:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from core.entry import ArgumentParser
-
     parser = ArgumentParser(prog="python -m benchmarks.stress", description=__doc__.split("\n\n")[0])
     parser.add_argument("--json", type=Path, metavar="PATH", help="write the results as JSON")
-    parser.add_argument("--fuzz", type=int, default=7000, metavar="N",
-                        help="examples per fuzzer (three fuzzers; default 7000, i.e. 21000 inputs)")
+    parser.add_argument("--fuzz", type=ascii_int, default=7000, metavar="N",
+                        help="examples per fuzzer (three fuzzers; default 7000, i.e. 21000 inputs; 0: no fuzzing)")
     parser.add_argument("--quick", action="store_true", help="the CI subset")
+    parser.add_argument("--only", action="append", metavar="NAME",
+                        help="only the case of this name (repeatable; the names are in docs/stress.json)")
     args = parser.parse_args(argv)
+    if args.fuzz < 0:
+        raise UsageError(f"--fuzz wants a number >= 0, got {args.fuzz}")
+    names = {case.name for case in all_cases()} | {case.name for case in denoise_cases()}
+    unknown = [name for name in args.only or [] if name not in names]
+    if unknown:
+        raise UsageError(f"--only: no stress case named {', '.join(map(repr, unknown))}")
     check_json(args.json)
-    results = run(args.fuzz, args.quick)
+    results = run(args.fuzz, args.quick, args.only)
     for r in results["results"]:
         if not r["passed"]:
             print(f"FAILED {r['name']}: {r['detail']}", file=sys.stderr)

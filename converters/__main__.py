@@ -17,17 +17,23 @@ before anything is written.
 """
 from __future__ import annotations
 
+if __name__ == "__main__":
+    # first: Ctrl-C and SIGTERM during the imports are one line (core.entry is standard library only)
+    from core.entry import exit_on_signals
+    exit_on_signals("python -m converters")
+    # started by a Python without the project's packages: use ./.venv's
+    from core.launcher import use_project_python
+    use_project_python("converters", "converters")
+
 import argparse
 import os
+import signal
 import sys
 import tempfile
 from pathlib import Path
 
-if __name__ == "__main__":  # started by a Python without the project's packages: use ./.venv's
-    from core.launcher import use_project_python
-    use_project_python("converters", "converters")
 
-from core.entry import ArgumentParser, run
+from core.entry import ArgumentParser, hold_signals, native_start_up, run
 from core.numbers import ascii_int
 from core.errors import OutputError, UsageError
 
@@ -171,7 +177,10 @@ def _main(argv: list[str] | None) -> int:
     if missing:
         raise UsageError(f"no scene file {', '.join(missing)}")
     pairs = plan_targets(args.scenes, args.output)
-    import mitsuba as mi
+    # a signal inside the import of Dr.Jit's extension aborts the process: held until it is done;
+    # no rendering here, so Dr.Jit's notices (an unusable HOME) do not concern it
+    with hold_signals(), native_start_up():
+        import mitsuba as mi
 
     if mi.variant() is None:
         mi.set_variant("scalar_rgb")  # only for the transform type; no rendering here
@@ -189,4 +198,9 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    code = main()
+    # Done, every file complete: a signal during the interpreter's teardown (Dr.Jit's
+    # shutdown takes a moment) would kill it silently, Python having restored the defaults
+    for signum in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
+        signal.signal(signum, signal.SIG_IGN)
+    sys.exit(code)

@@ -14,6 +14,7 @@ fuse the plane's tiles into one imprecise mesh)::
 from __future__ import annotations
 
 import os
+from contextlib import ExitStack
 from pathlib import Path
 from xml.sax.saxutils import quoteattr
 
@@ -52,8 +53,14 @@ def _numbers(values) -> str:
 class _Writer:
     def __init__(self, path: Path):
         self.path = path
+        # Mitsuba resolves a relative path from the folder of the XML as it is
+        # loaded, and the system follows links before it takes a "..": so a
+        # path is made relative to that folder's real location, never to its
+        # spelling (through a link, "../x" names another folder)
+        self.folder = os.path.realpath(path.parent)
         self.mesh_dir = path.parent / f"{path.stem}_meshes"
         self.files: list[Path] = []
+        self.payloads: list[bytes] = []
         self.lines: list[str] = []
 
     def emit(self, depth: int, text: str) -> None:
@@ -72,7 +79,7 @@ class _Writer:
             self.emit(depth, f'<float {attr} value="{_number(value)}"/>')
         elif isinstance(value, str):
             if name in ("filename", "folder") and Path(value).is_absolute():
-                value = os.path.relpath(value, self.path.parent)  # portable: relative to the XML
+                value = os.path.relpath(os.path.realpath(value), self.folder)  # portable: relative to the XML
             self.emit(depth, f"<string {attr} value={quoteattr(value)}/>")
         elif isinstance(value, (list, tuple)) and len(value) == 3:
             tag = "point" if name in ("origin", "center", "position") else "vector"
@@ -106,10 +113,10 @@ class _Writer:
         self.emit(depth, f"</{tag}>")
 
     def write_file(self, name: str, data: bytes) -> str:
+        """Keeps ``data`` for the mesh folder (written with the XML); returns its path relative to the XML."""
         path = self.mesh_dir / name
-        with atomic_path(path, ".ply") as tmp:
-            tmp.write_bytes(data)
         self.files.append(path)
+        self.payloads.append(data)
         return f"{self.mesh_dir.name}/{name}"
 
 
@@ -118,7 +125,8 @@ def write_xml(description: dict, path: str | Path, source: str | None = None, no
 
     ``note`` (e.g. the render flags) goes into the header comment. Mesh files
     left in ``<stem>_meshes/`` by an earlier conversion are removed, so the
-    folder holds exactly what the XML refers to.
+    folder holds exactly what the XML refers to. The new files replace the
+    previous ones together, or (a write failed) not at all.
     """
     path = Path(path)
     writer = _Writer(path)
@@ -131,8 +139,12 @@ def write_xml(description: dict, path: str | Path, source: str | None = None, no
             continue
         writer.value(1, key, value)
     writer.emit(0, "</scene>")
-    with atomic_path(path, ".xml") as tmp:
-        tmp.write_text("\n".join(writer.lines) + "\n")
+    # every file is written to its temporary name before any replaces the previous one: a
+    # conversion that fails (a full disk) leaves the previous XML and its meshes as they were
+    with ExitStack() as files:
+        for mesh, data in zip(writer.files, writer.payloads):
+            files.enter_context(atomic_path(mesh, ".ply")).write_bytes(data)
+        files.enter_context(atomic_path(path, ".xml")).write_text("\n".join(writer.lines) + "\n")
     if writer.mesh_dir.is_dir():
         for stale in set(writer.mesh_dir.glob("*.ply")) - set(writer.files):
             stale.unlink()

@@ -7,12 +7,15 @@
   line) and returns 2;
 - an ``OSError`` (a file we could not read or write) prints one line naming
   the file and returns 2; ``MemoryError`` one line and 2;
-- Ctrl-C (SIGINT) and SIGTERM print one line and return 130 / 143; the
+- Ctrl-C (SIGINT), SIGTERM and SIGHUP print one line and return 130 / 143 / 129; the
   handler raises :class:`Interrupted` (a ``BaseException``), so every
   ``atomic_path`` on the way out removes its temporary file. An error whose
   chain (``__cause__`` / ``__context__``) holds such an interruption counts
   as one: native extensions (Dr.Jit's start-up) wrap it in an ImportError or
   SystemError.
+- :func:`native_start_up` keeps a native library's own start-up notices
+  (Dr.Jit's "could not use ~/.drjit as the kernel cache directory" where
+  HOME is unusable) off stderr, unless the start-up fails;
 - before ``run`` starts (the imports of a script), :func:`exit_on_signals`
   makes both signals print the same line and exit at once (nothing is
   written yet); :func:`hold_signals` defers them past code that must not be
@@ -47,7 +50,9 @@ def _raise_interrupted(signum, frame):
 
 #: What an interrupted command prints (after ``PROG: ``)
 INTERRUPTED = "interrupted; finished files are complete, unfinished ones were not written"
-_STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+#: SIGHUP too: a closed terminal or SSH session would otherwise kill the
+#: process at once, leaving an unfinished write's temporary file behind
+_STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 
 
 def exit_on_signals(prog: str) -> None:
@@ -65,23 +70,24 @@ def exit_on_signals(prog: str) -> None:
 
 
 @contextmanager
-def hold_signals() -> Iterator[None]:
+def hold_signals() -> Iterator[list[int]]:
     """Holds SIGINT and SIGTERM back while the block runs, and delivers them
-    (to the handlers they had) right after it.
+    (to the handlers they had) right after it. Yields the list of signals
+    held so far, so that the block can skip work that would only be thrown away.
 
     For code that an exception raised by a signal handler would break
     instead of stop: native code that runs Python callbacks (Dr.Jit's
     tracing, its start-up in ``mi.set_variant``) turns the exception into an
     ImportError, RuntimeError or SystemError with a traceback.
     """
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
     pending: list[int] = []
+    if threading.current_thread() is not threading.main_thread():
+        yield pending
+        return
     previous = {signum: signal.signal(signum, lambda signum, frame: pending.append(signum))
                 for signum in _STOP_SIGNALS}
     try:
-        yield
+        yield pending
     finally:
         for signum, handler in previous.items():
             signal.signal(signum, handler)
@@ -91,6 +97,49 @@ def hold_signals() -> Iterator[None]:
                 handler(signum, None)  # e.g. Python's SIGINT handler raises KeyboardInterrupt
             elif handler == signal.SIG_DFL:
                 signal.raise_signal(signum)
+
+
+def is_native_notice(line: str) -> bool:
+    """A line of Dr.Jit's own logging: ``jit_init(): could not use ...``."""
+    name, _, rest = line.partition("(): ")
+    return bool(rest) and name.startswith("jit_") and name.replace("_", "").isalnum()
+
+
+@contextmanager
+def native_start_up(quiet: bool = True) -> Iterator[None]:
+    """Runs a native library's start-up (``import drjit``) with file
+    descriptor 2 captured: Dr.Jit writes its notices there directly, where
+    ``sys.stderr`` cannot catch them. Afterwards the captured text is written
+    back, less Dr.Jit's own notices when ``quiet``; if the block fails, all of it.
+
+    The capture is an in-memory file (no temporary file on a full disk, and
+    no ``tempfile`` import: this module loads before a script's signal handlers)."""
+    try:
+        sys.stderr.flush()
+        capture = os.memfd_create("stderr")
+        saved = os.dup(2)
+    except (OSError, AttributeError):  # no memfd here: the notices stay
+        yield
+        return
+    failed = True
+    try:
+        os.dup2(capture, 2)
+        try:
+            yield
+            failed = False
+        finally:
+            os.dup2(saved, 2)
+            os.lseek(capture, 0, os.SEEK_SET)
+            chunks = []
+            while chunk := os.read(capture, 1 << 16):
+                chunks.append(chunk)
+            lines = b"".join(chunks).decode(errors="replace").splitlines(keepends=True)
+            kept = [line for line in lines if failed or not quiet or not is_native_notice(line)]
+            if kept:
+                os.write(2, "".join(kept).encode())
+    finally:
+        os.close(saved)
+        os.close(capture)
 
 
 def interruption(error: BaseException) -> int | None:
@@ -125,7 +174,8 @@ def one_line(error: BaseException) -> str:
 
 def run(prog: str, body: Callable[[], int | None]) -> int:
     """Runs ``body`` under the error contract; returns the exit code."""
-    handlers = {signal.SIGINT: signal.default_int_handler, signal.SIGTERM: _raise_interrupted}
+    handlers = {signal.SIGINT: signal.default_int_handler, signal.SIGTERM: _raise_interrupted,
+                signal.SIGHUP: _raise_interrupted}
     try:
         previous = {signum: signal.signal(signum, handler) for signum, handler in handlers.items()}
     except ValueError:  # not the main thread (e.g. under a test runner's worker)
@@ -143,9 +193,16 @@ def run(prog: str, body: Callable[[], int | None]) -> int:
         if isinstance(error, MemoryError):
             print(f"{prog}: error: out of memory; try a smaller size or fewer samples", file=sys.stderr)
             return 2
+        if isinstance(error, BrokenPipeError) and not error.filename:
+            # stdout's reader went away (``| head``): the interpreter's last flush must not fail again
+            devnull = os.open(os.devnull, os.O_WRONLY)
+            os.dup2(devnull, sys.stdout.fileno())
+            os.close(devnull)
+            print(f"{prog}: error: standard output was closed by its reader (broken pipe)", file=sys.stderr)
+            return 2
         if isinstance(error, OSError):
-            where = f" {error.filename}" if getattr(error, "filename", None) else ""
-            print(f"{prog}: error:{where}: {error.strerror or one_line(error)}", file=sys.stderr)
+            where = f" {error.filename}:" if getattr(error, "filename", None) else ""
+            print(f"{prog}: error:{where} {error.strerror or one_line(error)}", file=sys.stderr)
             return 2
         raise
     finally:

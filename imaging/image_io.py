@@ -2,10 +2,14 @@
 
 Every writer writes to a temporary name in the destination folder and renames
 it into place when complete, so an interrupted run never leaves a truncated
-image and never replaces a good earlier one with a broken file.
+image and never replaces a good earlier one with a broken file. A write that
+fails (a full disk, a file-size limit, an I/O error), however the encoding
+library reports it, is one :class:`OutputError` naming the file the user
+asked for, never the temporary one, which is removed.
 """
 from __future__ import annotations
 
+import errno
 import functools
 import os
 import struct
@@ -70,6 +74,24 @@ def output_target(path: str | Path) -> Path:
     return target
 
 
+#: Errors that mean the data did not fit, and what the user is told
+NO_ROOM = {errno.ENOSPC: "no space left on device", errno.EDQUOT: "disk quota exceeded",
+           errno.EFBIG: "file too large (over the file-size limit)"}
+
+
+def write_failure(error: BaseException) -> str | None:
+    """Why a write failed, in a few words, for errors that are the disk's and
+    not a bug: an ``OSError`` with an errno, or a library's error (OpenEXR's
+    RuntimeError, FFmpeg's message) whose text holds a full disk's strerror."""
+    if isinstance(error, OSError) and error.errno is not None:
+        return NO_ROOM.get(error.errno) or (error.strerror or os.strerror(error.errno)).lower()
+    text = str(error).lower()
+    for code, words in NO_ROOM.items():
+        if os.strerror(code).lower() in text:
+            return words
+    return None
+
+
 @contextmanager
 def atomic_path(path: str | Path, suffix: str) -> Iterator[Path]:
     """Yields a temporary path beside ``path``'s target; renames it into place on success.
@@ -86,7 +108,7 @@ def atomic_path(path: str | Path, suffix: str) -> Iterator[Path]:
     except FileExistsError:
         raise OutputError(f"{path}: cannot create folder {folder}: a file of that name exists") from None
     except OSError as error:
-        raise OutputError(f"{path}: cannot create folder {folder}: {error.strerror or error}") from None
+        raise OutputError(f"{path}: cannot create folder {folder}: {write_failure(error)}") from None
     if is_read_only(target):
         raise OutputError(f"{path}: the existing file is read-only")
     limit = _name_max(folder)
@@ -99,15 +121,21 @@ def atomic_path(path: str | Path, suffix: str) -> Iterator[Path]:
         except FileExistsError:
             continue
         except OSError as error:
-            raise OutputError(f"{path}: cannot write into {folder}: {error.strerror or error}") from None
+            raise OutputError(f"{path}: cannot write into {folder}: {write_failure(error)}") from None
     else:
         raise OutputError(f"{path}: cannot find a free temporary name in {folder}")
     try:
-        yield tmp
+        try:
+            yield tmp
+        except Exception as error:  # not BaseException: an interruption stays one
+            why = write_failure(error)
+            if why is None:
+                raise
+            raise OutputError(f"{path}: {why}") from None
         try:
             os.replace(tmp, target)
         except OSError as error:
-            raise OutputError(f"{path}: cannot replace the file: {error.strerror or error}") from None
+            raise OutputError(f"{path}: cannot replace the file: {write_failure(error)}") from None
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
@@ -131,19 +159,40 @@ def write_image(path: str | Path, pixels: np.ndarray) -> None:
 
 
 
+#: H.264 quality of the videos: FFmpeg's constant rate factor (lower is better; imageio's quality 8)
+VIDEO_CRF = 10
+
+
 def write_video(path: str | Path, frames: list[np.ndarray], fps: int = 2) -> None:
-    """Writes 8-bit RGB frames as an H.264 MP4 (imageio's FFmpeg). H.264's 4:2:0
-    chroma wants even sizes: an odd width or height gets one more column or
-    row (a copy of the last), rather than FFmpeg's resampling and warning."""
-    import imageio.v2 as imageio
+    """Writes 8-bit RGB frames as an H.264 MP4, with the FFmpeg that
+    imageio-ffmpeg ships. H.264's 4:2:0 chroma wants even sizes: an odd width
+    or height gets one more column or row (a copy of the last), rather than
+    FFmpeg's resampling and warning.
+
+    FFmpeg's messages are captured, never printed, and a failure (its exit
+    status, which imageio's writer ignores: a full disk left a truncated
+    video in place) is an :class:`OutputError` with FFmpeg's last line.
+    """
+    import subprocess
+
+    import imageio_ffmpeg
 
     path = Path(path)
+    height, width = frames[0].shape[:2]
+    data = b"".join(np.ascontiguousarray(np.pad(frame, ((0, height % 2), (0, width % 2), (0, 0)), mode="edge"),
+                                         np.uint8).tobytes() for frame in frames)
     with atomic_path(path, path.suffix) as tmp:
-        with imageio.get_writer(tmp, fps=fps, codec="libx264", quality=8, format="FFMPEG",
-                                macro_block_size=2) as writer:
-            for frame in frames:
-                height, width = frame.shape[:2]
-                writer.append_data(np.pad(frame, ((0, height % 2), (0, width % 2), (0, 0)), mode="edge"))
+        command = [imageio_ffmpeg.get_ffmpeg_exe(), "-y", "-v", "error", "-f", "rawvideo", "-vcodec", "rawvideo",
+                   "-s", f"{width + width % 2}x{height + height % 2}", "-pix_fmt", "rgb24", "-r", str(fps),
+                   "-i", "-", "-an", "-vcodec", "libx264", "-pix_fmt", "yuv420p", "-crf", str(VIDEO_CRF),
+                   str(tmp)]
+        done = subprocess.run(command, input=data, capture_output=True)
+        if done.returncode != 0:
+            lines = [line.strip() for line in done.stderr.decode(errors="replace").splitlines() if line.strip()]
+            last = lines[-1] if lines else f"exit status {done.returncode}"
+            if write_failure(RuntimeError(" ".join(lines))) is not None:
+                raise RuntimeError(" ".join(lines))  # a full disk: atomic_path names it
+            raise OutputError(f"{path}: FFmpeg could not write the video: {last}")
 
 
 def read_png(path: str | Path) -> np.ndarray:
@@ -229,6 +278,39 @@ def write_exr(path: str | Path, layers: Mapping[str, np.ndarray]) -> None:
     with atomic_path(path, ".exr") as tmp:
         with OpenEXR.File(header, channels) as exr:
             exr.write(str(tmp))
+        if not exr_complete(tmp, EXR_ZIP_LINES):
+            # OpenEXR's stream fails its last flush silently (a full disk under a small image)
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(tmp))
+
+
+#: Scan lines per chunk of ZIP compression
+EXR_ZIP_LINES = 16
+
+
+def exr_complete(path: Path, lines_per_chunk: int) -> bool:
+    """Whether the single-part scan-line EXR at ``path`` holds every chunk its
+    offset table names, up to its last byte: a write whose end was lost is not."""
+    try:
+        with open(path, "rb") as file:
+            data = file.read()
+        if data[:4] != b"\x76\x2f\x31\x01":
+            return False
+        position, window = 8, None
+        while data[position] != 0:  # attributes: name, type, size, value
+            name_end = data.index(b"\0", position)
+            type_end = data.index(b"\0", name_end + 1)
+            (size,) = struct.unpack_from("<i", data, type_end + 1)
+            if data[position:name_end] == b"dataWindow":
+                window = struct.unpack_from("<4i", data, type_end + 5)
+            position = type_end + 5 + size
+        if window is None:
+            return False
+        chunks = -(-(window[3] - window[1] + 1) // lines_per_chunk)
+        offsets = struct.unpack_from(f"<{chunks}Q", data, position + 1)
+        _, size = struct.unpack_from("<ii", data, offsets[-1])
+        return offsets[-1] + 8 + size == len(data)
+    except (OSError, ValueError, IndexError, struct.error):
+        return False
 
 
 def read_exr(path: str | Path) -> dict[str, np.ndarray]:

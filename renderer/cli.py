@@ -20,7 +20,7 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
-from core.entry import ArgumentParser, hold_signals, one_line, run
+from core.entry import ArgumentParser, hold_signals, native_start_up, one_line, run
 from core.numbers import ascii_int
 from core.errors import ToolkitError, UsageError, describe
 from course import ENVIRONMENT as COURSE_ENVIRONMENT, data_dir, resolve_scene
@@ -296,8 +296,9 @@ def jobs_from_batch(parser: argparse.ArgumentParser, path: Path, memory: int | N
             good.append(BatchLine(where, pairs))
         except ToolkitError as error:
             errors.append(f"{where}: {one_line(error)}")
-    if not good and not errors:
-        errors.append(f"{path}: no command lines")
+    if not good and not errors:  # one line saying so, not a count of bad lines that do not exist
+        raise UsageError(f"--batch {path}: no course command lines in it (only blank lines, comments "
+                         "and shell lines); nothing to render")
     return good, errors
 
 
@@ -322,7 +323,8 @@ def _run(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
     from .variants import prepare_libllvm
 
     prepare_libllvm(args.variant)  # first: the checks below import Mitsuba, which loads libLLVM
-    with hold_signals():  # a signal inside the import of Dr.Jit's extension aborts the process
+    # a signal inside the import of Dr.Jit's extension aborts the process; --quiet: its start-up notices go
+    with hold_signals(), native_start_up(quiet=args.quiet):
         import mitsuba  # noqa: F401
 
         import drjit  # noqa: F401

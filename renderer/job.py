@@ -11,11 +11,13 @@ import numpy as np
 from converters.course_scene import load_scene
 from converters.description import RenderOptions, scene_dict
 from converters.to_mitsuba import load_scene_dict
-from core.entry import hold_signals
 from imaging import colour as encoding
 from imaging import image_io
 from imaging.filters import centre_sample_3x, downsample_3x
 from mi_plugins.aovs import AOV_CHANNELS
+
+from . import bands
+from .launches import render_in_launches
 
 #: Every AOV, in the order the EXR stores them
 ALL_AOVS = tuple(AOV_CHANNELS)
@@ -96,8 +98,6 @@ def render(job: RenderJob) -> RenderResult:
 
     import drjit as dr
 
-    from . import bands
-
     seconds = {}
     start = time.perf_counter()
     options = job.options()
@@ -106,7 +106,7 @@ def render(job: RenderJob) -> RenderResult:
     centre_pass = bool(job.aovs) and options.jitter
     stats: dict = {}
     centre = None
-    if not jit and bands.worth_it(options.width, options.height, options.spp):
+    if not jit and bands.worth_it(description):
         # scalar variants: one process per core, each rendering bands of rows
         seconds["load"] = time.perf_counter() - start
         start = time.perf_counter()
@@ -155,122 +155,6 @@ def centre_description(description: dict) -> dict:
     sensor = dict(description["sensor"], pixel_centers=True)
     sensor["sampler"] = dict(sensor["sampler"], sample_count=1)
     return dict(description, sensor=sensor)
-
-
-#: Renders of at most this many samples are one kernel launch (the course's
-#: 800x800 images are); larger ones are split, so that Ctrl-C is seen between launches
-SINGLE_LAUNCH_SAMPLES = 1 << 20
-#: The first launch of a split render, in samples; later ones aim at LAUNCH_SECONDS
-FIRST_LAUNCH_SAMPLES = 1 << 18
-LAUNCH_SECONDS = 0.5
-#: Sample indices are 32-bit in the kernel
-MAX_SAMPLES = (1 << 32) - 1
-
-
-def render_in_launches(scene, spp: int, jitter: bool, seed: int = 0, launch_samples: int | None = None,
-                       sensor=None) -> np.ndarray:
-    """The image of ``scene`` (JIT variants): RGB, then the integrator's AOVs,
-    (H, W, C) float32, each pixel the mean of its ``spp`` samples.
-
-    The samples of all pixels are numbered ``pixel * spp + k``; a launch
-    renders a contiguous range of them with one kernel (the range's start is
-    an opaque kernel input, so every launch reuses the first one's compiled
-    kernel). A sample's jitter offset is a hash of its number and ``seed``,
-    so the image is the same however the range is split: small renders are
-    one launch, larger ones launches of about :data:`LAUNCH_SECONDS` (or
-    ``launch_samples`` each), between which Python sees Ctrl-C. The
-    integrator gets the sensor's sampler seeded per launch; ``whitted``
-    draws nothing from it. ``sensor``: another camera than the scene's.
-    """
-    import mitsuba as mi
-
-    import drjit as dr
-
-    import mitsuba as mi
-
-    from core.errors import LimitError
-
-    sensor = sensor or scene.sensors()[0]
-    width, height = (int(v) for v in sensor.film().size())
-    total = width * height * spp
-    if total > MAX_SAMPLES:
-        raise LimitError(f"{width}x{height} pixels x {spp} samples = {total} samples; "
-                         f"at most {MAX_SAMPLES} fit in one render")
-    channels = 3 + len(scene.integrator().aov_names())
-    image = np.zeros((width * height, channels), np.float32)
-    split = launch_samples is not None or total > SINGLE_LAUNCH_SAMPLES
-    size = (launch_samples or FIRST_LAUNCH_SAMPLES) if split else total
-    first, done = 0, 0
-    queued = None  # (first, count, channels being computed): traced and launched, not yet read
-    began = time.perf_counter()
-    while first < total or queued is not None:
-        with signals_between_launches():
-            # the next launch is traced and queued while the previous one runs
-            following = None
-            if first < total:
-                # whole pixels per launch: each pixel's mean is taken in one piece
-                count = min(max(size // spp, 1) * spp, total - first)
-                following = (first, count, _launch(scene, sensor, width, spp, jitter, seed, first, count))
-                first += count
-            if queued is not None:
-                start, count, values = queued
-                values = _read(values, count, channels)
-                pixels = slice(start // spp, (start + count) // spp)
-                image[pixels] = values if spp == 1 else values.reshape(-1, spp, channels).mean(axis=1,
-                                                                                                dtype=np.float64)
-                done = start + count
-        queued = following
-        if split and done:  # shown by render.py's progress bar (as Mitsuba's own renders report)
-            mi.logger().log_progress(done / total, "Rendering", "", "")
-        if split and launch_samples is None and done:
-            now = time.perf_counter()
-            elapsed, began = max(now - began, 1e-3), now
-            size = max(int(np.clip(size * LAUNCH_SECONDS / elapsed, size // 4, size * 4)), 1 << 14)
-    return image.reshape(height, width, channels)
-
-
-#: SIGINT and SIGTERM take effect between launches: tracing runs Python code
-#: inside Dr.Jit's loop recording, which would turn a KeyboardInterrupt raised
-#: there into a RuntimeError with a traceback, and a kernel cannot be stopped
-#: anyway; each launch takes well under a second (compiling the first one aside)
-signals_between_launches = hold_signals
-
-
-def _launch(scene, sensor, width: int, spp: int, jitter: bool, seed: int, first: int, count: int) -> list:
-    """Samples ``first .. first + count - 1``, RGB then AOVs: one kernel, launched
-    (Dr.Jit's LLVM kernels run in the background until read)."""
-    import mitsuba as mi
-
-    import drjit as dr
-
-    with dr.suspend_grad():
-        index = dr.arange(mi.UInt32, count) + dr.opaque(mi.UInt32, first)
-        pixel = index // dr.opaque(mi.UInt32, spp)
-        y = pixel // dr.opaque(mi.UInt32, width)
-        x = pixel - y * dr.opaque(mi.UInt32, width)
-        if jitter:
-            bits_x, bits_y = mi.sample_tea_32(index, dr.opaque(mi.UInt32, seed), 16)
-            offset = mi.Point2f(mi.Float(bits_x >> 8), mi.Float(bits_y >> 8)) * 2.0 ** -24
-        else:
-            offset = mi.Point2f(0.5)
-        film_size = sensor.film().size()
-        position = (mi.Point2f(mi.Float(x), mi.Float(y)) + offset) / mi.ScalarPoint2f(film_size)
-        ray, weight = sensor.sample_ray(0.0, 0.5, position, mi.Point2f(0.5))
-        sampler = sensor.sampler().clone()
-        sampler.seed(dr.opaque(mi.UInt32, (seed * 0x9E3779B1 + first) & 0xFFFFFFFF), count)
-        spectrum, _, aovs = scene.integrator().sample(scene, sampler, ray, None, mi.Bool(True))
-        spectrum *= weight
-        values = [spectrum.x, spectrum.y, spectrum.z] + list(aovs)
-        dr.eval(*values)  # one kernel for all channels
-        return values
-
-
-def _read(values: list, count: int, channels: int) -> np.ndarray:
-    """The launched channels as (count, channels) float32 (waits for the kernel)."""
-    image = np.empty((count, channels), np.float32)
-    for k, channel in enumerate(values):
-        image[:, k] = np.asarray(channel, np.float32)
-    return image
 
 
 def write_outputs(result: RenderResult) -> list[Path]:

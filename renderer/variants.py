@@ -20,6 +20,7 @@ import hashlib
 import json
 import os
 import re
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -115,6 +116,8 @@ def probe_libllvm(path: str) -> str | None:
     try:
         done = subprocess.run([sys.executable, "-c", _PROBE, path], capture_output=True, text=True,
                               timeout=PROBE_TIMEOUT, env={**os.environ, "DRJIT_LIBLLVM_PATH": path})
+        if -done.returncode in (signal.SIGINT, signal.SIGTERM):  # a Ctrl-C to the process group: says nothing
+            return "its probe was interrupted"  # of the library, and is not cached
         if done.returncode == 0 and done.stdout.strip().endswith("ok"):
             why = ""
         elif done.returncode < 0:
@@ -132,8 +135,6 @@ def probe_libllvm(path: str) -> str | None:
 
 
 def _signal_name(number: int) -> str:
-    import signal
-
     try:
         return signal.Signals(number).name
     except ValueError:

@@ -110,3 +110,52 @@ def test_falls_back_to_scalar_without_a_usable_llvm(tmp_path):
     assert len(notes) == 1 and "is not LLVM >= 17" in notes[0]
     assert "scalar_rgb" in result.stdout
     assert read_png(tmp_path / "m.png").shape == (8, 12, 3)
+
+
+@pytest.mark.parametrize("text", ["", "# only a comment\n\n", "mkdir -p results\necho grading\n"],
+                         ids=["empty", "comments", "shell lines"])
+def test_a_batch_without_command_lines_is_one_line(tmp_path, text):
+    batch = tmp_path / "empty.sh"
+    batch.write_text(text)
+    result = run("--batch", str(batch), cwd=tmp_path)
+    lines = result.stderr.strip().splitlines()
+    assert result.returncode == 2 and len(lines) == 1, result.stderr
+    assert "no course command lines" in lines[0] and "bad" not in lines[0]
+
+
+def test_converter_output_through_a_link_loads(variant_rgb, tmp_path):
+    """A link in -o's folder: the cube map's and the meshes' relative paths are
+    relative to the folder's real location (Mitsuba, as the system, follows the link)."""
+    import shutil
+
+    import mitsuba as mi
+
+    from converters.__main__ import main as convert
+
+    source = tmp_path / "src"  # near the output: a relative path from the link's spelling stays short
+    for folder in ("tex", "meshes"):
+        shutil.copytree(ROOT / "scenes" / folder, source / folder)
+    for name in ("mirrors", "showcase"):
+        shutil.copy(ROOT / "scenes" / f"{name}.txt", source)
+    real = tmp_path / "real" / "deep" / "er"
+    real.mkdir(parents=True)
+    (tmp_path / "link").symlink_to(real)
+    for name in ("mirrors", "showcase"):
+        target = tmp_path / "link" / f"{name}.xml"
+        assert convert([str(source / f"{name}.txt"), "-o", str(target), "-size", "8", "6"]) == 0
+        for path in (target, real / f"{name}.xml"):  # through the link, and by its real path
+            image = np.array(mi.render(mi.load_file(str(path), optimize=False)), np.float32)
+            assert image.shape[:2] == (6, 8) and np.isfinite(image).all()
+
+
+def test_stdout_closed_by_its_reader_is_one_line(tmp_path):
+    """``render.py ... | head -0``: one line, exit 2, the image written; no 'Exception ignored' at exit."""
+    read, write = os.pipe()
+    os.close(read)  # the reader has gone before the first line
+    result = subprocess.run([sys.executable, str(ROOT / "render.py"), "-input", str(ROOT / "scenes" / "showcase.txt"),
+                             "-size", "8", "6", "-output", str(tmp_path / "a.png")], stdout=write,
+                            stderr=subprocess.PIPE, text=True, timeout=300)
+    os.close(write)
+    assert result.returncode == 2 and result.stderr.splitlines() == [
+        "render.py: error: standard output was closed by its reader (broken pipe)"], result.stderr
+    assert read_png(tmp_path / "a.png").shape == (6, 8, 3)

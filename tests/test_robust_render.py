@@ -27,7 +27,8 @@ from converters.course_scene import parse_scene
 from converters.description import RenderOptions, scene_dict
 from converters.to_mitsuba import load_scene_dict
 from helpers import MAX_BAD_FRACTION, bad_fraction, encode
-from renderer.job import RenderJob, render, render_in_launches
+from renderer.job import RenderJob, render
+from renderer.launches import pixel_order, render_in_launches
 from validation.stress import scaled
 from validation.stress_cases import DEFAULTS, scene as scene_text
 
@@ -173,6 +174,23 @@ def test_launches_give_the_same_image(variant_vectorised_rgb):
     for launch in (4 * 37, 4 * 100, 1000):
         np.testing.assert_array_equal(render_in_launches(scene, 4, True, launch_samples=launch), whole)
     assert not np.array_equal(render_in_launches(scene, 4, True, seed=1), whole)  # the jitter is live
+    # parts of one pixel's samples per launch (a pixel that is more work than a launch), summed in float64
+    small = load_scene_dict(scene_dict(parsed(scene_text()), RenderOptions(width=5, height=3, aovs=("id",),
+                                                                            jitter=True, **FLAGS)))
+    whole = render_in_launches(small, 8, True)
+    for launch in (3, 5):
+        np.testing.assert_allclose(render_in_launches(small, 8, True, launch_samples=launch), whole, rtol=1e-6,
+                                   atol=1e-7)
+
+
+def test_the_pixel_order_visits_every_pixel_once_and_interleaved():
+    for pixels in (1, 31, 32, 33, 1000, 64 * 64 + 5):
+        order = pixel_order(0, pixels, pixels)
+        assert sorted(order.tolist()) == list(range(pixels))
+        np.testing.assert_array_equal(np.concatenate([pixel_order(k, 7, pixels) for k in range(0, pixels, 7)])
+                                      [:pixels], order)
+    first = pixel_order(0, 4096 // 8, 4096)  # an eighth of the launches' pixels ...
+    assert np.ptp(first) > 4096 * 3 // 4  # ... spread over the whole image
 
 
 def test_one_sample_renders_as_mitsuba_does(variant_vectorised_rgb):

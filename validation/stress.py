@@ -21,7 +21,8 @@ from converters.model import PointLight
 from core.errors import SceneError
 from imaging.image_io import CUBE_FACES
 from validation.metrics import TOLERANCE, bad_fraction
-from validation.stress_cases import DEFAULTS, Case, scene as base_scene
+from validation.stress_cases_inputs import contract_problems, run_render_cli
+from validation.stress_scene import DEFAULTS, Case, scene as base_scene
 
 #: "file:line:col: message", one line
 LOCATED = re.compile(r"^[^\n]+:\d+:\d+: [^\n]+$")
@@ -207,7 +208,8 @@ CLI_VOCABULARY = ["-input", "-size", "-output", "-normals", "-depth", "-bounces"
                   "0", "1", "2", "3", "7", "-1", "1e3", "nan", "x", "", "1000000000", "4294967296", "300000",
                   "s.txt", "bad.txt", "missing.txt", "missing/s.txt", "showcase", "a.png", "a.png", "b.exr",
                   "c.jpg", "dir", "dir/x.png", "new/y.bmp", "ro.png", "link.png", "notes.txt/x.png", "b.sh",
-                  "nope_rgb", "scalar_spectral", "é.png", "-", "--", "-size=4"]
+                  "nope_rgb", "scalar_spectral", "é.png", "-", "--", "-size=4", "empty.sh", "linkdir/x.png",
+                  "dangling.png", "-bounces", "1000"]
 SHELL_VOCABULARY = ["-h", "--help", "a2", "${BIN}", "python3", "render.py", "clear", "echo", "mkdir", "-p", "cd", "#", "\\", "'",
                     '"', ";", "&&", "|"]
 
@@ -221,7 +223,6 @@ def fuzz_cli(examples: int, seed: int = 0) -> int:
 
     from hypothesis import HealthCheck, given, settings, strategies as st
 
-    from validation.stress_cases_inputs import contract_problems, run_render_cli
 
     folder = Path(tempfile.mkdtemp(prefix="stress-cli-"))
     (folder / "s.txt").write_text(base_scene())
@@ -232,6 +233,10 @@ def fuzz_cli(examples: int, seed: int = 0) -> int:
     (folder / "ro.png").chmod(0o444)
     os.symlink("a.png", folder / "link.png")
     (folder / "b.sh").write_text("a2 -input s.txt -size 4 3 -output batch.png\nclear\n")
+    (folder / "empty.sh").write_text("# nothing to render\n")
+    (folder / "real" / "deep").mkdir(parents=True)
+    os.symlink("real/deep", folder / "linkdir")
+    os.symlink("gone/d.png", folder / "dangling.png")
     count = 0
 
     def check(argv: list[str], batch: bool) -> None:

@@ -8,60 +8,18 @@ Every case states what must happen:
 - ``error``: exactly one :class:`SceneError` whose message is one line
   ``file:line:col: ...`` containing ``expect``.
 
-Used by ``tests/stress`` (the fast subset) and ``python -m benchmarks.stress``.
+Used by ``tests/stress`` (the fast subset) and ``python -m benchmarks.stress``; :func:`all_cases`
+also gathers the input, scale and system cases (``stress_cases_*``).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-
 from imaging.image_io import CUBE_FACES
+from validation.stress_cases_inputs import all_input_cases
+from validation.stress_cases_scale import scale_cases
+from validation.stress_cases_system import system_cases
+from validation.stress_scene import DEFAULTS, Case, material, scene
 
-#: A small well-conditioned scene; {materials}, {lights}, {objects} and the
-#: other fields are filled in per case.
-BASE = """PerspectiveCamera {{ center {center} direction {direction} up {up} angle {angle} }}
-Lights {{ numLights {num_lights} {lights} }}
-Background {{ color 0.1 0.2 0.3 ambientLight 0.1 0.1 0.1 {background} }}
-Materials {{ numMaterials {num_materials} {materials} }}
-Group {{ numObjects {num_objects} {objects} }}
-"""
-DEFAULTS = dict(
-    center="0 1 6", direction="0 -0.1 -1", up="0 1 0", angle="40", background="",
-    num_lights=2, lights="DirectionalLight { direction -0.3 -1 -0.5 color 0.7 0.7 0.7 } "
-                         "PointLight { position 1 3 2 color 1 1 1 falloff 0.2 }",
-    num_materials=2, materials="Material { diffuseColor 0.8 0.3 0.2 specularColor 0.5 0.5 0.5 shininess 20 } "
-                               "Material { diffuseColor 0.6 0.6 0.6 }",
-    num_objects=3, objects="MaterialIndex 1 Plane { normal 0 1 0 offset 0 } "
-                           "MaterialIndex 0 Sphere { center -0.8 0.8 0 radius 0.8 } "
-                           "Transform { Translate 1 0.6 -0.5 Scale 0.6 0.6 0.6 Sphere { center 0 0 0 radius 1 } }",
-)
-
-
-def scene(**changes) -> str:
-    return BASE.format(**{**DEFAULTS, **changes})
-
-
-def material(shininess="20", diffuse="0.8 0.3 0.2", specular="0.5 0.5 0.5") -> str:
-    return (f"Material {{ diffuseColor {diffuse} specularColor {specular} shininess {shininess} }} "
-            "Material { diffuseColor 0.6 0.6 0.6 }")
-
-
-@dataclass(frozen=True)
-class Case:
-    name: str
-    text: str
-    kind: str  # "render" or "error"
-    expect: str = ""  # error: a piece of the message
-    match: str | None = None  # render: a well-conditioned equivalent scene text
-    reference: bool = False  # render: compare with the NumPy reference tracer
-    flags: dict = field(default_factory=lambda: dict(bounces=2, shadows=True))
-    scale: float | None = None  # render: the scene scaled by this factor about the origin ...
-    offset: float = 0.0  # ... and moved this far along (1, 1, 1)/sqrt(3)
-    # render: at most this fraction of pixels may differ by more than 2/255, and none by more than
-    # max_difference/255 (a self-shadowing speckle or a light leak differs by far more)
-    tolerance: float = 0.005
-    max_difference: int = 255
-    files: dict = field(default_factory=dict)  # extra files beside the scene: name -> bytes
-    fast: bool = True  # part of the CI subset
+__all__ = ["DEFAULTS", "Case", "material", "scene", "all_cases", "error_cases", "render_cases"]
 
 
 def render_cases() -> list[Case]:
@@ -215,6 +173,4 @@ def error_cases() -> list[Case]:
 
 
 def all_cases() -> list[Case]:
-    from validation.stress_cases_inputs import all_input_cases  # inputs, CLI, files, batches (issue 14)
-    from validation.stress_cases_scale import scale_cases  # far lights and objects, many lights (issue 14)
-    return render_cases() + error_cases() + scale_cases() + all_input_cases()
+    return render_cases() + error_cases() + scale_cases() + all_input_cases() + system_cases()

@@ -1,4 +1,4 @@
-"""Stress cases for inputs, the error contract, files and batches (issue 14).
+"""Stress cases for inputs, the error contract, files and batches.
 
 Two kinds:
 
@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from imaging.image_io import CUBE_FACES
-from validation.stress_cases import DEFAULTS, Case, material, scene
+from validation.stress_scene import DEFAULTS, Case, material, scene
 
 
 def run_render_cli(folder: Path, argv: list[str]) -> tuple[int, str]:
@@ -182,6 +182,7 @@ class CliCase:
     written: tuple[str, ...] = ()
     absent: tuple[str, ...] = ()
     links: tuple[str, ...] = ()
+    lines: int | None = None  # exactly this many lines on stderr
     fast: bool = True
     kind: str = "cli"
 
@@ -199,7 +200,9 @@ class CliCase:
             if code != self.code:
                 problems.append(f"exit code {code}, expected {self.code}")
             problems += [f"no {piece!r} in stderr" for piece in self.expect if piece not in text]
-            problems += [f"{name} not written" for name in self.written if not (folder / name).is_file()]
+            if self.lines is not None and len(text.strip().splitlines()) != self.lines:
+                problems.append(f"{len(text.strip().splitlines())} lines on stderr, expected {self.lines}")
+            problems += [f"{name} not written" for name in self.written if not (folder / name).exists()]
             problems += [f"{name} exists" for name in self.absent if os.path.lexists(folder / name)]
             problems += [f"{name} is no longer a link" for name in self.links if not (folder / name).is_symlink()]
             leftovers = [p.name for p in folder.rglob(".*") if p.is_file()]
@@ -345,6 +348,16 @@ def cli_cases() -> list[CliCase]:
                 ("remove -size",), {**scene_file, "b.sh": b"a2 -input s.txt -size 8 6 -output a.png\n"},
                 absent=("a.png",)),
         CliCase("batch file missing", ("--batch", "nowhere.sh"), 2, ("nowhere.sh",)),
+        CliCase("batch: an empty file is one line", ("--batch", "b.sh"), 2, ("no course command lines",),
+                {"b.sh": b""}, lines=1),
+        CliCase("batch: only comments and shell lines is one line", ("--batch", "b.sh"), 2,
+                ("no course command lines",), {"b.sh": b"# grading\nmkdir -p res\necho done\n"}, lines=1,
+                written=("res",)),
+        CliCase("output into a folder reached through a link", (*inp, *TINY, "-output", "link/a.png"), 0, (),
+                {**scene_file, "real/deep": "/", "link": "->real/deep"}, written=("real/deep/a.png",),
+                links=("link",)),
+        CliCase("output through a dangling link", (*inp, *TINY, "-output", "a.png"), 0, (),
+                {**scene_file, "a.png": "->gone/a.png"}, written=("gone/a.png",), links=("a.png",)),
         CliCase("batch file is binary", ("--batch", "b.sh"), 2, ("binary",), {"b.sh": b"\xff\xfe\x00garbage"}),
     ]
     return cases

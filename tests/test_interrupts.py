@@ -1,0 +1,84 @@
+"""Ctrl-C and SIGTERM stop any render within 2 s, whatever its work per sample.
+
+Facing mirrors with ``-bounces 1000``: every ray bounces the whole way, so
+a launch sized by samples alone ran for many seconds and the signal waited
+for it. The render gets the signal once it is rendering (after a tiny render
+of the same scene, start-up and kernel compilation included, has been timed)
+and must exit with 128 + the signal within 2 s, print at most one line,
+write nothing (no output, no temporary file) and leave no process behind.
+"""
+from __future__ import annotations
+
+import signal
+import time
+from pathlib import Path
+
+import pytest
+
+from conftest import SCALAR_FALLBACK
+from validation.stress_cases_system import FACING_MIRRORS
+from validation.stress_system import ROOT, interrupt, python, run_command
+
+#: The largest delay between a signal and the exit
+STOP_SECONDS = 2.0
+#: Sizes at which a render takes minutes (llvm: ~3000 ray casts per pixel)
+SIZES = {"llvm_ad_rgb": 1024, "scalar_rgb": 256}
+
+
+def render_command(scene: Path, size: int, variant: str, output: Path) -> list[str]:
+    return python(ROOT / "render.py", "-input", scene, "-size", size, size, "-bounces", 1000, "-shadows",
+                  "--variant", variant, "-output", output)
+
+
+@pytest.mark.parametrize("signum, group", [(signal.SIGINT, False), (signal.SIGTERM, False), (signal.SIGINT, True),
+                                           (signal.SIGHUP, True)],
+                         ids=["SIGINT", "SIGTERM", "Ctrl-C to the process group", "SIGHUP to the process group"])
+@pytest.mark.parametrize("variant", ["llvm_ad_rgb", "scalar_rgb"])
+def test_a_render_of_facing_mirrors_stops_within_two_seconds(tmp_path, variant, signum, group):
+    """The process group: a terminal's Ctrl-C also reaches the scalar variant's workers."""
+    if variant.startswith("llvm_") and SCALAR_FALLBACK:
+        pytest.skip("no usable libLLVM")
+    scene = tmp_path / "mirrors.txt"
+    scene.write_text(FACING_MIRRORS)
+    warm = tmp_path / "warm"
+    warm.mkdir()
+    start = time.perf_counter()
+    code, _, stderr = run_command(render_command(scene, 4, variant, warm / "tiny.png"), cwd=tmp_path)
+    start_up = time.perf_counter() - start
+    assert code == 0, stderr
+    out = tmp_path / "out"
+    out.mkdir()
+    result = interrupt(render_command(scene, SIZES[variant], variant, out / "mirrors.png"),
+                       delay=start_up + 1.5, signum=signum, cwd=tmp_path, group=group)
+    print(f"{variant} {signal.Signals(signum).name}{' to the group' if group else ''}: start-up {start_up:.2f} s, exit {result.seconds:.2f} s "
+          f"after the signal, code {result.code}")
+    assert result.running, "the render ended before the signal"
+    assert result.code == 128 + signum, result.stderr[-2000:]
+    assert result.seconds <= STOP_SECONDS
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) <= 1 and "interrupted" in lines[0], result.stderr[-2000:]
+    assert list(out.iterdir()) == []  # no output, no temporary file
+    assert result.left == []
+
+
+#: From the module's imports (earlier than ~0.1 s the signal lands in Python's own
+#: start-up, before any line of ours) through Dr.Jit's start-up, the writing and the teardown
+CONVERTER_DELAYS = (0.15, 0.25, 0.4, 0.6, 0.8, 1.0, 1.3)
+
+
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+def test_the_converter_keeps_the_contract_at_any_instant(tmp_path, signum):
+    """Finished (0), or one line and 128 + signum; never a traceback, a silent
+    death in the teardown or a temporary file."""
+    outcomes = []
+    for delay in CONVERTER_DELAYS:
+        out = tmp_path / f"{delay}"
+        result = interrupt(python("-m", "converters", ROOT / "scenes" / "showcase.txt", "-o", out / "s.xml"),
+                           delay=delay, signum=signum, cwd=tmp_path)
+        outcomes.append((delay, result.code))
+        lines = result.stderr.strip().splitlines()
+        assert result.code in (0, 128 + signum), (delay, result.code, result.stderr[-2000:])
+        assert len(lines) <= 1 and (result.code == 0 or "interrupted" in lines[0]), (delay, result.stderr[-2000:])
+        assert not out.exists() or not [p for p in out.rglob(".*")]
+        assert result.left == []
+    print(signal.Signals(signum).name, outcomes)

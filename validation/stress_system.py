@@ -1,0 +1,168 @@
+"""The machine under a command: full disks, signals, processes left behind.
+
+Shared by the system stress cases (:mod:`validation.stress_cases_system`)
+and the tests that check each class (``tests/test_full_disk.py``,
+``tests/test_interrupts.py``, ``tests/test_clean_logs.py``):
+
+- :func:`full_disk`: a folder on a file system that is full, or has a few
+  pages of room: a small tmpfs where mounting works (root), else a
+  file-size limit (``RLIMIT_FSIZE``) for the commands run there;
+- :func:`run_command`: a command in a subprocess, its exit code and stderr;
+- :func:`interrupt`: a command signalled after a delay: its exit code, how
+  long it took to exit, its stderr and the processes it left behind;
+- :func:`temporary_files`: what an atomic writer would leave (dot files).
+"""
+from __future__ import annotations
+
+import os
+import resource
+import shutil
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable, Iterator
+
+ROOT = Path(__file__).resolve().parent.parent
+#: Size of the test file system: a few previous files and one page of room fit
+DISK_BYTES = 256 * 1024
+PAGE = 4096
+
+
+@dataclass
+class Disk:
+    """A folder whose file system is full (:meth:`fill`) or nearly so.
+
+    ``limit``: a ``preexec_fn`` for commands that write there (the file-size
+    limit of the fallback; None on a tmpfs); ``expect``: the words the one
+    error line must hold."""
+    path: Path
+    limit: Callable[[], None] | None
+    expect: str
+    mounted: bool
+
+    def fill(self, room: int = 0) -> None:
+        """Fills the file system, then frees ``room`` bytes (whole pages)."""
+        if not self.mounted:
+            self.room = room
+            return
+        filler = self.path / "filler"
+        with open(filler, "ab", buffering=0) as file:
+            try:
+                while True:
+                    file.write(b"\0" * PAGE)
+            except OSError:  # full
+                pass
+        size = filler.stat().st_size
+        os.truncate(filler, max(size - (room + PAGE - 1) // PAGE * PAGE, 0))
+
+    room: int = 0
+
+
+def _mount(folder: Path) -> bool:
+    if os.geteuid() != 0 or shutil.which("mount") is None:
+        return False
+    done = subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={DISK_BYTES}", "tmpfs", str(folder)],
+                          capture_output=True)
+    return done.returncode == 0
+
+
+@contextmanager
+def full_disk(parent: Path | None = None) -> Iterator[Disk]:
+    """A :class:`Disk` under ``parent`` (a temporary folder if None); unmounted afterwards."""
+    with tempfile.TemporaryDirectory(dir=parent) as tmp:
+        folder = Path(tmp) / "disk"
+        folder.mkdir()
+        mounted = _mount(folder)
+        disk = Disk(folder, None, "no space left on device", mounted)
+        if not mounted:  # the fallback: every file a command writes may hold `room` bytes
+            def limit() -> None:
+                size = max(disk.room, 1)
+                resource.setrlimit(resource.RLIMIT_FSIZE, (size, size))
+            disk.limit, disk.expect = limit, "file too large"
+        try:
+            yield disk
+        finally:
+            if mounted:
+                subprocess.run(["umount", "-l", str(folder)], capture_output=True)
+
+
+def run_command(argv: list, cwd: Path = ROOT, env: dict | None = None,
+                preexec: Callable[[], None] | None = None, timeout: float = 300) -> tuple[int, str, str]:
+    """``argv`` run to its end: (exit code, stdout, stderr)."""
+    done = subprocess.run([str(a) for a in argv], cwd=cwd, capture_output=True, text=True, timeout=timeout,
+                          env={**os.environ, **(env or {})}, preexec_fn=preexec)
+    return done.returncode, done.stdout, done.stderr
+
+
+def python(*args: str) -> list[str]:
+    """A command of this project run by this Python: ``python(ROOT/'render.py', ...)``."""
+    return [sys.executable, *map(str, args)]
+
+
+def temporary_files(folder: Path) -> list[Path]:
+    """Files an interrupted or failed atomic write would leave: ``.name.xxxx.suffix``."""
+    return [path for path in Path(folder).rglob(".*") if path.is_file()]
+
+
+def session_processes(session: int) -> list[str]:
+    """Live processes of a session (zombies aside: those have exited and wait for init)."""
+    live = []
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            fields = (entry / "stat").read_text().rsplit(")", 1)[1].split()
+            state, sid = fields[0], int(fields[3])
+            if sid == session and state != "Z":
+                command = (entry / "cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
+                live.append(f"{entry.name} {command[:120]}")
+        except (OSError, IndexError, ValueError):
+            continue
+    return live
+
+
+@dataclass
+class Interrupted:
+    code: int | None  # None: it did not exit in time (then it was killed)
+    seconds: float  # from the signal to the exit
+    stderr: str
+    left: list[str]  # live processes of its session once it exited
+    running: bool  # still running when the signal was sent
+
+
+def interrupt(argv: list, delay: float, signum: int, cwd: Path = ROOT, timeout: float = 30,
+              env: dict | None = None, group: bool = False) -> Interrupted:
+    """Starts ``argv`` in a session of its own, sends ``signum`` after ``delay``
+    seconds (``group``: to its whole process group, as a terminal's Ctrl-C
+    does), and waits (up to ``timeout``) for it to exit."""
+    with tempfile.TemporaryFile() as err:
+        process = subprocess.Popen([str(a) for a in argv], cwd=cwd, stdout=subprocess.DEVNULL, stderr=err, start_new_session=True,
+                                   env={**os.environ, **(env or {})})
+        try:
+            time.sleep(delay)
+            running = process.poll() is None
+            if group:
+                os.killpg(process.pid, signum)
+            else:
+                process.send_signal(signum)
+            sent = time.perf_counter()
+            try:
+                code = process.wait(timeout=timeout)
+            except subprocess.TimeoutExpired:
+                code = None
+            seconds = time.perf_counter() - sent
+            time.sleep(0.2)  # what it started sees its pipes close
+            left = session_processes(process.pid)
+        finally:
+            if process.poll() is None:
+                process.kill()
+                process.wait()
+            for line in session_processes(process.pid):  # never leave anything behind a failed check
+                os.kill(int(line.split()[0]), signal.SIGKILL)
+        err.seek(0)
+        return Interrupted(code, seconds, err.read().decode(errors="replace"), left, running)
