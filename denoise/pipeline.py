@@ -9,7 +9,7 @@ from pathlib import Path
 
 from tqdm import tqdm
 
-from core.errors import FrameError
+from core.errors import FrameError, OutputError
 from imaging.image_io import write_exr
 
 from .frames import frame_indices, missing_files, read_frame
@@ -79,14 +79,14 @@ def denoise_folder(source: Path, target: Path, method: DenoisingMethod, on_frame
                 raise FrameError(f"{source / f'beauty_{index}.exr'}: {frame.beauty.shape[1]}x"
                                  f"{frame.beauty.shape[0]} pixels, but frame {indices[0]} has {size[1]}x{size[0]}")
             result = method.step(frame)
-        except FrameError as error:
+            path = target / f"result_{index}.exr"
+            write_exr(path, {"": result})
+        except (FrameError, OutputError) as error:
             if report.written:
                 done = (f"the result of frame {indices[0]} was" if index - 1 == indices[0]
                         else f"the results of frames {indices[0]} to {index - 1} were")
-                raise FrameError(f"{error} ({done} written to {target}; none from frame {index} on)") from None
+                raise type(error)(f"{error} ({done} written to {target}; none from frame {index} on)") from None
             raise
-        path = target / f"result_{index}.exr"
-        write_exr(path, {"": result})
         report.written.append(path)
         report.replaced_values += method.last_replaced
         report.frames_with_replaced += method.last_replaced > 0

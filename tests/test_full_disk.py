@@ -80,7 +80,7 @@ def test_denoise_on_a_full_disk(sequence):
 
 
 def test_a_disk_that_fills_between_two_frames(sequence):
-    """Room for the first result only: the error names the second, the first is complete."""
+    """Room for the first result only: the error names the second and what was written, the first is complete."""
     source, frame_bytes = sequence
     with full_disk() as disk:
         if disk.limit is not None:
@@ -91,6 +91,7 @@ def test_a_disk_that_fills_between_two_frames(sequence):
         code, _, stderr = run_command(python("-m", "denoise", source, target))
         assert one_error_line(code, stderr, "python -m denoise", "result_1.exr: no space left on device") == [], \
             stderr
+        assert f"(the result of frame 0 was written to {target}; none from frame 1 on)" in stderr, stderr
         assert image_io.read_exr_rgb(target / "result_0.exr").shape == (18, 32, 3)
         assert not (target / "result_1.exr").exists()
         assert temporary_files(disk.path) == []
