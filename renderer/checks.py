@@ -33,8 +33,7 @@ MAX_SAMPLES = 2**32 - 1
 MAX_SPP = 2**20
 #: Peak memory per film pixel and channel, in float32 copies: Mitsuba's image
 #: block, the developed film, the NumPy copy, the split layers and the encoded
-#: files (measured: 106 bytes per pixel for the 5 beauty channels, 20 more per
-#: AOV channel, at 1200x1200 with llvm_ad_rgb; /usr/bin/time -v, 2026-11-28)
+#: files (the peak measured with /usr/bin/time -v: docs/rendering.md)
 COPIES = 6
 #: Film channels besides the AOVs: R, G, B, alpha and the filter weight
 BEAUTY_CHANNELS = 5
