@@ -49,6 +49,9 @@ def _main(argv: list[str] | None) -> int:
     from course import data_dir, resolve_scene
     from renderer.variants import set_variant
 
+    from .server import check_port
+
+    check_port(args.host, args.port)
     scene_path = resolve_scene(args.scene, data_dir(args.data))
     variant = set_variant(args.variant, quiet=True)
     if variant.startswith("scalar"):
@@ -57,7 +60,7 @@ def _main(argv: list[str] | None) -> int:
 
     mi_plugins.register()
     from .frame_loop import FrameLoop, SceneRenderer
-    from .server import LiveServer, hello_message
+    from .server import LiveServer, hello_message  # aiohttp after the checks: --help and errors stay quick
     from .session import Session
 
     renderer = SceneRenderer(scene_path, width, height, freeze=not args.no_freeze)

@@ -74,6 +74,7 @@ class SceneRenderer:
         lights = [k for k, light in enumerate(self.scene.lights) if isinstance(light, PointLight)]
         self.light_key = f"light_{lights[0]}.position" if lights else None
         self.light = self.scene.lights[lights[0]].position if lights else None
+        self.last_camera, self.layers = None, None
         self.render_beauty = dr.freeze(render_beauty) if freeze else render_beauty
 
     def pivot_distance(self) -> float:
@@ -100,7 +101,8 @@ class SceneRenderer:
 
     def render(self, view: View, seed: int) -> tuple[FrameData, dict[str, float]]:
         """The frame of ``view`` (beauty with sampler seed ``seed``) and the
-        seconds of each pass ("gbuffers", "render")."""
+        seconds of each pass ("gbuffers", "render"); the G-buffers are those
+        of the last frame while the camera stays where it was."""
         import drjit as dr
         import mitsuba as mi
 
@@ -108,8 +110,11 @@ class SceneRenderer:
 
         start = time.perf_counter()
         self.set_view(view)
-        image = mi.render(self.mi_scene, sensor=self.centre_sensor, spp=1, seed=0)
-        layers = split_layers(np.array(image, np.float32), GBUFFER_AOVS)
+        if view.camera != self.last_camera:  # the G-buffers depend on the camera alone
+            image = mi.render(self.mi_scene, sensor=self.centre_sensor, spp=1, seed=0)
+            self.layers = split_layers(np.array(image, np.float32), GBUFFER_AOVS)
+            self.last_camera = view.camera
+        layers = self.layers
         gbuffers = time.perf_counter()
         beauty = self.render_beauty(self.mi_scene, self.jittered_sensor, self.integrator, mi.UInt32(seed))
         dr.eval(beauty)
@@ -132,15 +137,31 @@ def render_beauty(scene, sensor, integrator, seed):
     return mi.render(scene, integrator=integrator, sensor=sensor, spp=1, seed=seed)
 
 
-def encode_jpeg(image: np.ndarray) -> bytes:
-    """An HDR image tone-mapped as the previews are (:func:`imaging.colour.tone_map`), as JPEG."""
-    from PIL import Image
+#: the tone map's input range: Reinhard's extended operator with white 4 reaches 1 (code 255) at 4
+TONE_MAP_WHITE = 4.0
+#: table entries over [0, white]: steps of 6e-5, a fifth of an 8-bit code where sRGB is steepest
+TONE_MAP_ENTRIES = 1 << 16
 
-    from imaging.colour import tone_map
 
-    buffer = io.BytesIO()
-    Image.fromarray(tone_map(image)).save(buffer, "JPEG", quality=JPEG_QUALITY)
-    return buffer.getvalue()
+class JPEGEncoder:
+    """HDR frames as JPEG, tone-mapped as the previews are (:func:`imaging.colour.tone_map`)
+    through a table of that function, built once (a frame is then one lookup)."""
+
+    def __init__(self, quality: int = JPEG_QUALITY):
+        from imaging.colour import tone_map
+
+        self.quality = quality
+        self.table = tone_map(np.linspace(0.0, TONE_MAP_WHITE, TONE_MAP_ENTRIES, dtype=np.float64))
+        self.scale = np.float32((TONE_MAP_ENTRIES - 1) / TONE_MAP_WHITE)
+
+    def __call__(self, image: np.ndarray) -> bytes:
+        from PIL import Image
+
+        index = np.nan_to_num(np.asarray(image, np.float32) * self.scale + np.float32(0.5), nan=0.0)
+        index = np.clip(index, 0, TONE_MAP_ENTRIES - 1).astype(np.int32)
+        buffer = io.BytesIO()
+        Image.fromarray(self.table[index]).save(buffer, "JPEG", quality=self.quality)
+        return buffer.getvalue()
 
 
 def packet(header: dict, raw: bytes, denoised: bytes) -> bytes:
@@ -161,6 +182,7 @@ class FrameLoop(threading.Thread):
         self.sent_at: dict[int, float] = {}
         self.transport_ms = None
         self.error: BaseException | None = None
+        self.encode = JPEGEncoder()
 
     def stop(self) -> None:
         with self.session.changed:
@@ -180,6 +202,10 @@ class FrameLoop(threading.Thread):
         session = self.session
         if self.stopped:
             return True
+        if not session.connected:
+            return False
+        if session.acked is None:
+            session.acked = self.frame - 1
         if self.frame - 1 - session.acked >= IN_FLIGHT:
             return False
         return not session.paused or session.steps > 0
@@ -212,8 +238,8 @@ class FrameLoop(threading.Thread):
             method, values, resets = view.method, view.values, reset
             result = denoiser.step(frame) if denoiser is not None else frame.beauty
             denoised = time.perf_counter()
-            raw_jpeg = encode_jpeg(frame.beauty)
-            denoised_jpeg = raw_jpeg if view.method == RAW else encode_jpeg(result)
+            raw_jpeg = self.encode(frame.beauty)
+            denoised_jpeg = raw_jpeg if view.method == RAW else self.encode(result)
             encoded = time.perf_counter()
             ms = {"render": seconds["render"] * 1000, "gbuffers": seconds["gbuffers"] * 1000,
                   "denoise": (denoised - start) * 1000, "encode": (encoded - denoised) * 1000,

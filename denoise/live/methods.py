@@ -12,8 +12,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 
-from denoise.pipeline import DenoiseOptions, parse_method
-
 RAW = "raw"
 #: what the page lists, in its order
 METHOD_NAMES = (RAW, "bilateral", "bilateral+temporal", "atrous", "atrous+temporal", "svgf",
@@ -32,7 +30,7 @@ class Slider:
     step: float
     whole: bool = False
 
-    def as_json(self, options: DenoiseOptions) -> dict:
+    def as_json(self, options) -> dict:
         return {"name": self.name, "low": self.low, "high": self.high, "step": self.step,
                 "value": getattr(getattr(options, self.block), self.field)}
 
@@ -61,20 +59,22 @@ SLIDERS["bilateral+temporal"] = SLIDERS["bilateral"] + TEMPORAL
 SLIDERS["atrous+temporal"] = SLIDERS["atrous"] + TEMPORAL
 
 
-def base_options(name: str, width: int) -> DenoiseOptions | None:
-    """The options of method ``name`` before any slider (None for ``raw``);
-    SVGF's levels made explicit for a ``width``-pixel image."""
+def base_options(name: str, width: int):
+    """The :class:`DenoiseOptions` of method ``name`` before any slider (None
+    for ``raw``); SVGF's levels made explicit for a ``width``-pixel image."""
+    # imported here: the denoiser loads Dr.Jit, which must wait until the libLLVM is chosen
+    from denoise.pipeline import parse_method
+    from denoise.svgf import levels_for
+
     if name == RAW:
         return None
     options = parse_method(name)
     if options.method == "svgf":
-        from denoise.svgf import levels_for
-
         options = replace(options, svgf=replace(options.svgf, levels=levels_for(width)))
     return options
 
 
-def options_for(name: str, width: int, values: dict[str, float]) -> DenoiseOptions | None:
+def options_for(name: str, width: int, values: dict[str, float]):
     """The options of method ``name`` with slider ``values`` (name -> value,
     each already checked against its :class:`Slider`'s range)."""
     options = base_options(name, width)

@@ -28,6 +28,27 @@ SOCKET_LIMIT = 1 << 20
 LOOPBACK = ("127.0.0.1", "localhost", "::1")
 
 
+def check_port(host: str, port: int) -> None:
+    """Raises UsageError (one line) where ``host:port`` cannot be listened on,
+    before the scene is loaded (aiohttp binds it again once ready)."""
+    import socket
+
+    from core.errors import UsageError
+
+    try:
+        family = socket.AF_INET6 if ":" in host else socket.AF_INET
+        with socket.socket(family, socket.SOCK_STREAM) as probe:
+            probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # as aiohttp binds
+            probe.bind((host, port))
+    except OSError as error:
+        raise UsageError(port_message(host, port, error)) from None
+
+
+def port_message(host: str, port: int, error: OSError) -> str:
+    return (f"cannot listen on {host}:{port}: {error.strerror or error}"
+            + (" (another server uses that port; choose another with --port)" if error.errno == 98 else ""))
+
+
 def allowed_origins(host: str, port: int) -> set[str]:
     """The origins of the page as a browser sees it when it opens the printed address."""
     names = {host} | (set(LOOPBACK) - {"::1"} if host in LOOPBACK else set())
@@ -74,6 +95,7 @@ class LiveServer:
             await ws.close(code=4001, message=b"one viewer at a time")
             return ws
         self.viewer = ws
+        self.session.connect(True)
         await ws.send_json(dict(self.hello, type="hello", methods=list(METHOD_NAMES)))
         await ws.send_json(self.state())
         try:
@@ -86,6 +108,7 @@ class LiveServer:
         finally:
             if self.viewer is ws:
                 self.viewer = None
+                self.session.connect(False)
         return ws
 
     async def handle(self, ws: web.WebSocketResponse, text: str) -> None:
@@ -133,9 +156,7 @@ class LiveServer:
             await web.TCPSite(runner, self.host, self.port).start()
         except OSError as error:
             await runner.cleanup()
-            raise UsageError(f"cannot listen on {self.host}:{self.port}: {error.strerror or error}"
-                             + (" (another server uses that port; choose another with --port)"
-                                if error.errno == 98 else "")) from None
+            raise UsageError(port_message(self.host, self.port, error)) from None
         self.port = runner.addresses[0][1]  # the one bound (--port 0 picks a free one)
         host = f"[{self.host}]" if ":" in self.host else self.host
         ready(f"http://{host}:{self.port}/")

@@ -131,8 +131,15 @@ class Session:
         self.steps = 0  # single steps asked for while paused
         self.history_resets = 0  # counts reset_history messages (and method changes)
         self.changed = threading.Condition()
-        self.acked = -1
+        self.acked: int | None = None  # the last frame the page showed (None: none since it connected)
+        self.connected = False  # a viewer is there: frames are rendered only then
         self.reset_view()
+
+    def connect(self, connected: bool) -> None:
+        """A viewer came (True) or went; frames sent before it came count as shown."""
+        with self.changed:
+            self.connected, self.acked = connected, None
+            self.changed.notify_all()
 
     def reset_view(self) -> None:
         self.camera, self.light, self.distance = self.first_camera, self.first_light, self.first_distance
@@ -209,4 +216,4 @@ class Session:
         self.history_resets += 1
 
     def _ack(self, frame: int) -> None:
-        self.acked = max(self.acked, int(frame))
+        self.acked = max(self.acked if self.acked is not None else -1, int(frame))
