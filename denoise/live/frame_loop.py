@@ -74,6 +74,7 @@ class SceneRenderer:
         lights = [k for k, light in enumerate(self.scene.lights) if isinstance(light, PointLight)]
         self.light_key = f"light_{lights[0]}.position" if lights else None
         self.light = self.scene.lights[lights[0]].position if lights else None
+        self.mi_scene.integrator().analyse(self.mi_scene)  # what whitted.render does before sampling
         self.last_camera, self.layers = None, None
         self.render_beauty = dr.freeze(render_beauty) if freeze else render_beauty
 
@@ -111,14 +112,14 @@ class SceneRenderer:
         start = time.perf_counter()
         self.set_view(view)
         if view.camera != self.last_camera:  # the G-buffers depend on the camera alone
-            image = mi.render(self.mi_scene, sensor=self.centre_sensor, spp=1, seed=0)
-            self.layers = split_layers(np.array(image, np.float32), GBUFFER_AOVS)
+            channels = sample_image(self.mi_scene, self.mi_scene.integrator(), self.centre_sensor, mi.UInt32(0))
+            self.layers = split_layers(to_image(channels, self.width, self.height), GBUFFER_AOVS)
             self.last_camera = view.camera
         layers = self.layers
         gbuffers = time.perf_counter()
-        beauty = self.render_beauty(self.mi_scene, self.jittered_sensor, self.integrator, mi.UInt32(seed))
-        dr.eval(beauty)
-        beauty = np.array(beauty, np.float32)[..., :3]
+        channels = self.render_beauty(self.mi_scene, self.integrator, self.jittered_sensor, mi.UInt32(seed))
+        dr.eval(channels)
+        beauty = to_image(channels, self.width, self.height)[..., :3]
         end = time.perf_counter()
         camera = view.camera
         ids = layers["id"].astype(np.int32)
@@ -130,11 +131,39 @@ class SceneRenderer:
         return frame, {"gbuffers": gbuffers - start, "render": end - gbuffers}
 
 
-def render_beauty(scene, sensor, integrator, seed):
-    """The noisy 1-spp beauty (the function that is frozen)."""
+def sample_image(scene, integrator, sensor, seed) -> list:
+    """One sample per pixel of ``sensor``'s film by ``integrator``: the
+    channels RGB, then the integrator's AOVs, each a flat array in row
+    order. The sample's position in its pixel comes from the sampler
+    (``live_camera`` with ``pixel_centers`` shoots through the centre).
+    Launched without ``mi.render``: its binding swaps the process's SIGINT
+    handler while it runs (and keeps its own after a nested render, as
+    ``whitted``'s is), so Ctrl-C would reach neither Python nor the server."""
+    import drjit as dr
     import mitsuba as mi
 
-    return mi.render(scene, integrator=integrator, sensor=sensor, spp=1, seed=seed)
+    with dr.suspend_grad():
+        width, height = (int(v) for v in sensor.film().size())
+        index = dr.arange(mi.UInt32, width * height)
+        y = index // width
+        x = index - y * width
+        sampler = sensor.sampler().clone()
+        sampler.seed(seed, width * height)
+        position = (mi.Point2f(mi.Float(x), mi.Float(y)) + sampler.next_2d()) / mi.ScalarPoint2f(width, height)
+        ray, weight = sensor.sample_ray(0.0, 0.5, position, mi.Point2f(0.5))
+        spectrum, _, aovs = integrator.sample(scene, sampler, ray, None, mi.Bool(True))
+        spectrum = spectrum * weight
+        return [spectrum.x, spectrum.y, spectrum.z] + list(aovs)
+
+
+def render_beauty(scene, integrator, sensor, seed) -> list:
+    """The noisy 1-spp beauty's channels (the function that is frozen)."""
+    return sample_image(scene, integrator, sensor, seed)
+
+
+def to_image(channels: list, width: int, height: int) -> np.ndarray:
+    """Flat channels as one (H, W, C) float32 image."""
+    return np.stack([np.asarray(c, np.float32) for c in channels], axis=-1).reshape(height, width, len(channels))
 
 
 #: the tone map's input range: Reinhard's extended operator with white 4 reaches 1 (code 255) at 4

@@ -13,6 +13,7 @@
 from __future__ import annotations
 
 import asyncio
+import signal
 from pathlib import Path
 
 from aiohttp import WSMsgType, web
@@ -63,7 +64,8 @@ class LiveServer:
         self.viewer: web.WebSocketResponse | None = None
         self.loop: asyncio.AbstractEventLoop | None = None
         self.on_shown = None  # frame number -> None, called when the page acknowledges a frame
-        self.failed = asyncio.Event()
+        self.failed = asyncio.Event()  # set to stop: the frame loop failed, or a signal came
+        self.signal: int | None = None
         self.app = web.Application(middlewares=[self.only_own_paths])
         self.app.router.add_get("/", self.page)
         self.app.router.add_get("/ws", self.socket)
@@ -124,6 +126,11 @@ class LiveServer:
         elif message["type"] in ("method", "param", "pause", "reset_view"):
             await ws.send_json(self.state())
 
+    def stop_on(self, signum: int) -> None:
+        """SIGINT or SIGTERM: stop serving; :meth:`serve` then raises ``Interrupted``."""
+        self.signal = signum
+        self.failed.set()
+
     def publish(self, data: bytes | None) -> None:
         """Sends a frame to the viewer (from the frame loop's thread); None: the loop failed."""
         if self.loop is None:
@@ -158,12 +165,19 @@ class LiveServer:
             await runner.cleanup()
             raise UsageError(port_message(self.host, self.port, error)) from None
         self.port = runner.addresses[0][1]  # the one bound (--port 0 picks a free one)
+        # signals through the loop (its wakeup fd): delivered to a render thread, a plain
+        # handler would wait for the main thread to leave select()
+        for signum in (signal.SIGINT, signal.SIGTERM):
+            self.loop.add_signal_handler(signum, self.stop_on, signum)
         host = f"[{self.host}]" if ":" in self.host else self.host
         ready(f"http://{host}:{self.port}/")
-        try:
-            await self.failed.wait()
-        finally:
-            await runner.shutdown()
+        # no graceful shutdown or closing handshake: both wait for the viewer (seconds); the
+        # process ends, and the page sees its connection drop
+        await self.failed.wait()
+        if self.signal is not None:
+            from core.entry import Interrupted
+
+            raise Interrupted(self.signal)
 
 
 def hello_message(scene: str, width: int, height: int, variant: str, frozen: bool, light: bool) -> dict:
