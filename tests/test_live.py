@@ -247,6 +247,7 @@ def test_interrupt_stops_within_a_second(signum):
                     return time.perf_counter() - start
 
         seconds = run(watch())
+        assert process.poll() is not None, "still running 10 s after the signal"
         stderr = process.stderr.read()
         assert process.returncode == 128 + signum
         assert seconds < 1.0, f"took {seconds:.2f} s"
