@@ -104,7 +104,6 @@ class SceneRenderer:
         """The frame of ``view`` (beauty with sampler seed ``seed``) and the
         seconds of each pass ("gbuffers", "render"); the G-buffers are those
         of the last frame while the camera stays where it was."""
-        import drjit as dr
         import mitsuba as mi
 
         from renderer.job import split_layers
@@ -118,7 +117,6 @@ class SceneRenderer:
         layers = self.layers
         gbuffers = time.perf_counter()
         channels = self.render_beauty(self.mi_scene, self.integrator, self.jittered_sensor, mi.UInt32(seed))
-        dr.eval(channels)
         beauty = to_image(channels, self.width, self.height)[..., :3]
         end = time.perf_counter()
         camera = view.camera
@@ -162,7 +160,10 @@ def render_beauty(scene, integrator, sensor, seed) -> list:
 
 
 def to_image(channels: list, width: int, height: int) -> np.ndarray:
-    """Flat channels as one (H, W, C) float32 image."""
+    """Flat channels as one (H, W, C) float32 image (one kernel computes them all)."""
+    import drjit as dr
+
+    dr.eval(*channels)
     return np.stack([np.asarray(c, np.float32) for c in channels], axis=-1).reshape(height, width, len(channels))
 
 
