@@ -6,7 +6,8 @@
 Starts ``python -m denoise.live``, opens its page in Debian's chromium
 (headless, driven by Playwright), waits for the first frames (every kernel
 compiled), then drives a fixed camera path for ``--seconds``: an orbit
-drag of 2 pixels per animation frame across the view and back. It records
+drag of 1 pixel per step (about 16 ms), a tenth of the view's width to
+either side and back (0.4 degrees of orbit per pixel). It records
 the frames the page showed and their rate (the page's own count: frames
 drawn per second of its clock), and the median and 90th percentile of each
 stage's milliseconds as the server reports them per frame (render,
@@ -67,8 +68,8 @@ def measure(url: str, seconds: float, screenshot: Path | None) -> dict:
             start, fps_readouts, offset, sign = time.perf_counter(), [], 0, 1
             while time.perf_counter() - start < seconds:
                 page.mouse.move(x + offset, y)
-                offset += 2 * sign
-                if abs(offset) >= box["width"] * 0.3:
+                offset += sign
+                if abs(offset) >= box["width"] * 0.1:
                     sign = -sign
                 page.wait_for_timeout(16)
                 fps_readouts.append(page.evaluate("window.live.fps"))
