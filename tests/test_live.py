@@ -319,3 +319,38 @@ def test_page_in_a_real_browser(server):
             assert page.evaluate("window.live.errors") == []
         finally:
             browser.close()
+
+
+# -- the session's camera and light (no server) ------------------------------------------
+def _session(light=(1.0, 2.0, 3.0)):
+    from converters.model import Camera
+    from denoise.live.session import Session
+
+    return Session(Camera((0.0, 0.0, 10.0), (0.0, 0.0, -1.0), (0.0, 1.0, 0.0), 40.0), light, 10.0, "svgf")
+
+
+def test_orbit_keeps_the_pivot_in_view_and_its_distance():
+    session = _session()
+    session.apply({"type": "orbit", "dx": 90.0, "dy": 0.0})
+    camera = session.view().camera
+    assert np.allclose(camera.center, (-10.0, 0.0, 0.0), atol=1e-9)  # a quarter turn about the origin
+    assert np.allclose(np.asarray(camera.center) + 10.0 * np.asarray(camera.direction), 0.0, atol=1e-9)
+    session.apply({"type": "orbit", "dx": 0.0, "dy": 180.0})  # pitch stops short of the pole
+    assert abs(session.view().camera.direction[1]) < 1.0
+
+
+def test_dolly_stops_before_the_pivot_and_reset_view_restores():
+    session = _session()
+    for _ in range(50):
+        session.apply({"type": "dolly", "amount": 1.0})
+    assert 0 < session.distance and session.view().camera.center[2] > 0.0
+    session.apply({"type": "reset_view"})
+    assert session.view().camera.center == (0.0, 0.0, 10.0)
+
+
+def test_light_moves_in_the_view_plane_and_a_scene_without_one_says_so():
+    session = _session()
+    session.apply({"type": "light", "dx": 0.5, "dy": 0.0, "dz": 0.0})
+    assert session.view().light[0] > 1.0 and session.view().light[1:] == (2.0, 3.0)
+    with pytest.raises(MessageError, match="no point light"):
+        _session(light=None).apply({"type": "light", "dx": 0.1, "dy": 0.0, "dz": 0.0})
