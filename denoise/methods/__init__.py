@@ -19,7 +19,7 @@ from .oidn_guided import OIDNGuided
 from .svgf import SVGF
 
 __all__ = ["METHODS", "DenoisingMethod", "Option", "SpatialFilterMethod", "benchmark_names", "from_name",
-           "make", "register"]
+           "make", "register", "resolve"]
 
 #: every method by its ``name``, in the order ``--help`` and the docs list them
 METHODS: dict[str, type[DenoisingMethod]] = {}
@@ -73,8 +73,8 @@ def _names() -> dict[str, tuple[type[DenoisingMethod], dict]]:
     return names
 
 
-def from_name(name: str) -> DenoisingMethod:
-    """The method of a benchmark name ``[demod+][outliers+]METHOD[-PRESET][+temporal]``,
+def resolve(name: str) -> tuple[type[DenoisingMethod], dict]:
+    """The class and parameters of a benchmark name ``[demod+][outliers+]METHOD[-PRESET][+temporal]``,
     e.g. ``atrous+temporal``, ``oidn-fast``, ``demod+outliers+atrous+temporal``:
     ``demod`` demodulates, ``outliers`` clamps outliers at the usual K, and a method
     whose ``temporal_by_nature`` is set is temporal without ``+temporal``."""
@@ -85,8 +85,14 @@ def from_name(name: str) -> DenoisingMethod:
     if len(found) != 1 or unknown:
         raise UsageError(f"unknown method {name!r}")
     cls, props = names[found[0]]
-    return cls(**props, temporal="temporal" in parts or cls.temporal_by_nature, demodulate="demod" in parts,
-               outliers=OutlierParams().k if "outliers" in parts else None)
+    return cls, dict(props, temporal="temporal" in parts or cls.temporal_by_nature, demodulate="demod" in parts,
+                     outliers=OutlierParams().k if "outliers" in parts else None)
+
+
+def from_name(name: str, **props) -> DenoisingMethod:
+    """The method of a benchmark name (:func:`resolve`), ``props`` overriding its parameters."""
+    cls, named = resolve(name)
+    return cls(**{**named, **props})
 
 
 def benchmark_names() -> tuple[str, ...]:

@@ -1,0 +1,19 @@
+"""python -m denoise.live: watch a scene rendered at 1 spp and denoised, live, in a browser.
+
+Serves a local page (it prints the address; it opens nothing) that shows
+SCENE path-traced at 1 spp with the export's G-buffers and denoised by the
+chosen method, frame after frame. Drag to orbit, right-drag or Shift+drag to
+pan, wheel to dolly, Alt+drag to move the first point light.
+"""
+from __future__ import annotations
+
+import sys
+
+if __name__ == "__main__":  # started by a Python without the project's packages: use ./.venv's
+    from core.launcher import use_project_python
+    use_project_python("python -m denoise.live", "denoise.live")
+
+from .app import main
+
+if __name__ == "__main__":
+    sys.exit(main())

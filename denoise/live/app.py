@@ -1,0 +1,95 @@
+"""The ``python -m denoise.live`` command: arguments, then scene, session,
+frame loop and server wired together until Ctrl-C (exit 130)."""
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from core.entry import ArgumentParser
+from core.numbers import ascii_int
+
+from .methods import METHOD_NAMES
+
+DESCRIPTION = ("watch a scene rendered at 1 spp and denoised, live, in a browser: serves a local page (it prints "
+               "the address and opens nothing); drag to orbit, right-drag or Shift+drag to pan, wheel to dolly, "
+               "Alt+drag to move the first point light")
+DEFAULT_SIZE = (320, 180)
+MAX_SIDE = 4096
+#: a viewer that stops the loop sees the error; the join is bounded so Ctrl-C stays quick
+JOIN_S = 1.0
+
+
+def parser() -> argparse.ArgumentParser:
+    result = ArgumentParser(prog="python -m denoise.live", description=DESCRIPTION)
+    result.add_argument("scene", help="a scene name (showcase, glossy_shadow, a course scene) or a scene file")
+    result.add_argument("--size", type=ascii_int, nargs=2, metavar=("W", "H"), default=DEFAULT_SIZE,
+                        help=f"frame size in pixels (default {DEFAULT_SIZE[0]} {DEFAULT_SIZE[1]})")
+    result.add_argument("--method", choices=METHOD_NAMES, default="svgf", help="the first method (default svgf)")
+    result.add_argument("--variant", help="Mitsuba variant (default: llvm_ad_rgb where usable); a JIT variant")
+    result.add_argument("--host", default="127.0.0.1",
+                        help="address to listen on (default 127.0.0.1: this machine only)")
+    result.add_argument("--port", type=ascii_int, default=8765, help="port (default 8765; 0: any free one)")
+    result.add_argument("--no-freeze", action="store_true", help="trace every frame's render (no dr.freeze)")
+    result.add_argument("--data", type=Path, help="course data folder for course scene names")
+    return result
+
+
+def _main(argv: list[str] | None) -> int:
+    import asyncio
+
+    from core.errors import UsageError
+
+    args = parser().parse_args(argv)
+    width, height = args.size
+    if not (1 <= width <= MAX_SIDE and 1 <= height <= MAX_SIDE):
+        raise UsageError(f"--size: expected 1..{MAX_SIDE} pixels per side, found {width} {height}")
+    if not 0 <= args.port <= 65535:
+        raise UsageError(f"--port: expected 0..65535, found {args.port}")
+    from course import data_dir, resolve_scene
+    from renderer.variants import set_variant
+
+    from .server import check_port
+
+    check_port(args.host, args.port)
+    scene_path = resolve_scene(args.scene, data_dir(args.data))
+    variant = set_variant(args.variant, quiet=True)
+    if variant.startswith("scalar"):
+        raise UsageError(f"the live page needs a JIT variant (llvm_* or cuda_*), not {variant}")
+    import mi_plugins
+
+    mi_plugins.register()
+    from .frame_loop import FrameLoop, SceneRenderer
+    from .server import LiveServer, hello_message  # aiohttp after the checks: --help and errors stay quick
+    from .session import Session
+
+    renderer = SceneRenderer(scene_path, width, height, freeze=not args.no_freeze)
+    session = Session(renderer.scene.camera, renderer.light, renderer.pivot_distance(), args.method)
+    hello = hello_message(scene_path.stem, width, height, variant, renderer.frozen, renderer.light is not None)
+    server = LiveServer(session, args.host, args.port, hello)
+    loop = FrameLoop(renderer, session, server.publish, variant)
+    server.on_shown = loop.shown
+
+    def ready(url: str) -> None:
+        loop.start()
+        print(f"live: open {url} in a browser (Ctrl-C stops)", flush=True)
+
+    try:
+        asyncio.run(server.serve(ready))
+    finally:
+        loop.stop()
+        if loop.is_alive():
+            loop.join(JOIN_S)
+    if loop.error is not None:
+        raise loop.error
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    from core.entry import run
+
+    return run("python -m denoise.live", lambda: _main(argv))
+
+
+if __name__ == "__main__":
+    sys.exit(main())

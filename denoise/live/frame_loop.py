@@ -1,0 +1,283 @@
+"""Frames for the live page: render at 1 spp with G-buffers, denoise, encode.
+
+:class:`SceneRenderer` renders a frame as the export does
+(:func:`denoise.export.loaded_frame`): whitted's AOVs (:data:`GBUFFER_AOVS`)
+through the pixel centres, then Mitsuba's path tracer at 1 spp through
+jittered positions, with the camera of the moment (``live_camera``, whose
+basis is opaque data) and the first point light where the viewer put it.
+
+The beauty pass is one frozen Dr.Jit function (``dr.freeze``): after its
+first frame it replays the recorded kernels with the new camera, light and
+seed instead of tracing the path tracer again. The G-buffer pass is not
+frozen: whitted keeps its per-scene tables in a plain Python object that the
+freeze cannot traverse (recording fails on a variable made before it). The
+denoiser works on NumPy frames (:class:`denoise.pipeline.Denoiser` checks
+values on the host), which a frozen function cannot replay either.
+
+:class:`FrameLoop` runs in its own thread: it waits for the viewer (paused,
+or two frames not yet shown), renders the session's view, denoises it with
+the chosen method and hands the encoded frame to ``publish``.
+"""
+from __future__ import annotations
+
+import io
+import json
+import struct
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+
+from denoise.export import GBUFFER_AOVS
+from denoise.frames import FrameData, camera_matrices, depth_range
+
+from .methods import RAW, method_for, retuned
+from .session import Session, View
+
+#: frames sent but not yet shown by the page, at most
+IN_FLIGHT = 2
+#: path depth beyond direct light, as the export's specs (``bounces``)
+BOUNCES = 3
+JPEG_QUALITY = 85
+
+
+class SceneRenderer:
+    """One course scene loaded once, rendered frame after frame from any view."""
+
+    def __init__(self, scene_path: Path, width: int, height: int, freeze: bool = True):
+        import drjit as dr
+        import mitsuba as mi
+
+        from converters.course_scene import load_scene
+        from converters.description import RenderOptions, scene_dict
+        from converters.model import PointLight
+        from converters.scene_variants import with_path_tracer, without_ambient
+        from converters.to_mitsuba import load_scene_dict
+
+        from . import camera
+
+        camera.register()
+        self.width, self.height, self.frozen = width, height, freeze
+        self.scene = load_scene(scene_path)
+        description = scene_dict(self.scene, RenderOptions(width=width, height=height, aovs=GBUFFER_AOVS))
+        description["sensor"]["type"] = "live_camera"
+        description["sensor_jittered"] = dict(description["sensor"], pixel_centers=False)
+        noisy = scene_dict(self.scene, RenderOptions(width=width, height=height, jitter=True, bounces=BOUNCES,
+                                                     shadows=True))
+        self.integrator = mi.load_dict(without_ambient(with_path_tracer(noisy))["integrator"])
+        self.mi_scene = load_scene_dict(description)
+        self.params = mi.traverse(self.mi_scene)
+        sensors = {s.id(): s for s in self.mi_scene.sensors()}
+        self.centre_sensor, self.jittered_sensor = sensors["sensor"], sensors["sensor_jittered"]
+        lights = [k for k, light in enumerate(self.scene.lights) if isinstance(light, PointLight)]
+        self.light_key = f"light_{lights[0]}.position" if lights else None
+        self.light = self.scene.lights[lights[0]].position if lights else None
+        self.mi_scene.integrator().analyse(self.mi_scene)  # what whitted.render does before sampling
+        self.last_camera, self.layers = None, None
+        self.render_beauty = dr.freeze(render_beauty) if freeze else render_beauty
+
+    def pivot_distance(self) -> float:
+        """Distance from the camera to the centre of the scene's bounding box,
+        along the view (the orbit's pivot); 1 where that is behind the camera."""
+        box = self.mi_scene.bbox()
+        centre = np.asarray(box.center(), np.float64)
+        camera = self.scene.camera
+        direction = np.asarray(camera.direction, np.float64)
+        along = float((centre - np.asarray(camera.center)) @ direction / np.linalg.norm(direction))
+        return along if np.isfinite(along) and along > 0 else 1.0
+
+    def set_view(self, view: View) -> None:
+        import mitsuba as mi
+
+        camera = view.camera
+        for name in ("sensor", "sensor_jittered"):
+            self.params[f"{name}.origin"] = mi.ScalarPoint3f(camera.center)
+            self.params[f"{name}.direction"] = mi.ScalarVector3f(camera.direction)
+            self.params[f"{name}.up"] = mi.ScalarVector3f(camera.up)
+        if self.light_key is not None and view.light is not None:
+            self.params[self.light_key] = mi.ScalarPoint3f(view.light)
+        self.params.update()
+
+    def render(self, view: View, seed: int) -> tuple[FrameData, dict[str, float]]:
+        """The frame of ``view`` (beauty with sampler seed ``seed``) and the
+        seconds of each pass ("gbuffers", "render"); the G-buffers are those
+        of the last frame while the camera stays where it was."""
+        import mitsuba as mi
+
+        from renderer.job import split_layers
+
+        start = time.perf_counter()
+        self.set_view(view)
+        if view.camera != self.last_camera:  # the G-buffers depend on the camera alone
+            channels = sample_image(self.mi_scene, self.mi_scene.integrator(), self.centre_sensor, mi.UInt32(0))
+            self.layers = split_layers(to_image(channels, self.width, self.height), GBUFFER_AOVS)
+            self.last_camera = view.camera
+        layers = self.layers
+        gbuffers = time.perf_counter()
+        channels = self.render_beauty(self.mi_scene, self.integrator, self.jittered_sensor, mi.UInt32(seed))
+        beauty = to_image(channels, self.width, self.height)[..., :3]
+        end = time.perf_counter()
+        camera = view.camera
+        ids = layers["id"].astype(np.int32)
+        near, far = depth_range(camera, layers["position"][ids >= 0])
+        world_to_camera, world_to_screen = camera_matrices(camera, self.width, self.height, near, far)
+        frame = FrameData(beauty, layers["normal"], layers["position"], layers["depth"], ids,
+                          [o.to_world for o in self.scene.objects], world_to_camera, world_to_screen,
+                          albedo=layers["albedo"])
+        return frame, {"gbuffers": gbuffers - start, "render": end - gbuffers}
+
+
+def sample_image(scene, integrator, sensor, seed) -> list:
+    """One sample per pixel of ``sensor``'s film by ``integrator``: the
+    channels RGB, then the integrator's AOVs, each a flat array in row
+    order. The sample's position in its pixel comes from the sampler
+    (``live_camera`` with ``pixel_centers`` shoots through the centre).
+    Launched without ``mi.render``: its binding swaps the process's SIGINT
+    handler while it runs (and keeps its own after a nested render, as
+    ``whitted``'s is), so Ctrl-C would reach neither Python nor the server."""
+    import drjit as dr
+    import mitsuba as mi
+
+    with dr.suspend_grad():
+        width, height = (int(v) for v in sensor.film().size())
+        index = dr.arange(mi.UInt32, width * height)
+        y = index // width
+        x = index - y * width
+        sampler = sensor.sampler().clone()
+        sampler.seed(seed, width * height)
+        position = (mi.Point2f(mi.Float(x), mi.Float(y)) + sampler.next_2d()) / mi.ScalarPoint2f(width, height)
+        ray, weight = sensor.sample_ray(0.0, 0.5, position, mi.Point2f(0.5))
+        spectrum, _, aovs = integrator.sample(scene, sampler, ray, None, mi.Bool(True))
+        spectrum = spectrum * weight
+        return [spectrum.x, spectrum.y, spectrum.z] + list(aovs)
+
+
+def render_beauty(scene, integrator, sensor, seed) -> list:
+    """The noisy 1-spp beauty's channels (the function that is frozen)."""
+    return sample_image(scene, integrator, sensor, seed)
+
+
+def to_image(channels: list, width: int, height: int) -> np.ndarray:
+    """Flat channels as one (H, W, C) float32 image (one kernel computes them all)."""
+    import drjit as dr
+
+    dr.eval(*channels)
+    return np.stack([np.asarray(c, np.float32) for c in channels], axis=-1).reshape(height, width, len(channels))
+
+
+#: the tone map's input range: Reinhard's extended operator with white 4 reaches 1 (code 255) at 4
+TONE_MAP_WHITE = 4.0
+#: table entries over [0, white]: steps of 6e-5, a fifth of an 8-bit code where sRGB is steepest
+TONE_MAP_ENTRIES = 1 << 16
+
+
+class JPEGEncoder:
+    """HDR frames as JPEG, tone-mapped as the previews are (:func:`imaging.colour.tone_map`)
+    through a table of that function, built once (a frame is then one lookup)."""
+
+    def __init__(self, quality: int = JPEG_QUALITY):
+        from imaging.colour import tone_map
+
+        self.quality = quality
+        self.table = tone_map(np.linspace(0.0, TONE_MAP_WHITE, TONE_MAP_ENTRIES, dtype=np.float64))
+        self.scale = np.float32((TONE_MAP_ENTRIES - 1) / TONE_MAP_WHITE)
+
+    def __call__(self, image: np.ndarray) -> bytes:
+        from PIL import Image
+
+        index = np.nan_to_num(np.asarray(image, np.float32) * self.scale + np.float32(0.5), nan=0.0)
+        index = np.clip(index, 0, TONE_MAP_ENTRIES - 1).astype(np.int32)
+        buffer = io.BytesIO()
+        Image.fromarray(self.table[index]).save(buffer, "JPEG", quality=self.quality)
+        return buffer.getvalue()
+
+
+def packet(header: dict, raw: bytes, denoised: bytes) -> bytes:
+    """One frame for the page: a little-endian uint32 header length, the JSON
+    header (which holds both images' lengths), the raw JPEG, the denoised JPEG."""
+    text = json.dumps(dict(header, raw_bytes=len(raw), denoised_bytes=len(denoised))).encode()
+    return struct.pack("<I", len(text)) + text + raw + denoised
+
+
+class FrameLoop(threading.Thread):
+    """Renders, denoises and publishes frames while :meth:`stop` is not called."""
+
+    def __init__(self, renderer: SceneRenderer, session: Session, publish, variant: str):
+        super().__init__(name="live frame loop", daemon=True)
+        self.renderer, self.session, self.publish, self.variant = renderer, session, publish, variant
+        self.stopped = False
+        self.frame = 0
+        self.sent_at: dict[int, float] = {}
+        self.transport_ms = None
+        self.error: BaseException | None = None
+        self.encode = JPEGEncoder()
+
+    def stop(self) -> None:
+        with self.session.changed:
+            self.stopped = True
+            self.session.changed.notify_all()
+
+    def shown(self, frame: int) -> None:
+        """The page has shown ``frame``: its transport time is known."""
+        with self.session.changed:
+            sent = self.sent_at.pop(frame, None)
+            if sent is not None:
+                self.transport_ms = (time.perf_counter() - sent) * 1000
+            for old in [k for k in self.sent_at if k < frame]:
+                del self.sent_at[old]
+
+    def _ready(self) -> bool:
+        session = self.session
+        if self.stopped:
+            return True
+        if not session.connected:
+            return False
+        if session.acked is None:
+            session.acked = self.frame - 1
+        if self.frame - 1 - session.acked >= IN_FLIGHT:
+            return False
+        return not session.paused or session.steps > 0
+
+    def run(self) -> None:
+        try:
+            self._run()
+        except BaseException as error:  # the server reports it and stops
+            self.error = error
+            self.publish(None)
+
+    def _run(self) -> None:
+        denoiser, method, values, resets = None, None, None, None
+        while True:
+            with self.session.changed:
+                while not self._ready():
+                    self.session.changed.wait(0.5)
+                if self.stopped:
+                    return
+                if self.session.paused:
+                    self.session.steps -= 1
+                view, reset = self.session.view(), self.session.history_resets
+            frame, seconds = self.renderer.render(view, self.frame)
+            start = time.perf_counter()
+            if view.method != method or reset != resets:
+                denoiser = method_for(view.method, self.renderer.width, dict(view.values))
+            elif view.values != values and denoiser is not None:
+                denoiser = retuned(denoiser, view.method, self.renderer.width, dict(view.values))
+            method, values, resets = view.method, view.values, reset
+            result = denoiser.step(frame) if denoiser is not None else frame.beauty
+            denoised = time.perf_counter()
+            raw_jpeg = self.encode(frame.beauty)
+            denoised_jpeg = raw_jpeg if view.method == RAW else self.encode(result)
+            encoded = time.perf_counter()
+            ms = {"render": seconds["render"] * 1000, "gbuffers": seconds["gbuffers"] * 1000,
+                  "denoise": (denoised - start) * 1000, "encode": (encoded - denoised) * 1000,
+                  "transport": self.transport_ms}
+            header = {"type": "frame", "frame": self.frame, "width": self.renderer.width,
+                      "height": self.renderer.height, "method": view.method, "variant": self.variant,
+                      "frozen": self.renderer.frozen, "ms": {k: (None if v is None else round(v, 2))
+                                                             for k, v in ms.items()}}
+            with self.session.changed:
+                self.sent_at[self.frame] = time.perf_counter()
+            self.publish(packet(header, raw_jpeg, denoised_jpeg))
+            self.frame += 1
+

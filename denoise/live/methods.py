@@ -1,0 +1,78 @@
+"""The methods the live page offers and the sliders of each, from the method
+registry (:mod:`denoise.methods`): the one place that turns a method name and
+slider values into a :class:`~denoise.methods.DenoisingMethod`.
+
+Names are ``raw`` (no denoising) and the registry's benchmark names: every
+``python -m denoise --method`` with its temporal variants and presets. A
+method's sliders are those of its numeric options that :data:`RANGES` gives a
+range on the page, so a new method's options appear as sliders when their keys
+are listed there.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from denoise.methods import DenoisingMethod, benchmark_names, resolve
+from denoise.svgf import levels_for
+
+RAW = "raw"
+#: what the page lists, in its order
+METHOD_NAMES = (RAW,) + tuple(name for name in benchmark_names() if not name.startswith(("demod+", "outliers+")))
+
+#: option key -> (low, high, step, whole number) on the page
+RANGES = {
+    "sigma_color": (0.01, 4.0, 0.01, False), "sigma_normal": (0.01, 2.0, 0.01, False),
+    "sigma_plane": (0.01, 2.0, 0.01, False), "radius": (0, 16, 1, True), "levels": (1, 8, 1, True),
+    "alpha": (0.01, 1.0, 0.01, False), "k": (0.0, 8.0, 0.1, False),
+    "sigma_luminance": (0.1, 32.0, 0.1, False), "normal_exponent": (1.0, 256.0, 1.0, False),
+    "history_cap": (1.0, 64.0, 1.0, False), "clip_sigma": (0.25, 8.0, 0.05, False),
+}
+
+
+@dataclass(frozen=True)
+class Slider:
+    """One parameter: ``name`` is the method's option key."""
+    name: str
+    low: float
+    high: float
+    step: float
+    whole: bool = False
+
+    def as_json(self, method: DenoisingMethod) -> dict:
+        return {"name": self.name, "low": self.low, "high": self.high, "step": self.step,
+                "value": method.props[self.name]}
+
+
+def sliders_of(name: str) -> tuple[Slider, ...]:
+    cls, _ = resolve(name)
+    return tuple(Slider(o.key, *RANGES[o.key]) for o in cls.options if o.key in RANGES)
+
+
+SLIDERS = {RAW: (), **{name: sliders_of(name) for name in METHOD_NAMES if name != RAW}}
+
+
+def method_for(name: str, width: int, values: dict[str, float]) -> DenoisingMethod | None:
+    """Method ``name`` with slider ``values`` (key -> value, each already checked
+    against its :class:`Slider`'s range); None for ``raw``. Levels computed from the
+    image's width (SVGF's default) are made explicit, so the page shows them."""
+    if name == RAW:
+        return None
+    cls, props = resolve(name)
+    if any(o.key == "levels" and o.default is None for o in cls.options):
+        props["levels"] = levels_for(width)
+    whole = {s.name: s.whole for s in SLIDERS[name]}
+    props.update({key: int(value) if whole[key] else float(value) for key, value in values.items()})
+    return cls(**props)
+
+
+def retuned(method: DenoisingMethod, name: str, width: int, values: dict[str, float]) -> DenoisingMethod:
+    """Method ``name`` with new slider ``values`` that goes on from ``method``'s history."""
+    new = method_for(name, width, values)
+    new.previous, new.previous_ids, new.history = method.previous, method.previous_ids, method.history
+    return new
+
+
+def describe(name: str, width: int, values: dict[str, float]) -> list[dict]:
+    """The sliders of ``name`` with their current values, for the page."""
+    method = method_for(name, width, values)
+    return [s.as_json(method) for s in SLIDERS[name]] if method is not None else []
