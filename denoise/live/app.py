@@ -3,10 +3,11 @@ frame loop and server wired together until Ctrl-C (exit 130)."""
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from pathlib import Path
 
-from core.entry import ArgumentParser
+from core.entry import ArgumentParser, run
 from core.numbers import ascii_int
 
 from .methods import METHOD_NAMES
@@ -86,9 +87,12 @@ def _main(argv: list[str] | None) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from core.entry import run
-
-    return run("python -m denoise.live", lambda: _main(argv))
+    code = run("python -m denoise.live", lambda: _main(argv))
+    if code > 128:  # stopped by a signal: the server writes no files, so a frame in flight and
+        sys.stdout.flush()  # Dr.Jit's teardown would only delay the exit
+        sys.stderr.flush()
+        os._exit(code)
+    return code
 
 
 if __name__ == "__main__":
