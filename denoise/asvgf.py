@@ -141,7 +141,7 @@ class ASVGFParams:
     @staticmethod
     def hand_set(**changes) -> "ASVGFParams":
         """The parameters set by hand, whatever the parameter file says."""
-        return ASVGFParams(**{name: value for name, (value, _, _) in CONTINUOUS.items()}, **changes)
+        return ASVGFParams(**{**{name: value for name, (value, _, _) in CONTINUOUS.items()}, **changes})
 
     def continuous(self) -> dict[str, float]:
         return {name: getattr(self, name) for name in CONTINUOUS}
