@@ -168,6 +168,19 @@ class FilterValues:
     def of(p: ASVGFParams) -> "FilterValues":
         return FilterValues(**p.continuous())
 
+    def widened(self, width: int) -> "FilterValues":
+        """Dr.Jit values gathered to one lane per pixel, evaluated: the backward
+        pass then adds each frame's gradients into a parameter with one scatter,
+        instead of one reduction per use of it in every tap."""
+        def wide(value):
+            if not dr.is_array_v(value) or dr.width(value) == width:
+                return value
+            out = dr.gather(mi.Float, value, dr.zeros(mi.UInt32, width))
+            dr.eval(out)
+            return out
+
+        return FilterValues(**{f.name: wide(getattr(self, f.name)) for f in fields(self)})
+
     def as_floats(self) -> dict[str, float]:
         return {f.name: float(getattr(self, f.name)[0] if dr.is_array_v(getattr(self, f.name))
                               else getattr(self, f.name)) for f in fields(self)}
@@ -306,7 +319,7 @@ def asvgf(frame: FrameArrays, p: ASVGFParams, history: ASVGFHistory | None = Non
     projection onto the frame that ``history`` belongs to. ``values``
     overrides ``p``'s continuous parameters (Dr.Jit Floats to differentiate).
     Returns (the filtered colour, the history for the next frame)."""
-    v = FilterValues.of(p) if values is None else values
+    v = FilterValues.of(p) if values is None else values.widened(dr.width(frame.color))
     fast, slow, moments, length = temporal_accumulation(frame, history, index, valid, p, v)
     dr.eval(fast, slow, moments, length)
     var = variance(frame, moments, length, p, v)
