@@ -139,7 +139,7 @@ class Fit:
         from .asvgf import FilterValues
 
         dr = self.dr
-        return FilterValues(**{name: dr.clip(dr.exp(mi.Float(self.optimizer[name])), max(low, 1e-6), high)
+        return FilterValues(**{name: dr.clip(dr.exp(self.optimizer[name]), max(low, 1e-6), high)
                                for name, (_, low, high) in self.ranges.items()})
 
     def step(self, sequences) -> float:
@@ -158,12 +158,18 @@ class Fit:
         return self.values().as_floats()
 
 
+def display_path(path: Path) -> str:
+    """``path`` relative to the repository where it lies inside it."""
+    path = Path(path).resolve()
+    return str(path.relative_to(ROOT)) if path.is_relative_to(ROOT) else str(path)
+
+
 def write_parameters(path: Path, values: dict[str, float], loss: float, hand_set_loss: float, sources) -> None:
     from imaging.image_io import atomic_path
 
     data = {"parameters": {k: round(v, 6) for k, v in values.items()},
             "training_loss": loss, "hand_set_loss": hand_set_loss,
-            "training": [str(s) for s in sources]}
+            "training": [display_path(s) for s in sources]}
     with atomic_path(path, ".json") as temporary:
         Path(temporary).write_text(json.dumps(data, indent=2) + "\n")
 
