@@ -208,6 +208,17 @@ def box_statistics(frame: FrameArrays, color_ycocg: mi.Vector3f, radius: int) ->
     return clamp_box(frame.tensor(color_ycocg), radius)
 
 
+def differentiable_box_statistics(frame: FrameArrays, color_ycocg: mi.Vector3f, radius: int
+                                  ) -> tuple[mi.Vector3f, mi.Vector3f]:
+    """As :func:`box_statistics`, σ from the box means of the values and their
+    squares, with a finite derivative where a box is flat (a constant
+    background): clamp_box's ``sqrt`` of a variance of exactly 0 has an
+    infinite one, and the backward pass's ``0 · inf`` is NaN."""
+    mean, _ = clamp_box(frame.tensor(color_ycocg), radius)
+    mean_square, _ = clamp_box(frame.tensor(color_ycocg * color_ycocg), radius)
+    return mean, dr.sqrt(dr.maximum(mean_square - mean * mean, 1e-30))
+
+
 def clip_ycocg(history_ycocg: mi.Vector3f, mean: mi.Vector3f, sigma: mi.Vector3f, width) -> mi.Vector3f:
     """The history clipped per YCoCg channel to ``mean ± width σ``, back in RGB."""
     return from_ycocg(dr.clip(history_ycocg, mean - width * sigma, mean + width * sigma))
@@ -244,7 +255,7 @@ def temporal_accumulation(frame: FrameArrays, history: ASVGFHistory | None, inde
                    dr.maximum(alpha, 1.0 / v.fast_frames))
     fast = dr.select(valid, fast, c)
     dr.eval(fast)
-    mean_fast, sigma_fast = box_statistics(frame, to_ycocg(fast), p.clip_radius)
+    mean_fast, sigma_fast = differentiable_box_statistics(frame, to_ycocg(fast), p.clip_radius)
     slow = dr.lerp(clip_ycocg(to_ycocg(slow), mean_fast, sigma_fast, v.clip_width), c, alpha)
     slow = dr.select(valid, slow, c)
     moments = dr.select(valid, dr.lerp(previous_moments, moments, alpha), moments)

@@ -87,8 +87,8 @@ def prepare(folder: Path, scale_from: int | None = None, scale: float = SWITCH_S
     return prepared
 
 
-def relmse(image, reference, epsilon: float = 1e-2):
-    """``mean((x - ref)² / (ref² + ε))`` as a Dr.Jit Float (validation.metrics.relmse's formula)."""
+def relmse_loss(image, reference, epsilon: float = 1e-2):
+    """validation.metrics.relmse's ``mean((x - ref)² / (ref² + ε))`` as a differentiable Dr.Jit Float."""
     import drjit as dr
 
     return dr.mean(dr.square(image.array - reference.array) / (dr.square(reference.array) + epsilon))
@@ -112,7 +112,7 @@ def sequence_loss(sequences: list[list[PreparedFrame]], params, values=None):
     total, count = 0.0, 0
     for frames in sequences:
         for f, result in zip(frames, run_sequence(frames, params, values)):
-            total = total + relmse(result, f.reference)
+            total = total + relmse_loss(result, f.reference)
             count += 1
     return total / count
 
