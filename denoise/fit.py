@@ -2,6 +2,7 @@
 
     python -m denoise.fit [SPEC.json ...] [--work DIR] [--steps N] [--rate R]
                           [--switch-frame F] [--out FILE] [--quiet]
+    python -m denoise.fit --evaluate FOLDER [--switch-frame F]
 
 The training sequences (default ``scenes/sequences/training/*.json``, none of
 them the benchmark's) are exported into ``--work`` once (a rerun renders
@@ -21,6 +22,13 @@ printed (not with ``--quiet``). A step whose loss is not finite stops the fit
 with one line and exit 2, the parameter file left as it was; otherwise the
 parameters of the lowest loss are written to ``--out``
 (``denoise/asvgf_params.json``, which ``asvgf`` reads by default).
+
+``--evaluate FOLDER`` fits nothing: it prints the relMSE per frame of
+``svgf``, ``asvgf`` hand-set and ``asvgf`` fitted on an exported folder, as
+rendered and with the light switch at ``--switch-frame``, and the response:
+frames after the switch until the relMSE is back within 1.5x of the frame
+before it (relMSE as dimmed, and of the images divided by 0.2, which the
+metric's epsilon does not favour).
 """
 from __future__ import annotations
 
@@ -33,6 +41,8 @@ from pathlib import Path
 
 from core.errors import UsageError
 
+# Dr.Jit, Mitsuba, NumPy and the denoiser's modules are imported inside the functions:
+# the variant is chosen first (llvm_ad_rgb), and --help and argument errors do not wait for them
 ROOT = Path(__file__).resolve().parent.parent
 TRAINING = sorted((ROOT / "scenes" / "sequences" / "training").glob("*.json"))
 #: what a light switch scales the frames after it by
@@ -174,6 +184,52 @@ def write_parameters(path: Path, values: dict[str, float], loss: float, hand_set
         Path(temporary).write_text(json.dumps(data, indent=2) + "\n")
 
 
+def evaluate(folder: Path, switch: int | None) -> dict[str, tuple[list[float], list[float]]]:
+    """Per method: (relMSE per frame as rendered or dimmed, relMSE of the images divided by the dimming)."""
+    import numpy as np
+    from dataclasses import replace
+
+    from imaging.image_io import read_exr_rgb
+    from validation.metrics import relmse
+
+    from .asvgf import ASVGFParams
+    from .export import reference_folder
+    from .frames import frame_indices, read_frame
+    from .pipeline import Denoiser, parse_method
+
+    indices = frame_indices(folder)
+    factors = [SWITCH_SCALE if switch is not None and i >= switch else 1.0 for i in indices]
+    truth = [read_exr_rgb(reference_folder(folder) / f"beauty_{i}.exr") * f for i, f in zip(indices, factors)]
+    denoiser = Denoiser(parse_method("svgf"))
+    outputs = {"svgf": [denoiser.step(replace(frame, beauty=frame.beauty * f))
+                        for frame, f in zip((read_frame(folder, i) for i in indices), factors)]}
+    frames = prepare(folder, switch)
+    for name, params in (("asvgf hand-set", ASVGFParams.hand_set()), ("asvgf fitted", ASVGFParams())):
+        outputs[name] = [np.array(r) for r in run_sequence(frames, params)]
+    return {name: ([relmse(o, t) for o, t in zip(images, truth)],
+                   [relmse(o / f, t / f) for o, t, f in zip(images, truth, factors)])
+            for name, images in outputs.items()}
+
+
+def response(values: list[float], switch: int) -> str:
+    """Frames after ``switch`` until ``values`` is back within 1.5x of the frame before it."""
+    for k in range(switch, len(values)):
+        if values[k] <= 1.5 * values[switch - 1]:
+            return str(k - switch)
+    return f">{len(values) - 1 - switch}"
+
+
+def print_evaluation(folder: Path, switch: int) -> None:
+    for label, at in (("as rendered", None), (f"light dimmed to 20 % from frame {switch}", switch)):
+        print(f"{folder.name}, {label}: relMSE per frame")
+        for name, (dimmed, undimmed) in evaluate(folder, at).items():
+            rows = [("", dimmed)] if at is None else [(" (as dimmed)", dimmed), (" (/0.2)", undimmed)]
+            for suffix, values in rows:
+                tail = (f"  mean>=4 {sum(values[4:]) / max(len(values) - 4, 1):.4f}  last {values[-1]:.4f}"
+                        + (f"  response {response(values, at)}" if at is not None else ""))
+                print(f"  {name + suffix:28s} " + " ".join(f"{v:.4f}" for v in values) + tail)
+
+
 def _parser() -> argparse.ArgumentParser:
     from core.entry import ArgumentParser
     from core.numbers import ascii_float, ascii_int
@@ -189,6 +245,8 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--out", type=Path, default=ROOT / "denoise" / "asvgf_params.json",
                         help="the parameter file (denoise/asvgf_params.json)")
     parser.add_argument("--quiet", action="store_true", help="print nothing but errors")
+    parser.add_argument("--evaluate", type=Path, metavar="FOLDER",
+                        help="fit nothing: relMSE per frame of svgf and asvgf (hand-set, fitted) on FOLDER")
     return parser
 
 
@@ -204,6 +262,13 @@ def _main(argv: list[str] | None) -> int:
     from renderer.variants import set_variant
 
     from .export import Spec, export
+
+    if args.evaluate is not None:
+        if not (args.evaluate / "beauty_0.exr").is_file():
+            raise UsageError(f"{args.evaluate}: not an exported frame folder (no beauty_0.exr)")
+        set_variant("llvm_ad_rgb", quiet=True)
+        print_evaluation(args.evaluate, args.switch_frame)
+        return 0
 
     loaded = [(path, Spec.load(path)) for path in specs]  # all checked before any work
     set_variant("llvm_ad_rgb", quiet=True)
