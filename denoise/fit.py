@@ -39,7 +39,11 @@ import sys
 from dataclasses import dataclass
 from pathlib import Path
 
-from core.errors import UsageError
+if __name__ == "__main__":  # started by a Python without the project's packages: use ./.venv's
+    from core.launcher import use_project_python
+    use_project_python("python -m denoise.fit", "denoise.fit")
+
+from core.errors import UsageError  # noqa: E402
 
 # Dr.Jit, Mitsuba, NumPy and the denoiser's modules are imported inside the functions:
 # the variant is chosen first (llvm_ad_rgb), and --help and argument errors do not wait for them
