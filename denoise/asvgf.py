@@ -1,0 +1,344 @@
+"""A spatiotemporal filter that does not lag: SVGF with a fast and a slow
+history, colour-box clipping and anti-lag, Dr.Jit array code.
+
+Per frame, on the (demodulated) colour ``c``, after our back projection
+(:func:`denoise.filters.reproject`) of the previous frame's histories:
+
+1. **Temporal gradient.** ``δ = |Ȳ_c - Ȳ_f| / (max(Ȳ_c, Ȳ_f) + floor)`` with ``Ȳ``
+   the (2 ``box_radius`` + 1)² box mean of YCoCg's ``Y`` of the current frame
+   and of the back-projected fast history: a sudden change of lighting, a
+   moving shadow or highlight. ``λ = clip(antilag_gain (δ - antilag_threshold),
+   0, 1)`` (A-SVGF's ``λ``, estimated from the history instead of re-rendered
+   gradient samples).
+2. **History length.** ``n = min(1 + n_prev (1 - λ), slow_frames)`` (1 where
+   the history is invalid): λ = 1 forgets the history at once (NRD ReLAX's
+   anti-lag shortens it the same way).
+3. **Fast history** ``f = lerp(clip(f_prev), c, max(1/n, 1/fast_frames))``,
+   its history clipped in YCoCg to the current box's mean ± ``fast_clip`` σ.
+4. **Slow history** ``s = lerp(clip(s_prev), c, 1/n)``, its history clipped in
+   YCoCg to mean ± ``clip_width`` σ of the (2 ``clip_radius`` + 1)² box of the
+   fast history ``f``: the slow history follows wherever the fast one moves.
+5. **Moments and variance** as SVGF's (:mod:`denoise.svgf`), blended with
+   ``1/n``; below ``variance_frames`` of history the current frame's 7x7
+   spatial estimate (:func:`denoise.svgf.estimate_variance`), boosted by
+   ``variance_frames / n``.
+6. **À-Trous levels** of SVGF on ``s`` (variance-guided luminance weight,
+   normal weight ``max(0, n·n')^sigma_normal``, plane weight); level
+   ``feedback_level``'s output is the next frame's slow history.
+
+Every continuous parameter reaches the kernels through :class:`FilterValues`:
+Python floats when denoising (constants in the kernels), or Dr.Jit Floats with
+gradients enabled when :mod:`denoise.fit` differentiates the whole sequence.
+The fitted values, ``asvgf_params.json`` beside this module, are the defaults
+of :class:`ASVGFParams`; :meth:`ASVGFParams.hand_set` gives the values set by hand.
+"""
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, fields, replace
+from pathlib import Path
+
+import drjit as dr
+import mitsuba as mi
+
+from core.errors import UsageError
+
+from .filters import B3, FrameArrays, clamp_box, luminance, neg_exp, plane_distance_sq
+from .svgf import EPSILON, GAUSS3, SVGFParams, estimate_variance, levels_for, normal_power
+
+#: the fitted parameters (written by ``python -m denoise.fit``), the defaults of ASVGFParams
+PARAMETER_FILE = Path(__file__).with_name("asvgf_params.json")
+#: added to the luminance in the temporal gradient's denominator: dark noise is not a change
+GRADIENT_FLOOR = 1e-2
+
+#: the continuous parameters as set by hand: (value, lowest, highest)
+CONTINUOUS = {
+    "sigma_luminance": (4.0, 1e-3, 1e3),
+    "sigma_normal": (128.0, 1e-3, 1e4),  # exponent of max(0, n·n')
+    "sigma_plane": (0.1, 1e-4, 1e3),
+    "slow_frames": (16.0, 1.0, 256.0),
+    "fast_frames": (3.0, 1.0, 256.0),
+    "clip_width": (1.0, 0.0, 100.0),
+    "fast_clip": (2.0, 0.0, 100.0),
+    "antilag_gain": (2.0, 0.0, 1e3),
+    "antilag_threshold": (0.25, 0.0, 10.0),
+}
+
+
+def load_parameter_file(path: Path = PARAMETER_FILE) -> dict[str, float]:
+    """The fitted continuous parameters of ``path`` (``{}`` where there is no
+    file); a damaged file or an unknown key is a one-line :class:`UsageError`."""
+    if not path.is_file():
+        return {}
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, ValueError) as error:
+        raise UsageError(f"{path}: not a JSON parameter file ({error})") from None
+    values = data.get("parameters") if isinstance(data, dict) else None
+    if not isinstance(values, dict) or set(values) - set(CONTINUOUS):
+        raise UsageError(f"{path}: expected {{\"parameters\": {{NAME: number}}}} with names from "
+                         f"{', '.join(CONTINUOUS)}")
+    return {name: float(value) for name, value in values.items()}
+
+
+FITTED = load_parameter_file()
+
+
+def _default(name: str) -> float:
+    return FITTED.get(name, CONTINUOUS[name][0])
+
+
+@dataclass(frozen=True)
+class ASVGFParams:
+    """The filter's parameters (see the module's steps); continuous ones
+    default to ``asvgf_params.json``, else the hand-set values.
+
+    - ``levels``: À-Trous levels (None: :func:`denoise.svgf.levels_for` the width)
+    - ``sigma_luminance``: scale of the variance-guided luminance weight
+    - ``sigma_normal``: exponent of the normal weight ``max(0, n·n')``
+    - ``sigma_plane``: σ of the plane-distance weight
+    - ``slow_frames``: cap of the history length (the slow history's 1/α)
+    - ``fast_frames``: the fast history's 1/α
+    - ``clip_width``: the slow history clipped to the fast box's mean ± this σ
+    - ``fast_clip``: the fast history clipped to the current box's mean ± this σ
+    - ``antilag_gain``, ``antilag_threshold``: ``λ = clip(gain (δ - threshold), 0, 1)``
+    - ``box_radius``: the current frame's box (statistics, gradient), (2r+1)²
+    - ``clip_radius``: the fast history's box for the slow clip, (2r+1)²
+    - ``variance_frames``: below this history length the variance is spatial
+    - ``spatial_radius``: the spatial variance's window, (2r+1)²
+    - ``feedback_level``: the level whose output is the next slow history
+    """
+    levels: int | None = None
+    sigma_luminance: float = _default("sigma_luminance")
+    sigma_normal: float = _default("sigma_normal")
+    sigma_plane: float = _default("sigma_plane")
+    slow_frames: float = _default("slow_frames")
+    fast_frames: float = _default("fast_frames")
+    clip_width: float = _default("clip_width")
+    fast_clip: float = _default("fast_clip")
+    antilag_gain: float = _default("antilag_gain")
+    antilag_threshold: float = _default("antilag_threshold")
+    box_radius: int = 3
+    clip_radius: int = 1
+    variance_frames: int = 4
+    spatial_radius: int = 3
+    feedback_level: int = 0
+
+    def __post_init__(self):
+        for name, (_, low, high) in CONTINUOUS.items():
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not (low <= value <= high):
+                raise UsageError(f"asvgf: {name} must be a number from {low:g} to {high:g}, got {value!r}")
+        whole = {"levels": (1, 12), "box_radius": (1, 16), "clip_radius": (1, 16), "variance_frames": (1, 64),
+                 "spatial_radius": (1, 16), "feedback_level": (0, (self.levels or 12) - 1)}
+        for name, (low, high) in whole.items():
+            value = getattr(self, name)
+            if name == "levels" and value is None:
+                continue
+            if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
+                raise UsageError(f"asvgf: {name} must be a whole number from {low} to {high}, got {value!r}")
+
+    @staticmethod
+    def hand_set(**changes) -> "ASVGFParams":
+        """The parameters set by hand, whatever the parameter file says."""
+        return ASVGFParams(**{**{name: value for name, (value, _, _) in CONTINUOUS.items()}, **changes})
+
+    def continuous(self) -> dict[str, float]:
+        return {name: getattr(self, name) for name in CONTINUOUS}
+
+    def with_values(self, values: dict[str, float]) -> "ASVGFParams":
+        return replace(self, **values)
+
+
+@dataclass
+class FilterValues:
+    """The continuous parameters as the kernels take them: Python floats, or
+    Dr.Jit Floats (one lane each) whose gradients :mod:`denoise.fit` tracks."""
+    sigma_luminance: object
+    sigma_normal: object
+    sigma_plane: object
+    slow_frames: object
+    fast_frames: object
+    clip_width: object
+    fast_clip: object
+    antilag_gain: object
+    antilag_threshold: object
+
+    @staticmethod
+    def of(p: ASVGFParams) -> "FilterValues":
+        return FilterValues(**p.continuous())
+
+    def widened(self, width: int) -> "FilterValues":
+        """Dr.Jit values gathered to one lane per pixel, evaluated: the backward
+        pass then adds each frame's gradients into a parameter with one scatter,
+        instead of one reduction per use of it in every tap."""
+        def wide(value):
+            if not dr.is_array_v(value) or dr.width(value) == width:
+                return value
+            out = dr.gather(mi.Float, value, dr.zeros(mi.UInt32, width))
+            dr.eval(out)
+            return out
+
+        return FilterValues(**{f.name: wide(getattr(self, f.name)) for f in fields(self)})
+
+    def as_floats(self) -> dict[str, float]:
+        return {f.name: float(getattr(self, f.name)[0] if dr.is_array_v(getattr(self, f.name))
+                              else getattr(self, f.name)) for f in fields(self)}
+
+
+@dataclass
+class ASVGFHistory:
+    """What the filter keeps from one frame to the next, per pixel."""
+    fast: mi.Vector3f
+    slow: mi.Vector3f
+    moments: mi.Vector2f
+    length: mi.Float
+
+
+def to_ycocg(c: mi.Vector3f) -> mi.Vector3f:
+    return mi.Vector3f(0.25 * c.x + 0.5 * c.y + 0.25 * c.z, 0.5 * c.x - 0.5 * c.z, -0.25 * c.x + 0.5 * c.y - 0.25 * c.z)
+
+
+def from_ycocg(c: mi.Vector3f) -> mi.Vector3f:
+    return mi.Vector3f(c.x + c.y - c.z, c.x + c.z, c.x - c.y - c.z)
+
+
+def box_statistics(frame: FrameArrays, color_ycocg: mi.Vector3f, radius: int) -> tuple[mi.Vector3f, mi.Vector3f]:
+    """Mean and σ per channel of each pixel's (2r+1)² box (:func:`denoise.filters.clamp_box`)."""
+    return clamp_box(frame.tensor(color_ycocg), radius)
+
+
+def differentiable_box_statistics(frame: FrameArrays, color_ycocg: mi.Vector3f, radius: int
+                                  ) -> tuple[mi.Vector3f, mi.Vector3f]:
+    """As :func:`box_statistics`, σ from the box means of the values and their
+    squares, with a finite derivative where a box is flat (a constant
+    background): clamp_box's ``sqrt`` of a variance of exactly 0 has an
+    infinite one, and the backward pass's ``0 · inf`` is NaN."""
+    mean, _ = clamp_box(frame.tensor(color_ycocg), radius)
+    mean_square, _ = clamp_box(frame.tensor(color_ycocg * color_ycocg), radius)
+    return mean, dr.sqrt(dr.maximum(mean_square - mean * mean, 1e-30))
+
+
+def clip_ycocg(history_ycocg: mi.Vector3f, mean: mi.Vector3f, sigma: mi.Vector3f, width) -> mi.Vector3f:
+    """The history clipped per YCoCg channel to ``mean ± width σ``, back in RGB."""
+    return from_ycocg(dr.clip(history_ycocg, mean - width * sigma, mean + width * sigma))
+
+
+def temporal_gradient(current_mean_y: mi.Float, history_mean_y: mi.Float, v: FilterValues) -> mi.Float:
+    """A-SVGF's ``λ`` from the box means of ``Y`` of the current frame and the fast history."""
+    delta = dr.abs(current_mean_y - history_mean_y) / (
+        dr.maximum(dr.maximum(current_mean_y, history_mean_y), 0.0) + GRADIENT_FLOOR)
+    return dr.clip(v.antilag_gain * (delta - v.antilag_threshold), 0.0, 1.0)
+
+
+def temporal_accumulation(frame: FrameArrays, history: ASVGFHistory | None, index: mi.UInt32 | None,
+                          valid: mi.Bool | None, p: ASVGFParams, v: FilterValues
+                          ) -> tuple[mi.Vector3f, mi.Vector3f, mi.Vector2f, mi.Float]:
+    """Steps 1-5 but the variance: (fast, slow, moments, length) of this frame."""
+    c = frame.color
+    lum = luminance(c)
+    moments = mi.Vector2f(lum, lum * lum)
+    if history is None:
+        return c, c, moments, dr.full(mi.Float, 1.0, dr.width(lum))
+    mean_c, sigma_c = box_statistics(frame, to_ycocg(c), p.box_radius)
+    fast = dr.gather(mi.Vector3f, history.fast, index, valid)
+    slow = dr.gather(mi.Vector3f, history.slow, index, valid)
+    previous_moments = dr.gather(mi.Vector2f, history.moments, index, valid)
+    previous_length = dr.gather(mi.Float, history.length, index, valid)
+    valid = valid & dr.all(dr.isfinite(fast)) & dr.all(dr.isfinite(slow))
+    fast = dr.select(valid, fast, c)
+    mean_f, _ = box_statistics(frame, to_ycocg(fast), p.box_radius)
+    lam = temporal_gradient(mean_c.x, mean_f.x, v)
+    length = dr.select(valid, dr.minimum(1.0 + previous_length * (1.0 - lam), v.slow_frames), 1.0)
+    alpha = 1.0 / length
+    fast = dr.lerp(clip_ycocg(to_ycocg(fast), mean_c, sigma_c, v.fast_clip), c,
+                   dr.maximum(alpha, 1.0 / v.fast_frames))
+    fast = dr.select(valid, fast, c)
+    dr.eval(fast)
+    mean_fast, sigma_fast = differentiable_box_statistics(frame, to_ycocg(fast), p.clip_radius)
+    slow = dr.lerp(clip_ycocg(to_ycocg(slow), mean_fast, sigma_fast, v.clip_width), c, alpha)
+    slow = dr.select(valid, slow, c)
+    moments = dr.select(valid, dr.lerp(previous_moments, moments, alpha), moments)
+    return fast, slow, moments, length
+
+
+def variance(frame: FrameArrays, moments: mi.Vector2f, length: mi.Float, p: ASVGFParams, v: FilterValues) -> mi.Float:
+    """SVGF's variance from the blended moments; below ``variance_frames`` of
+    history the current frame's spatial estimate times ``variance_frames / n``
+    (computed on those pixels only, with SVGF's edge weights; its factor ``n_detached / n`` is 1 but
+    carries the derivative with respect to ``n``)."""
+    temporal = dr.maximum(moments.y - moments.x * moments.x, 0.0)
+    lum = luminance(dr.detach(frame.color))
+    detached = dr.detach(length)
+    spatial = estimate_variance(frame, mi.Vector2f(lum, lum * lum), detached,
+                                SVGFParams(variance_frames=p.variance_frames, spatial_radius=p.spatial_radius))
+    return dr.select(detached < p.variance_frames, spatial * (detached / length), temporal)
+
+
+def normal_weight(cosine: mi.Float, exponent) -> mi.Float:
+    """``max(0, cosine)^exponent``: SVGF's repeated squaring for a plain power of two, else ``dr.power``."""
+    if not dr.is_array_v(exponent):
+        return normal_power(cosine, exponent)
+    x = dr.maximum(cosine, 0.0)
+    return dr.select(x > 0.0, dr.power(dr.select(x > 0.0, x, 1.0), exponent), 0.0)
+
+
+def atrous_level(frame: FrameArrays, color: mi.Vector3f, var: mi.Float, step: int, v: FilterValues
+                 ) -> tuple[mi.Vector3f, mi.Float]:
+    """One SVGF À-Trous level with holes ``step``, parameters from ``v``."""
+    packed = dr.ravel(mi.Vector4f(color.x, color.y, color.z, var))
+    dr.eval(packed, var)
+    k_plane = 1.0 / dr.maximum(2.0 * v.sigma_plane * v.sigma_plane, 1e-30)
+    blurred = GAUSS3[1] * GAUSS3[1] * var
+    for dy in (-1, 0, 1):
+        for dx in (-1, 0, 1):
+            if dx == 0 and dy == 0:
+                continue
+            x = dr.clip(frame.x + dx, 0, frame.width - 1)
+            y = dr.clip(frame.y + dy, 0, frame.height - 1)
+            blurred += GAUSS3[dx + 1] * GAUSS3[dy + 1] * dr.gather(mi.Float, var, mi.UInt32(y * frame.width + x))
+    scale = -1.0 / (v.sigma_luminance * dr.sqrt(dr.maximum(blurred, 0.0)) + EPSILON)
+    lum_p = luminance(color)
+    total, weights, total_var = mi.Vector3f(0.0), mi.Float(0.0), mi.Float(0.0)
+    for j, hy in enumerate(B3):
+        for i, hx in enumerate(B3):
+            dx, dy = (i - 2) * step, (j - 2) * step
+            if dx == 0 and dy == 0:
+                total += hx * hy * color
+                weights += hx * hy
+                total_var += hx * hy * hx * hy * var
+                continue
+            x, y = frame.x + dx, frame.y + dy
+            inside = (x >= 0) & (x < frame.width) & (y >= 0) & (y < frame.height)
+            q = dr.gather(mi.Vector4f, packed, mi.UInt32(dr.clip(y, 0, frame.height - 1) * frame.width
+                                                         + dr.clip(x, 0, frame.width - 1)))
+            c_q = mi.Vector3f(q.x, q.y, q.z)
+            n_q, x_q = frame.gather_guides(x, y)
+            log_w = (dr.abs(lum_p - luminance(c_q)) * scale
+                     - plane_distance_sq(frame.normal, frame.position, x_q) * k_plane)
+            w = hx * hy * normal_weight(dr.dot(frame.normal, n_q), v.sigma_normal) * neg_exp(-log_w)
+            w = dr.select(inside, w, 0.0)
+            total += w * c_q
+            weights += w
+            total_var += w * w * q.w
+    return total / weights, total_var / (weights * weights)
+
+
+def asvgf(frame: FrameArrays, p: ASVGFParams, history: ASVGFHistory | None = None, index: mi.UInt32 | None = None,
+          valid: mi.Bool | None = None, values: FilterValues | None = None) -> tuple[mi.TensorXf, ASVGFHistory]:
+    """One frame on ``frame.color``; ``index``/``valid`` are the back
+    projection onto the frame that ``history`` belongs to. ``values``
+    overrides ``p``'s continuous parameters (Dr.Jit Floats to differentiate).
+    Returns (the filtered colour, the history for the next frame)."""
+    v = FilterValues.of(p) if values is None else values.widened(dr.width(frame.color))
+    fast, slow, moments, length = temporal_accumulation(frame, history, index, valid, p, v)
+    dr.eval(fast, slow, moments, length)
+    var = variance(frame, moments, length, p, v)
+    color, feedback = slow, slow
+    levels = p.levels if p.levels is not None else levels_for(frame.width)
+    for level in range(levels):
+        color, var = atrous_level(frame, color, var, 1 << level, v)
+        dr.eval(color, var)
+        if level == min(p.feedback_level, levels - 1):
+            feedback = color
+    return frame.tensor(color), ASVGFHistory(fast, feedback, moments, length)

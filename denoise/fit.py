@@ -1,0 +1,311 @@
+"""Fitting asvgf's continuous parameters by gradient descent through Dr.Jit's autodiff.
+
+    python -m denoise.fit [SPEC.json ...] [--work DIR] [--steps N] [--rate R]
+                          [--switch-frame F] [--out FILE] [--quiet]
+    python -m denoise.fit --evaluate FOLDER [--switch-frame F]
+
+The training sequences (default ``scenes/sequences/training/*.json``, none of
+them the benchmark's) are exported into ``--work`` once (a rerun renders
+nothing). Each step runs :func:`denoise.asvgf.asvgf` over every frame of
+every sequence in ``llvm_ad_rgb`` with gradients enabled on the continuous
+parameters (the edge-stopping sigmas, the history lengths, both clip widths,
+the anti-lag gain and threshold), the history carried from frame to frame,
+so ``dr.backward`` differentiates the whole temporal and spatial pipeline.
+The loss is the relMSE of every frame against its ground truth, averaged.
+Each sequence also enters a second time with a light switch: beauty and
+ground truth of frames >= ``--switch-frame`` scaled by 0.2, a light dimming
+to 20 % in one frame (what the anti-lag is for).
+
+Parameters are fitted as logarithms with Adam (``mi.ad.Adam``) and kept inside
+the ranges :class:`denoise.asvgf.ASVGFParams` allows; the loss per step is
+printed (not with ``--quiet``). A step whose loss is not finite stops the fit
+with one line and exit 2, the parameter file left as it was; otherwise the
+parameters of the lowest loss are written to ``--out``
+(``denoise/asvgf_params.json``, which ``asvgf`` reads by default).
+
+``--evaluate FOLDER`` fits nothing: it prints the relMSE per frame of
+``svgf``, ``asvgf`` hand-set and ``asvgf`` fitted on an exported folder, as
+rendered and with the light switch at ``--switch-frame``, and the response:
+frames after the switch until the relMSE is back within 1.5x of the frame
+before it (relMSE as dimmed, and of the images divided by 0.2, which the
+metric's epsilon does not favour).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+if __name__ == "__main__":  # started by a Python without the project's packages: use ./.venv's
+    from core.launcher import use_project_python
+    use_project_python("python -m denoise.fit", "denoise.fit")
+
+from core.errors import UsageError  # noqa: E402
+
+# Dr.Jit, Mitsuba, NumPy and the denoiser's modules are imported inside the functions:
+# the variant is chosen first (llvm_ad_rgb), and --help and argument errors do not wait for them
+ROOT = Path(__file__).resolve().parent.parent
+TRAINING = sorted((ROOT / "scenes" / "sequences" / "training").glob("*.json"))
+#: what a light switch scales the frames after it by
+SWITCH_SCALE = 0.2
+
+
+@dataclass
+class PreparedFrame:
+    """One frame as the filter takes it: buffers (demodulated colour), the back
+    projection onto the previous frame, the albedo to remodulate, the truth."""
+    buffers: object  # denoise.filters.FrameArrays
+    index: object  # mi.UInt32 or None (first frame)
+    valid: object  # mi.Bool or None
+    albedo: object  # mi.TensorXf or None
+    reference: object  # mi.TensorXf
+
+
+def prepare(folder: Path, scale_from: int | None = None, scale: float = SWITCH_SCALE) -> list[PreparedFrame]:
+    """Every frame of ``folder`` with its ground truth from ``FOLDER_reference``,
+    as the Denoiser would feed asvgf (usable values, albedo demodulation, back
+    projection); beauty and truth of frames >= ``scale_from`` times ``scale``."""
+    import mitsuba as mi
+    import numpy as np
+
+    from imaging.image_io import read_exr_rgb
+
+    from .export import reference_folder
+    from .filters import FrameArrays, demodulate, reproject
+    from .frames import frame_indices, read_frame
+    from .pipeline import Denoiser
+
+    def tensor(a):
+        return mi.TensorXf(np.ascontiguousarray(a, np.float32))
+
+    usable = Denoiser().usable_frame
+    prepared, previous, previous_ids = [], None, None
+    for i in frame_indices(folder):
+        frame = usable(read_frame(folder, i))
+        truth = read_exr_rgb(reference_folder(folder) / f"beauty_{i}.exr")
+        factor = scale if scale_from is not None and i >= scale_from else 1.0
+        color, ids, position = tensor(frame.beauty * factor), tensor(frame.ids), tensor(frame.position)
+        albedo = tensor(frame.albedo) if frame.albedo is not None else None
+        if albedo is not None:
+            color = demodulate(color, albedo)
+        index = valid = None
+        if previous is not None:
+            index, valid = reproject(position, ids, previous_ids, frame.object_to_world, previous.object_to_world,
+                                     previous.world_to_screen)
+        prepared.append(PreparedFrame(FrameArrays(color, tensor(frame.normal), position), index, valid, albedo,
+                                      tensor(truth * factor)))
+        previous, previous_ids = frame, ids
+    return prepared
+
+
+def relmse_loss(image, reference, epsilon: float = 1e-2):
+    """validation.metrics.relmse's ``mean((x - ref)² / (ref² + ε))`` as a differentiable Dr.Jit Float."""
+    import drjit as dr
+
+    return dr.mean(dr.square(image.array - reference.array) / (dr.square(reference.array) + epsilon))
+
+
+def run_sequence(frames: list[PreparedFrame], params, values=None) -> list:
+    """asvgf over ``frames``: the remodulated results (TensorXf), history carried along."""
+    from .asvgf import asvgf
+    from .filters import remodulate
+
+    history, results = None, []
+    for f in frames:
+        result, history = asvgf(f.buffers, params, history if f.index is not None else None, f.index, f.valid,
+                                values)
+        results.append(remodulate(result, f.albedo) if f.albedo is not None else result)
+    return results
+
+
+def sequence_loss(sequences: list[list[PreparedFrame]], params, values=None):
+    """Mean relMSE over every frame of every sequence (a Dr.Jit Float)."""
+    total, count = 0.0, 0
+    for frames in sequences:
+        for f, result in zip(frames, run_sequence(frames, params, values)):
+            total = total + relmse_loss(result, f.reference)
+            count += 1
+    return total / count
+
+
+class Fit:
+    """Adam on the logarithms of the continuous parameters, kept in range."""
+
+    def __init__(self, params, rate: float):
+        import drjit as dr
+        import mitsuba as mi
+
+        from .asvgf import CONTINUOUS
+
+        self.params, self.ranges = params, CONTINUOUS
+        self.optimizer = mi.ad.Adam(lr=rate)
+        for name, value in params.continuous().items():
+            # a clip width or threshold of 0 has no logarithm: fit from a tiny value instead
+            self.optimizer[name] = mi.Float(math.log(max(value, 1e-3)))
+        self.dr = dr
+
+    def values(self):
+        import mitsuba as mi
+
+        from .asvgf import FilterValues
+
+        dr = self.dr
+        return FilterValues(**{name: dr.clip(dr.exp(self.optimizer[name]), max(low, 1e-6), high)
+                               for name, (_, low, high) in self.ranges.items()})
+
+    def step(self, sequences) -> float:
+        """One gradient step; returns the loss before it."""
+        dr = self.dr
+        values = self.values()
+        loss = sequence_loss(sequences, self.params, values)
+        value = float(loss[0])
+        if not math.isfinite(value):
+            raise UsageError(f"the loss is {value} (a diverging step); the parameter file was not written")
+        dr.backward(loss)
+        self.optimizer.step()
+        return value
+
+    def current(self) -> dict[str, float]:
+        return self.values().as_floats()
+
+
+def display_path(path: Path) -> str:
+    """``path`` relative to the repository where it lies inside it."""
+    path = Path(path).resolve()
+    return str(path.relative_to(ROOT)) if path.is_relative_to(ROOT) else str(path)
+
+
+def write_parameters(path: Path, values: dict[str, float], loss: float, hand_set_loss: float, sources) -> None:
+    from imaging.image_io import atomic_path
+
+    data = {"parameters": {k: round(v, 6) for k, v in values.items()},
+            "training_loss": loss, "hand_set_loss": hand_set_loss,
+            "training": [display_path(s) for s in sources]}
+    with atomic_path(path, ".json") as temporary:
+        Path(temporary).write_text(json.dumps(data, indent=2) + "\n")
+
+
+def evaluate(folder: Path, switch: int | None) -> dict[str, tuple[list[float], list[float]]]:
+    """Per method: (relMSE per frame as rendered or dimmed, relMSE of the images divided by the dimming)."""
+    import numpy as np
+    from dataclasses import replace
+
+    from imaging.image_io import read_exr_rgb
+    from validation.metrics import relmse
+
+    from .asvgf import ASVGFParams
+    from .export import reference_folder
+    from .frames import frame_indices, read_frame
+    from .pipeline import Denoiser, parse_method
+
+    indices = frame_indices(folder)
+    factors = [SWITCH_SCALE if switch is not None and i >= switch else 1.0 for i in indices]
+    truth = [read_exr_rgb(reference_folder(folder) / f"beauty_{i}.exr") * f for i, f in zip(indices, factors)]
+    denoiser = Denoiser(parse_method("svgf"))
+    outputs = {"svgf": [denoiser.step(replace(frame, beauty=frame.beauty * f))
+                        for frame, f in zip((read_frame(folder, i) for i in indices), factors)]}
+    frames = prepare(folder, switch)
+    for name, params in (("asvgf hand-set", ASVGFParams.hand_set()), ("asvgf fitted", ASVGFParams())):
+        outputs[name] = [np.array(r) for r in run_sequence(frames, params)]
+    return {name: ([relmse(o, t) for o, t in zip(images, truth)],
+                   [relmse(o / f, t / f) for o, t, f in zip(images, truth, factors)])
+            for name, images in outputs.items()}
+
+
+def response(values: list[float], switch: int) -> str:
+    """Frames after ``switch`` until ``values`` is back within 1.5x of the frame before it."""
+    for k in range(switch, len(values)):
+        if values[k] <= 1.5 * values[switch - 1]:
+            return str(k - switch)
+    return f">{len(values) - 1 - switch}"
+
+
+def print_evaluation(folder: Path, switch: int) -> None:
+    for label, at in (("as rendered", None), (f"light dimmed to 20 % from frame {switch}", switch)):
+        print(f"{folder.name}, {label}: relMSE per frame")
+        for name, (dimmed, undimmed) in evaluate(folder, at).items():
+            rows = [("", dimmed)] if at is None else [(" (as dimmed)", dimmed), (" (/0.2)", undimmed)]
+            for suffix, values in rows:
+                tail = (f"  mean>=4 {sum(values[4:]) / max(len(values) - 4, 1):.4f}  last {values[-1]:.4f}"
+                        + (f"  response {response(values, at)}" if at is not None else ""))
+                print(f"  {name + suffix:28s} " + " ".join(f"{v:.4f}" for v in values) + tail)
+
+
+def _parser() -> argparse.ArgumentParser:
+    from core.entry import ArgumentParser
+    from core.numbers import ascii_float, ascii_int
+
+    parser = ArgumentParser(prog="python -m denoise.fit", description=__doc__.split("\n\n")[0])
+    parser.add_argument("specs", type=Path, nargs="*", metavar="SPEC.json",
+                        help="training sequences (default: scenes/sequences/training/*.json)")
+    parser.add_argument("--work", type=Path, default=ROOT / "out" / "fit", help="where they are rendered (out/fit)")
+    parser.add_argument("--steps", type=ascii_int, default=40, help="gradient steps (40)")
+    parser.add_argument("--rate", type=ascii_float, default=0.05, help="Adam's learning rate on log parameters (0.05)")
+    parser.add_argument("--switch-frame", type=ascii_int, default=4,
+                        help="the light switch's first dimmed frame in the switched copies (4)")
+    parser.add_argument("--out", type=Path, default=ROOT / "denoise" / "asvgf_params.json",
+                        help="the parameter file (denoise/asvgf_params.json)")
+    parser.add_argument("--quiet", action="store_true", help="print nothing but errors")
+    parser.add_argument("--evaluate", type=Path, metavar="FOLDER",
+                        help="fit nothing: relMSE per frame of svgf and asvgf (hand-set, fitted) on FOLDER")
+    return parser
+
+
+def _main(argv: list[str] | None) -> int:
+    args = _parser().parse_args(argv)
+    specs = args.specs or TRAINING
+    if not specs:
+        raise UsageError("no training sequences (scenes/sequences/training/*.json is empty)")
+    if not 1 <= args.steps <= 10000:
+        raise UsageError(f"--steps must be from 1 to 10000, got {args.steps}")
+    if not (0.0 < args.rate <= 10.0):
+        raise UsageError(f"--rate must be in (0, 10], got {args.rate}")
+    from renderer.variants import set_variant
+
+    from .export import Spec, export
+
+    if args.evaluate is not None:
+        if not (args.evaluate / "beauty_0.exr").is_file():
+            raise UsageError(f"{args.evaluate}: not an exported frame folder (no beauty_0.exr)")
+        set_variant("llvm_ad_rgb", quiet=True)
+        print_evaluation(args.evaluate, args.switch_frame)
+        return 0
+
+    loaded = [(path, Spec.load(path)) for path in specs]  # all checked before any work
+    set_variant("llvm_ad_rgb", quiet=True)
+    from .asvgf import ASVGFParams
+
+    sequences = []
+    for path, spec in loaded:
+        target = args.work / path.stem
+        export(spec, target)
+        sequences.append(prepare(target))
+        sequences.append(prepare(target, scale_from=args.switch_frame))
+    params = ASVGFParams.hand_set()
+    fit = Fit(params, args.rate)
+    best, hand_set_loss = None, None
+    for step in range(args.steps):
+        values = fit.current()
+        loss = fit.step(sequences)
+        hand_set_loss = loss if hand_set_loss is None else hand_set_loss
+        if best is None or loss < best[0]:
+            best = (loss, values)
+        if not args.quiet:
+            print(f"step {step}: loss {loss:.6f}  " + " ".join(f"{k} {v:.4g}" for k, v in values.items()), flush=True)
+    write_parameters(args.out, best[1], best[0], hand_set_loss, specs)
+    if not args.quiet:
+        print(f"lowest loss {best[0]:.6f} (hand-set {hand_set_loss:.6f}); parameters written to {args.out}")
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    from core.entry import run
+
+    return run("python -m denoise.fit", lambda: _main(argv))
+
+
+if __name__ == "__main__":
+    sys.exit(main())
