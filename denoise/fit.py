@@ -76,12 +76,12 @@ def prepare(folder: Path, scale_from: int | None = None, scale: float = SWITCH_S
     from .export import reference_folder
     from .filters import FrameArrays, demodulate, reproject
     from .frames import frame_indices, read_frame
-    from .pipeline import Denoiser
+    from .methods import make
 
     def tensor(a):
         return mi.TensorXf(np.ascontiguousarray(a, np.float32))
 
-    usable = Denoiser().usable_frame
+    usable = make("asvgf").usable_frame
     prepared, previous, previous_ids = [], None, None
     for i in frame_indices(folder):
         frame = usable(read_frame(folder, i))
@@ -199,12 +199,12 @@ def evaluate(folder: Path, switch: int | None) -> dict[str, tuple[list[float], l
     from .asvgf import ASVGFParams
     from .export import reference_folder
     from .frames import frame_indices, read_frame
-    from .pipeline import Denoiser, parse_method
+    from .methods import from_name
 
     indices = frame_indices(folder)
     factors = [SWITCH_SCALE if switch is not None and i >= switch else 1.0 for i in indices]
     truth = [read_exr_rgb(reference_folder(folder) / f"beauty_{i}.exr") * f for i, f in zip(indices, factors)]
-    denoiser = Denoiser(parse_method("svgf"))
+    denoiser = from_name("svgf")
     outputs = {"svgf": [denoiser.step(replace(frame, beauty=frame.beauty * f))
                         for frame, f in zip((read_frame(folder, i) for i in indices), factors)]}
     frames = prepare(folder, switch)

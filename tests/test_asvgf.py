@@ -2,10 +2,10 @@
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
-
 from test_denoise import B3, close, np_normalize, shifted, tensors
 
 LUM = np.array([0.2126, 0.7152, 0.0722])
@@ -270,3 +270,16 @@ def test_parameters_are_checked_and_read_from_the_file(variant_vectorised_rgb, t
     with pytest.raises(UsageError, match="p.json"):
         load_parameter_file(path)
     assert ASVGFParams.hand_set().continuous() == {k: v for k, (v, _, _) in CONTINUOUS.items()}
+
+
+def test_the_method_passes_its_options_to_the_filter(variant_vectorised_rgb):
+    """``python -m denoise --method asvgf``'s options reach ASVGFParams; a bad one names the option."""
+    from core.errors import UsageError
+    from denoise.asvgf import ASVGFParams
+    from denoise.methods import make
+
+    method = make("asvgf", clip_width=2.5, slow_frames=8.0, normal_exponent=32.0, levels=2)
+    assert method.params == replace(ASVGFParams(), clip_width=2.5, slow_frames=8.0, sigma_normal=32.0, levels=2)
+    assert method.temporal and method.demodulate
+    with pytest.raises(UsageError, match="--clip-width"):
+        make("asvgf", clip_width=-1.0)

@@ -350,6 +350,11 @@ def child() -> None:
             if spec.submodule_search_locations:  # a package: python -m runs its __main__
                 spec = importlib.util.find_spec(check["name"] + ".__main__")
             source = Path(spec.origin).read_text() if spec and spec.origin else ""
+            # a thin __main__ hands over to a module of its package (denoise.export.cli)
+            for imported in re.findall(r"^\s*from ([\w.]+) import main\b", source, re.M):
+                found = importlib.util.find_spec(imported)
+                if found is not None and found.origin:
+                    source += Path(found.origin).read_text()
             if "argparse" not in source and "ArgumentParser" not in source:
                 if check["args"]:
                     check.update(ok=False, message=f"{check['name']} takes no arguments (it has no parser)")

@@ -25,7 +25,7 @@ RANGES = {
     "sigma_plane": (0.01, 2.0, 0.01, False), "radius": (0, 16, 1, True), "levels": (1, 8, 1, True),
     "alpha": (0.01, 1.0, 0.01, False), "k": (0.0, 8.0, 0.1, False),
     "sigma_luminance": (0.1, 32.0, 0.1, False), "normal_exponent": (1.0, 256.0, 1.0, False),
-    "history_cap": (1.0, 64.0, 1.0, False), "clip_sigma": (0.25, 8.0, 0.05, False),
+    "slow_frames": (1.0, 64.0, 1.0, False), "clip_width": (0.05, 8.0, 0.05, False),
 }
 
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 from core.errors import UsageError
 
 from ..filters import OutlierParams
+from .asvgf import ASVGF
 from .atrous import Atrous
 from .base import DenoisingMethod, Option, SpatialFilterMethod
 from .bilateral import Bilateral
@@ -36,7 +37,7 @@ def register(cls: type[DenoisingMethod]) -> type[DenoisingMethod]:
 
 
 #: the methods of this package, in the order of ``--help``
-for method in (Bilateral, Atrous, SVGF, OIDNMethod, OIDNGuided):
+for method in (Bilateral, Atrous, SVGF, ASVGF, OIDNMethod, OIDNGuided):
     register(method)
 
 
