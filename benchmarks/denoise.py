@@ -81,8 +81,8 @@ QUALITY = dict(size=(320, 180))
 REFERENCE_SPP = {"dolly_lamps": 2048, "orbit_transforms": 1536, "glossy_shadow": 2048, "moving_lamp": 1024,
                  "light_switch": 2048, "long_orbit": 1024}
 QUICK = dict(size=(96, 54), reference_spp=16)
-#: the quick run's longest sequence (a light switched at frames [5, 6] still switches)
-QUICK_FRAMES = 8
+#: the quick run's frames per sequence (more where a light changes later: see quick_frames)
+QUICK_FRAMES = 4
 #: a method has responded to a sudden change once its relMSE stays within this factor of its value before
 RESPONSE_FACTOR = 1.5
 TIMING = dict(size=(1280, 720), frames=9, reference_spp=2)
@@ -201,6 +201,12 @@ def sudden_change(spec) -> tuple[int, int] | None:
     windows = [tuple(change["frames"]) for change in spec.lights.values() if "frames" in change]
     windows = [(a, b) for a, b in windows if b == a + 1]
     return min(windows) if windows else None
+
+
+def quick_frames(spec) -> int:
+    """The quick run's frames of ``spec``: :data:`QUICK_FRAMES`, or two past a sudden change."""
+    switch = sudden_change(spec)
+    return min(spec.frames, max(QUICK_FRAMES, switch[1] + 2 if switch else 0))
 
 
 def response(rows: list[dict], method: str, switch: tuple[int, int]) -> int | None:
@@ -375,7 +381,7 @@ def main(argv: list[str] | None = None) -> int:
             continue
         settings = dict(quality)
         if args.quick:
-            settings["frames"] = min(QUICK_FRAMES, Spec.load(spec_path).frames)
+            settings["frames"] = quick_frames(Spec.load(spec_path))
         if args.reference_spp is not None:
             settings["reference_spp"] = args.reference_spp
         elif not args.quick:
