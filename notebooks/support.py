@@ -1,5 +1,5 @@
-"""What the notebooks use besides the library: a progress bar over the steps of
-a long library call, and figures shown exactly once."""
+"""What the notebooks use besides the library: progress bars (one over the
+steps of a long library call), and figures shown exactly once."""
 from __future__ import annotations
 
 import sys
@@ -9,12 +9,17 @@ from functools import wraps
 from tqdm import tqdm
 
 
+def progress_bar(total: int | None, desc: str) -> tqdm:
+    """A progress bar on stderr, as wide in a notebook as in a terminal."""
+    return tqdm(total=total, desc=desc, unit="step", file=sys.stderr, dynamic_ncols=False, ncols=90)
+
+
 @contextmanager
 def counting(module, names: list[str], desc: str, total: int | None = None):
     """A progress bar that advances each time one of ``module``'s functions
     ``names`` returns, while the block runs (the library's loops call them by
     module name, so the count is theirs, not a copy of their loops)."""
-    bar = tqdm(total=total, desc=desc, unit="step", file=sys.stderr, dynamic_ncols=False, ncols=90)
+    bar = progress_bar(total, desc)
     originals = {name: getattr(module, name) for name in names}
 
     def counted(function):
