@@ -97,14 +97,28 @@ def slope_interval(points: list[dict], level: float = 0.95) -> tuple[float, floa
 
 
 def plot_fit(history: list[dict], truth: dict = inverse_rendering.TRUTH):
-    """The loss over the steps, and each parameter's error against the truth in
-    the unit of its tolerance (below the line: recovered)."""
+    """The loss over the steps; every fitted value over its true value (converged:
+    1); and each parameter's error against the truth in the unit of its
+    tolerance (below the red line: recovered)."""
     import matplotlib.pyplot as plt
 
     steps = [h["step"] for h in history]
-    fig, (ax_loss, ax_error) = plt.subplots(1, 2, figsize=(12, 4.2))
+    fig, (ax_loss, ax_value, ax_error) = plt.subplots(1, 3, figsize=(17, 4.4))
     ax_loss.semilogy(steps, [h["loss"] for h in history])
     ax_loss.set(xlabel="step", ylabel="mean squared pixel difference", title="loss")
+    channels = {"diffuse": "RGB", "specular": "RGB", "light": "xyz"}
+    styles = {"diffuse": "-", "specular": "--", "exponent": "-", "light": ":"}
+    colours = {"R": "tab:red", "G": "tab:green", "B": "tab:blue", "x": "tab:purple", "y": "tab:olive",
+               "z": "tab:cyan"}
+    for name, value in truth.items():
+        for k, channel in enumerate(channels.get(name, [""])):
+            true = value[k] if isinstance(value, list) else value
+            ax_value.plot(steps, [(h[name][k] if isinstance(value, list) else h[name]) / true for h in history],
+                          styles[name], color=colours.get(channel, "black"), lw=1.2,
+                          label=f"{name} {channel}".strip())
+    ax_value.axhline(1.0, color="grey", lw=0.8)
+    ax_value.set(xlabel="step", ylabel="fitted / true value", title="parameters: value over the truth")
+    ax_value.legend(fontsize=7, ncol=2)
     errors = [inverse_rendering.parameter_errors(h, truth) for h in history]
     for name, tolerance in inverse_rendering.TOLERANCE.items():
         unit = "of the scene's size" if name == "light" else "relative"
@@ -112,9 +126,9 @@ def plot_fit(history: list[dict], truth: dict = inverse_rendering.TRUTH):
                           label=f"{name} (tolerance {100 * tolerance:g} % {unit})")
     ax_error.axhline(1.0, color="red", lw=1)
     ax_error.set(xlabel="step", ylabel="error / tolerance", title="parameters: error against the truth")
-    for ax in (ax_loss, ax_error):
-        ax.grid(True, which="both", alpha=0.3)
     ax_error.legend(fontsize=8)
+    for ax in (ax_loss, ax_value, ax_error):
+        ax.grid(True, which="both", alpha=0.3)
     fig.tight_layout()
     return fig
 

@@ -5,7 +5,9 @@ from __future__ import annotations
 import sys
 from contextlib import contextmanager
 from functools import wraps
+from pathlib import Path
 
+import numpy as np
 from tqdm import tqdm
 
 
@@ -55,3 +57,23 @@ def check_figure(figure, panels: int) -> None:
     axes = [ax for ax in figure.axes if ax.get_visible()]
     assert len(axes) >= panels, f"{len(axes)} panels, expected {panels}"
     assert all(ax.has_data() for ax in axes), "an empty panel"
+
+
+def retimed(results: dict, paths: list[Path], repeats: int) -> dict:
+    """``results`` of :func:`validation.convergence.measure` with each render's
+    time the median of its timing there and ``repeats`` more (the same render:
+    same scene, spp and seed, so the same image and error), and the slopes
+    fitted again. On a machine shared with other jobs one timing may catch a
+    burst of their load; the median of three does not follow it."""
+    from validation import convergence
+
+    by_scene = {path.stem: path for path in paths}
+    size = results["settings"]["image_size"]
+    points = []
+    for point in results["points"]:
+        path = by_scene[point["scene"]]
+        options = convergence.method_options(point["method"], path)
+        timings = [point["seconds"]] + [convergence.render_timed(path, size, point["spp"], 1, options)[1]
+                                        for _ in range(repeats)]
+        points.append(dict(point, seconds=float(np.median(timings)), timings=timings))
+    return convergence.refit(dict(results, points=points))
