@@ -170,7 +170,8 @@ class PhongBSDF(mi.BSDF):
         if diffuse:
             value += self.kd * (dr.inv_pi * dr.maximum(mi.Frame3f.cos_theta(wo), 0.0))
         if glossy:
-            value += self.ks * (dr.inv_pi * clamped_power(dr.dot(mi.reflect(si.wi), wo), self.eval_exponent))
+            highlight = clamped_power(dr.dot(mi.reflect(si.wi), wo), self.eval_exponent)
+            value += self.ks * (dr.inv_pi * highlight)
         return dr.select(active, value, 0.0)
 
     def pdf(self, ctx: mi.BSDFContext, si: mi.SurfaceInteraction3f, wo: mi.Vector3f,

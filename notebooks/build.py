@@ -39,8 +39,8 @@ ROOT = HERE.parent
 METADATA = "notebooks_build"
 FULL_SETTINGS = {
     "crossval": "the BSDF checks in full; the agreement and the images of three scenes at 200×200 pixels",
-    "error_vs_time": "three scenes at 200×200 pixels, whitted 1–1024 spp, path 1–4096 spp, a 16384-spp reference, "
-                     "each render timed three times",
+    "error_vs_time": "three scenes at 200×200 pixels, whitted 1–1024 spp, path 1–4096 spp, "
+                     "a 16384-spp reference, each render timed three times",
     "inverse_rendering": "200×200 pixels, 300 steps"}
 
 
@@ -396,7 +396,8 @@ def main(argv: list[str] | None = None) -> int:
     parser = ArgumentParser(prog=PROG, description=__doc__.split("\n\n")[0],
                             formatter_class=argparse.RawDescriptionHelpFormatter,
                             epilog="example:\n  python -m notebooks.build --only crossval")
-    parser.add_argument("--quick", action="store_true", help="run at the quick size (default: full, what is stored)")
+    parser.add_argument("--quick", action="store_true",
+                        help="run at the quick size (default: full, what is stored)")
     parser.add_argument("--check", action="store_true", help="run, but write nothing (default: write)")
     parser.add_argument("--out", type=Path, default=HERE, metavar="DIR",
                         help="folder to write the notebooks into (default: notebooks/)")

@@ -23,8 +23,8 @@ def whitted_path_difference(path: Path, size: int, spp: int, bounces: int = 3) -
     common = dict(bounces=bounces, shadows=True, spp=spp, jitter=True, seed=1)
     whitted_paths = (without_ambient, without_background)
     whitted = crossval.render(path, size, variants=(*whitted_paths, without_ray_epsilon), **common)
-    restricted = crossval.render(path, size, variants=(*whitted_paths, with_path_tracer, with_mirror_sampling),
-                                 **common)
+    restricted = crossval.render(path, size, **common,
+                                 variants=(*whitted_paths, with_path_tracer, with_mirror_sampling))
     full = crossval.render(path, size, variants=(with_path_tracer,), **dict(common, bounces=max(bounces, 6)))
     difference = whitted.astype(np.float64) - restricted
     per_pixel = difference.sum(axis=-1).ravel()
@@ -113,9 +113,9 @@ def plot_fit(history: list[dict], truth: dict = inverse_rendering.TRUTH):
     for name, value in truth.items():
         for k, channel in enumerate(channels.get(name, [""])):
             true = value[k] if isinstance(value, list) else value
-            ax_value.plot(steps, [(h[name][k] if isinstance(value, list) else h[name]) / true for h in history],
-                          styles[name], color=colours.get(channel, "black"), lw=1.2,
-                          label=f"{name} {channel}".strip())
+            fitted = [h[name][k] if isinstance(value, list) else h[name] for h in history]
+            ax_value.plot(steps, [v / true for v in fitted], styles[name], lw=1.2,
+                          color=colours.get(channel, "black"), label=f"{name} {channel}".strip())
     ax_value.axhline(1.0, color="grey", lw=0.8)
     ax_value.set(xlabel="step", ylabel="fitted / true value", title="parameters: value over the truth")
     ax_value.legend(fontsize=7, ncol=2)

@@ -64,9 +64,11 @@ Group {
 #: the fitted sphere's shape and the light, by the scene converter's names
 SPHERE, LIGHT = "object_1", "light_0"
 #: the phong parameter of each fitted material parameter
-BSDF_PARAMETERS = {"diffuse": "diffuse_reflectance", "specular": "specular_reflectance", "exponent": "exponent"}
+BSDF_PARAMETERS = {"diffuse": "diffuse_reflectance", "specular": "specular_reflectance",
+                   "exponent": "exponent"}
 #: the parameters of the target image (those of SCENE)
-TRUTH = {"diffuse": [0.7, 0.35, 0.15], "specular": [0.5, 0.45, 0.4], "exponent": 40.0, "light": [2.5, 4.0, 3.0]}
+TRUTH = {"diffuse": [0.7, 0.35, 0.15], "specular": [0.5, 0.45, 0.4], "exponent": 40.0,
+         "light": [2.5, 4.0, 3.0]}
 #: where the fit starts: a grey material, a broad highlight, the light elsewhere
 START = {"diffuse": [0.4, 0.4, 0.4], "specular": [0.2, 0.2, 0.2], "exponent": 12.0, "light": [1.0, 5.0, 1.5]}
 #: recovery bounds: relative for the material, a fraction of view_scale for the light
