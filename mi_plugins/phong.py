@@ -4,12 +4,21 @@ import drjit as dr
 import mitsuba as mi
 
 
-def clamped_power(x: mi.Float, exponent: float) -> mi.Float:
-    """``max(x, 0) ** exponent`` without NaN: ``0 ** 0 = 1``, ``0 ** s = 0``."""
+def clamped_power(x: mi.Float, exponent: float | mi.Float) -> mi.Float:
+    """``max(x, 0) ** exponent`` without NaN: ``0 ** 0 = 1``, ``0 ** s = 0``.
+
+    A Python float exponent is a constant of the kernel (integer exponents are
+    exact products); a ``mi.Float`` one is an input of it, differentiable in
+    both ``x`` and the exponent (no NaN derivative where ``x <= 0``)."""
     x = dr.maximum(x, 0.0)
-    if exponent == 0.0:
-        return dr.full(mi.Float, 1.0, dr.width(x))
-    return dr.select(x > 0.0, dr.power(x, exponent), 0.0)
+    if isinstance(exponent, float):
+        if exponent == 0.0:
+            return dr.full(mi.Float, 1.0, dr.width(x))
+        return dr.select(x > 0.0, dr.power(x, exponent), 0.0)
+    positive = x > 0.0
+    # the power of 1 where x <= 0: its derivatives there are finite, and not selected
+    return dr.select(positive, dr.power(dr.select(positive, x, 1.0), exponent),
+                     dr.select(exponent == 0.0, 1.0, 0.0))
 
 
 class PhongBSDF(mi.BSDF):
@@ -35,10 +44,12 @@ class PhongBSDF(mi.BSDF):
      * - exponent
        - |float|
        - Phong shininess :math:`s \geq 0` (Default: 0)
-       - |exposed|: not differentiable. The kernels take :math:`s` as a
-         constant (``dr.power`` with a Python float: integer exponents are
-         exact products, and ``0 ** 0 = 1`` is decided when tracing), so the
-         images stay the course's; a new value recompiles them.
+       - |exposed|, |differentiable| (in ``eval``). The kernels take :math:`s`
+         as a constant (``dr.power`` with a Python float: integer exponents
+         are exact products, and ``0 ** 0 = 1`` is decided when tracing), so
+         the images stay the course's and a new value recompiles them; while
+         the parameter has gradients enabled (an optimisation), ``eval``
+         takes it as a kernel input instead, with its derivative.
 
      * - sampling
        - |string|
@@ -108,6 +119,10 @@ class PhongBSDF(mi.BSDF):
         self.exponent = float(dr.slice(self.exponent_parameter, 0))
         if not self.exponent >= 0.0:
             raise ValueError(f"phong: exponent must be >= 0, got {self.exponent}")
+        # what eval raises to: the constant, or the parameter itself while it is
+        # differentiated (decided here: renders may suspend gradients)
+        self.eval_exponent = (self.exponent_parameter if dr.grad_enabled(self.exponent_parameter)
+                              else self.exponent)
         self.reflective = bool(dr.any(dr.ravel(self.ks) > 0.0))
         glossy = mi.BSDFFlags.GlossyReflection | mi.BSDFFlags.FrontSide
         mirror = mi.BSDFFlags.DeltaReflection | mi.BSDFFlags.FrontSide
@@ -155,7 +170,8 @@ class PhongBSDF(mi.BSDF):
         if diffuse:
             value += self.kd * (dr.inv_pi * dr.maximum(mi.Frame3f.cos_theta(wo), 0.0))
         if glossy:
-            value += self.ks * (dr.inv_pi * clamped_power(dr.dot(mi.reflect(si.wi), wo), self.exponent))
+            highlight = clamped_power(dr.dot(mi.reflect(si.wi), wo), self.eval_exponent)
+            value += self.ks * (dr.inv_pi * highlight)
         return dr.select(active, value, 0.0)
 
     def pdf(self, ctx: mi.BSDFContext, si: mi.SurfaceInteraction3f, wo: mi.Vector3f,
@@ -219,7 +235,7 @@ class PhongBSDF(mi.BSDF):
     def traverse(self, callback):
         callback.put("diffuse_reflectance", self.kd, mi.ParamFlags.Differentiable)
         callback.put("specular_reflectance", self.ks, mi.ParamFlags.Differentiable)
-        callback.put("exponent", self.exponent_parameter, mi.ParamFlags.NonDifferentiable)
+        callback.put("exponent", self.exponent_parameter, mi.ParamFlags.Differentiable)
 
     def parameters_changed(self, keys: list[str] = []):
         # ks > 0 decides whether there is a mirror lobe; the exponent is read back to the host
