@@ -82,3 +82,38 @@ def test_the_converter_keeps_the_contract_at_any_instant(tmp_path, signum):
         assert not out.exists() or not [p for p in out.rglob(".*")]
         assert result.left == []
     print(signal.Signals(signum).name, outcomes)
+
+
+@pytest.fixture(scope="module")
+def long_denoise_input(tmp_path_factory):
+    """Frames that the joint bilateral filter takes seconds over (a wide window, many frames)."""
+    if SCALAR_FALLBACK:
+        pytest.skip("no usable libLLVM: the denoiser's kernels need a JIT variant")
+    folder = tmp_path_factory.mktemp("denoise_input") / "lamps"
+    code, _, stderr = run_command(python("-m", "denoise.export", ROOT / "scenes" / "sequences" / "dolly_lamps.json",
+                                         folder, "--frames", 8, "--size", 320, 180, "--reference-spp", 2, "--local"))
+    assert code == 0, stderr
+    return folder
+
+
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+def test_the_denoiser_stops_within_two_seconds(tmp_path, long_denoise_input, signum):
+    """``python -m denoise`` between or inside frames: one line, 128 + the signal within 2 s,
+    only whole results (no temporary file), no process left."""
+    out = tmp_path / "out"
+    command = python("-m", "denoise", long_denoise_input, out, "--method", "bilateral", "--radius", 24)
+    start = time.perf_counter()
+    code, _, stderr = run_command(python("-m", "denoise", long_denoise_input, tmp_path / "warm", "--method",
+                                         "bilateral", "--radius", 1))
+    start_up = time.perf_counter() - start
+    assert code == 0, stderr
+    result = interrupt(command, delay=start_up + 1.0, signum=signum, cwd=tmp_path)
+    assert result.running, "the denoiser ended before the signal"
+    assert result.code == 128 + signum, result.stderr[-2000:]
+    assert result.seconds <= STOP_SECONDS
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and "interrupted" in lines[0], result.stderr[-2000:]
+    assert result.left == []
+    written = sorted(out.iterdir()) if out.exists() else []
+    assert all(path.name.startswith("result_") and path.suffix == ".exr" for path in written), written
+    assert len(written) < 8
