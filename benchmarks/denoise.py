@@ -71,8 +71,8 @@ OIDN_ALONE = tuple(f"oidn-{quality}" for quality in QUALITIES)
 #: the baseline of the speed ratios and the quality comparisons
 BASELINE = "oidn-high"
 #: the hard sequence: the results page's still and video
-HARD = "glossy_shadow"
-STILL_METHODS = ("raw", "atrous+temporal", "svgf", BASELINE)
+HARD = "light_switch"
+STILL_METHODS = ("raw", "svgf", "asvgf", BASELINE)
 #: each sequence at this size, over its own frames
 QUALITY = dict(size=(320, 180))
 #: ground-truth samples per pixel per sequence (two halves of half as many; the reference
@@ -90,9 +90,15 @@ QUICK_TIMING = dict(size=(160, 90), frames=3, reference_spp=2)
 #: the reference's own noise must be at most this fraction of the best method's relMSE
 REFERENCE_NOISE_BAR = 0.1
 #: per-frame time as a fraction of the baseline's execute time (the assignment's speed bars)
-SPEED_BARS = {"atrous+temporal": 0.2, "svgf": 0.3, "bilateral": 2.0}
+SPEED_BARS = (("atrous+temporal", BASELINE, 0.2), ("svgf", BASELINE, 0.3), ("bilateral", BASELINE, 2.0),
+              ("asvgf", BASELINE, 0.2), ("asvgf", "oidn-fast", 1.0))
+#: asvgf's quality bars: mean relMSE over frames >= QUALITY_FROM at most this times OIDN's, on every sequence
+ASVGF_RELMSE_BAR = 1.5
+QUALITY_FROM = 4
+#: asvgf's response to a sudden change, in frames
+RESPONSE_BAR = 2
 #: the methods timed at 1280x720 (the bars' methods and OIDN in each quality mode)
-TIMED = OIDN_ALONE + ("atrous+temporal", "svgf", "bilateral")
+TIMED = OIDN_ALONE + ("atrous+temporal", "svgf", "asvgf", "bilateral")
 
 
 def timing_folder(work: Path, sequence: str, settings: dict, quick: bool = False) -> Path:
@@ -190,8 +196,9 @@ def run_timing(folder: Path, methods=TIMED) -> dict:
     timing["ratio_to_oidn"] = {m: ms / timing["ms"][BASELINE] for m, ms in timing["ms"].items()}
     # this process's CPU time (all its threads): what other jobs on the machine inflate least
     timing["cpu_ratio_to_oidn"] = {m: ms / timing["cpu_ms"][BASELINE] for m, ms in timing["cpu_ms"].items()}
-    timing["bars"] = {m: {"ratio": timing["ratio_to_oidn"][m], "bar": bar, "met": timing["ratio_to_oidn"][m] <= bar}
-                      for m, bar in SPEED_BARS.items() if m in timing["ms"]}
+    timing["bars"] = {f"{m} / {base}": {"ratio": timing["ms"][m] / timing["ms"][base], "bar": bar,
+                                        "met": timing["ms"][m] / timing["ms"][base] <= bar}
+                      for m, base, bar in SPEED_BARS if m in timing["ms"] and base in timing["ms"]}
     return timing
 
 
@@ -275,20 +282,66 @@ def bar_lines(results: dict) -> list[str]:
         ours = {m: v for m, v in value.items() if m != "raw" and m not in OIDN_ALONE}
         best = min(ours, key=ours.get)
         lines.append(
-            f"{name}, frame {last + 1}: svgf relMSE {value['svgf']:.4f} is {value['atrous+temporal'] / value['svgf']:.1f}x "
+            f"{name}, frame {last + 1}: svgf relMSE {value['svgf']:.4f} is "
+            f"{value['atrous+temporal'] / value['svgf']:.1f}x "
             f"lower than atrous+temporal (bar 2x) and {value['raw'] / value['svgf']:.0f}x lower than raw (bar 10x); "
             f"our best ({best}) {ours[best]:.4f} vs {BASELINE} {value[BASELINE]:.4f} "
             f"({'lower' if ours[best] < value[BASELINE] else 'not lower'}); stability svgf "
             f"{s['stability']['svgf']:.2f} vs atrous {s['stability']['atrous']:.2f} "
             f"({'lower' if s['stability']['svgf'] < s['stability']['atrous'] else 'not lower'})")
+    lines += asvgf_lines(results)
     timing = results.get("timing")
     if timing:
         size = "x".join(map(str, timing["size"]))
         cpu = timing.get("cpu_ratio_to_oidn", {})
-        parts = [f"{m} {timing['ms'][m]:.0f} ms = {b['ratio']:.2f}x (bar {b['bar']}x: {'met' if b['met'] else 'not met'}"
-                 + (f"; CPU time {cpu[m]:.2f}x" if m in cpu else "") + ")"
-                 for m, b in timing["bars"].items()]
-        lines.append(f"speed at {size} ({BASELINE} execute {timing['ms'][BASELINE]:.0f} ms): " + "; ".join(parts))
+        parts = [f"{key} = {b['ratio']:.2f}x (bar {b['bar']}x: {'met' if b['met'] else 'not met'}"
+                 + (f"; CPU time {cpu[key.split(' / ')[0]]:.2f}x of {BASELINE}" if key.split(" / ")[0] in cpu else "")
+                 + ")" for key, b in timing["bars"].items()]
+        times = ", ".join(f"{m} {ms:.0f} ms" for m, ms in timing["ms"].items())
+        lines.append(f"speed at {size} ({times}): " + "; ".join(parts))
+    return lines
+
+
+def tail_mean(rows: list[dict], sequence: str, method: str) -> float:
+    """``method``'s mean relMSE on ``sequence`` over frames >= :data:`QUALITY_FROM`."""
+    values = [r["relmse"] for r in rows
+              if r["sequence"] == sequence and r["method"] == method and r["frame"] >= QUALITY_FROM]
+    return float(np.mean(values)) if values else float("nan")
+
+
+def frames_text(response_frames: int | None) -> str:
+    return "never" if response_frames is None else f"{response_frames} frames"
+
+
+def asvgf_lines(results: dict) -> list[str]:
+    """asvgf's bars, per sequence: mean relMSE over frames >= QUALITY_FROM against
+    OIDN 2 high's, temporal stability against OIDN's, the response to a sudden
+    change against svgf's, and on a sequence longer than 8 frames the last frame
+    against frame 8."""
+    rows, lines = results["results"], []
+    if not any(r["method"] == "asvgf" for r in rows):
+        return lines
+    for s in results["sequences"]:
+        name = s["name"]
+        ours, oidn = tail_mean(rows, name, "asvgf"), tail_mean(rows, name, BASELINE)
+        stability = s["stability"]
+        line = (f"{name}: asvgf mean relMSE (frames >= {QUALITY_FROM}) {ours:.4f} = {ours / oidn:.2f}x {BASELINE}'s "
+                f"{oidn:.4f} (bar {ASVGF_RELMSE_BAR}x: {'met' if ours <= ASVGF_RELMSE_BAR * oidn else 'not met'}); "
+                f"stability {stability['asvgf']:.2f} vs {BASELINE} {stability[BASELINE]:.2f} "
+                f"({'met' if stability['asvgf'] < stability[BASELINE] else 'not met'})")
+        if "response" in s:
+            r = s["response"]
+            met = (r["asvgf"] is not None and r["asvgf"] <= RESPONSE_BAR
+                   and (r["svgf"] is None or r["svgf"] > r["asvgf"]))
+            line += (f"; response to the change at frames {s['switch']}: asvgf {frames_text(r['asvgf'])}, svgf "
+                     f"{frames_text(r['svgf'])}, {BASELINE} {frames_text(r[BASELINE])} "
+                     f"(bar <= {RESPONSE_BAR} and below svgf's: {'met' if met else 'not met'})")
+        values = {r["frame"]: r["relmse"] for r in rows if r["sequence"] == name and r["method"] == "asvgf"}
+        if len(values) > 8:
+            last, eighth = values[max(values)], values[7]
+            line += (f"; asvgf at the last frame {last:.4f} vs frame 8 {eighth:.4f} "
+                     f"({'met' if last <= eighth else 'not met'})")
+        lines.append(line)
     return lines
 
 

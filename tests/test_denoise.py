@@ -5,10 +5,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import render_layers
 
 from converters.course_scene import load_scene
 from converters.scene_variants import with_path_tracer
-from helpers import render_layers
 
 ROOT = Path(__file__).resolve().parent.parent
 B3 = np.array([1, 4, 6, 4, 1]) / 16.0
@@ -315,10 +315,10 @@ def test_reprojection_of_the_ground_truth(variant_llvm_ad_rgb, tmp_path, motion)
 
 #: what ``python -m benchmarks.denoise`` compares (its METHODS, from the registry)
 BENCHMARK_METHODS = ("raw", "bilateral", "atrous", "bilateral+temporal", "atrous+temporal",
-                     "demod+outliers+atrous+temporal", "svgf", "oidn-fast", "oidn-balanced", "oidn-high",
+                     "demod+outliers+atrous+temporal", "svgf", "asvgf", "oidn-fast", "oidn-balanced", "oidn-high",
                      "oidn+temporal", "oidn-guided")
 #: the methods of the speed bars and OIDN in each quality mode (its TIMED)
-TIMED_METHODS = ("oidn-fast", "oidn-balanced", "oidn-high", "atrous+temporal", "svgf", "bilateral")
+TIMED_METHODS = ("oidn-fast", "oidn-balanced", "oidn-high", "atrous+temporal", "svgf", "asvgf", "bilateral")
 
 
 def test_denoise_command_and_benchmark_quick(variant_llvm_ad_rgb, tmp_path):
@@ -484,6 +484,7 @@ def test_denoise_shows_progress_only_on_a_terminal(variant_llvm_ad_rgb, tmp_path
     assert main([str(folder), str(tmp_path / "out"), "--radius", "1"]) == 0
     captured = capsys.readouterr()
     assert captured.err == "" and "3 frames ->" in captured.out
-    finished = subprocess.run([sys.executable, "-m", "denoise", str(folder), str(tmp_path / "command"), "--radius", "1"],
+    finished = subprocess.run([sys.executable, "-m", "denoise", str(folder), str(tmp_path / "command"),
+                               "--radius", "1"],
                               cwd=ROOT, capture_output=True, text=True, timeout=300)
     assert finished.returncode == 0 and finished.stderr == "", finished.stderr
