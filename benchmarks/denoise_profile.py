@@ -38,8 +38,15 @@ import mitsuba as mi
 import numpy as np
 
 from benchmarks import machine, write_json
-from benchmarks.denoise import (QUICK_TIMING, RESULTS_PAGE, SEQUENCES, TIMING, check_work_and_json, make_method,
-                                timing_folder)
+from benchmarks.denoise import (
+    QUICK_TIMING,
+    RESULTS_PAGE,
+    SEQUENCES,
+    TIMING,
+    check_work_and_json,
+    make_method,
+    timing_folder,
+)
 from core import entry
 from core.entry import ArgumentParser
 from core.errors import UsageError

@@ -135,8 +135,8 @@ def validation_section(cv: dict, evt: dict | None, suite: dict | None) -> str:
     chi2, furnace, agreement = cv["chi2"], cv["furnace"], cv["agreement"]
     settings = cv["settings"]
     materials = ", ".join(dict.fromkeys("{}/{}/{:g}".format(c["kd"], c["ks"], c["shininess"]) for c in chi2))
-    angles = ", ".join("{:g}°".format(a) for a in sorted({c["theta_deg"] for c in chi2}))
-    lines = [f"Regenerate with `python -m benchmarks.report` (each paragraph names its command, machine and "
+    angles = ", ".join(f"{a:g}°" for a in sorted({c["theta_deg"] for c in chi2}))
+    lines = ["Regenerate with `python -m benchmarks.report` (each paragraph names its command, machine and "
              "date). Raw numbers in `docs/validation/`; the notebooks `notebooks/crossval.ipynb` and "
              "`notebooks/error_vs_time.ipynb` show the same with explanations.", "",
              f"`{cv['command']}` ({settings['variant']}, {cv['machine']}, {cv['date']}):", "",

@@ -32,10 +32,9 @@ import sys
 import tempfile
 from pathlib import Path
 
-
 from core.entry import ArgumentParser, hold_signals, native_start_up, run
-from core.numbers import ascii_int
 from core.errors import OutputError, UsageError
+from core.numbers import ascii_int
 
 EXAMPLES = """examples:
   python -m converters scenes/showcase.txt -o showcase.xml

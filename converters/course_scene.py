@@ -39,8 +39,18 @@ from imaging.image_io import CUBE_FACES, read_cube_map
 from mi_plugins.camera_basis import course_camera_basis
 
 from . import transforms
-from .model import (Background, Camera, DirectionalLight, Material, Plane, PointLight, Scene,
-                    Sphere, Triangle, TriangleMesh)
+from .model import (
+    Background,
+    Camera,
+    DirectionalLight,
+    Material,
+    Plane,
+    PointLight,
+    Scene,
+    Sphere,
+    Triangle,
+    TriangleMesh,
+)
 from .obj import read_obj
 from .tokens import FLOAT32_MAX, Token, TokenReader, tokenize
 

@@ -148,7 +148,6 @@ class Fit:
         self.dr = dr
 
     def values(self):
-        import mitsuba as mi
 
         from .asvgf import FilterValues
 
@@ -190,8 +189,9 @@ def write_parameters(path: Path, values: dict[str, float], loss: float, hand_set
 
 def evaluate(folder: Path, switch: int | None) -> dict[str, tuple[list[float], list[float]]]:
     """Per method: (relMSE per frame as rendered or dimmed, relMSE of the images divided by the dimming)."""
-    import numpy as np
     from dataclasses import replace
+
+    import numpy as np
 
     from imaging.image_io import read_exr_rgb
     from validation.metrics import relmse

@@ -14,16 +14,15 @@ import functools
 import os
 import struct
 import zlib
+from collections.abc import Iterator, Mapping
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Iterator, Mapping
 
 import numpy as np
 from PIL import Image
 
 from core.errors import OutputError, SceneError
-
 
 #: Longest file name (bytes) where the folder's file system does not say
 DEFAULT_NAME_MAX = 255

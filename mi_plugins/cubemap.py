@@ -6,7 +6,6 @@ import drjit as dr
 import mitsuba as mi
 
 
-
 class CubeMapEmitter(mi.Emitter):
     r"""
     .. _emitter-course_cubemap:

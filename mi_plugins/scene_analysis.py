@@ -41,7 +41,7 @@ class LightTable:
         self.values = mi.TensorXf(np.array(values, np.float32))  # 3 per light: intensity (point) or irradiance
 
     @staticmethod
-    def of(lights: list) -> "LightTable":
+    def of(lights: list) -> LightTable:
         """The table of ``(emitter, kind)`` pairs, kinds from :func:`light_kind`."""
         # (values read one by one: evaluating them together makes one kernel with
         # thousands of outputs, which LLVM compiles for a minute)

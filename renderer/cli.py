@@ -21,8 +21,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from core.entry import ArgumentParser, hold_signals, native_start_up, one_line, run
-from core.numbers import ascii_int
 from core.errors import ToolkitError, UsageError, describe
+from core.numbers import ascii_int
 from course import ENVIRONMENT as COURSE_ENVIRONMENT, data_dir, resolve_scene
 
 from . import checks
@@ -325,9 +325,8 @@ def _run(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
     prepare_libllvm(args.variant)  # first: the checks below import Mitsuba, which loads libLLVM
     # a signal inside the import of Dr.Jit's extension aborts the process; --quiet: its start-up notices go
     with hold_signals(), native_start_up(quiet=args.quiet):
-        import mitsuba  # noqa: F401
-
         import drjit  # noqa: F401
+        import mitsuba  # noqa: F401
     if args.batch:
         given = [flag for flag, value, default in (
             ("SCENE", args.scenes, []), ("-input", args.input, None), ("-size", args.size, list(DEFAULT_SIZE)),

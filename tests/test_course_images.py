@@ -13,11 +13,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
 from conftest import SCALAR_FALLBACK
+from helpers import MAX_BAD_FRACTION, bad_fraction, encode, render_layers
+
 from converters.course_scene import load_scene
 from course import CourseRun, course_runs, grading_lines
-from helpers import MAX_BAD_FRACTION, bad_fraction, encode, render_layers
 from imaging.image_io import read_png
 from validation.course_images import RECORD, allowed_bad_pixels, image_counts, render_grading_images
 from validation.metrics import bad_pixels

@@ -5,10 +5,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import render_layers
 
 from converters.course_scene import load_scene
 from converters.scene_variants import with_path_tracer
-from helpers import render_layers
 
 ROOT = Path(__file__).resolve().parent.parent
 B3 = np.array([1, 4, 6, 4, 1]) / 16.0

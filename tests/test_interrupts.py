@@ -14,8 +14,8 @@ import time
 from pathlib import Path
 
 import pytest
-
 from conftest import SCALAR_FALLBACK
+
 from validation.stress_cases_system import FACING_MIRRORS
 from validation.stress_system import ROOT, interrupt, python, run_command
 

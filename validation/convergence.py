@@ -53,8 +53,13 @@ def method_options(method: str, path: Path) -> dict:
     """RenderOptions fields (beyond size, spp, seed) of a method, and under
     "variants" the :mod:`converters.scene_variants` functions it applies: both
     render whitted's light paths (shadows on, so the two have the same visibility)."""
-    from converters.scene_variants import (with_mirror_sampling, with_path_tracer, without_ambient,
-                                           without_background, without_ray_epsilon)
+    from converters.scene_variants import (
+        with_mirror_sampling,
+        with_path_tracer,
+        without_ambient,
+        without_background,
+        without_ray_epsilon,
+    )
 
     common = dict(jitter=True, bounces=flags_for(path)["bounces"], shadows=True)
     whitted_paths = (without_ambient, without_background)

@@ -217,8 +217,13 @@ def render(path: Path, size: int, variants=(), **options) -> np.ndarray:
 def agreement(path: Path, bounces: int, spp: int, size: int) -> Agreement:
     """whitted vs path restricted to Whitted's light paths: per-tile z-scores of their
     difference (same pixel samples) and relMSE against that of path vs path."""
-    from converters.scene_variants import (with_mirror_sampling, with_path_tracer, without_ambient,
-                                           without_background, without_ray_epsilon)
+    from converters.scene_variants import (
+        with_mirror_sampling,
+        with_path_tracer,
+        without_ambient,
+        without_background,
+        without_ray_epsilon,
+    )
 
     common = dict(bounces=bounces, shadows=True, spp=spp, jitter=True)
     whitted_paths = (without_ambient, without_background)

@@ -13,8 +13,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from converters.model import DirectionalLight, Plane, Scene, Sphere, Triangle, TriangleMesh
 from converters.description import ray_epsilons
+from converters.model import DirectionalLight, Plane, Scene, Sphere, Triangle, TriangleMesh
 from imaging.image_io import CUBE_FACES as FACES, read_png
 from mi_plugins.camera_basis import course_camera_basis
 

@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from imaging.image_io import CUBE_FACES
-from validation.stress_scene import DEFAULTS, Case, material, scene
+from validation.stress_scene import Case, material, scene
 
 
 def run_render_cli(folder: Path, argv: list[str]) -> tuple[int, str]:

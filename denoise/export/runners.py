@@ -3,17 +3,17 @@ missing tasks run in this process or on Dask, the manifest written."""
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable
 
 from core.errors import SpecError
 from course import data_dir, resolve_scene
 
 from .cluster import cluster_description, dask_client, run_futures
+from .files import locked, remove_staging
 from .recorder import Recorder, progress_bar
 from .sequence import DEFAULT_BATCH_SPP, Sequence
 from .spec import MAX_SAMPLES_PER_RENDER, MAX_SPP, Spec
-from .files import locked, remove_staging
 from .store import check_folder, claim_folder, plan, recover
 from .tasks import Task, course_scene, run_task
 
