@@ -43,7 +43,11 @@ if __name__ == "__main__" and not __package__:
     sys.path[0] = str(Path(__file__).resolve().parents[1])
 
 from benchmarks import check_json, machine, write_json
+from converters.course_scene import load_scene
+from converters.description import scene_dict
+from core.entry import ArgumentParser
 from course import course_runs, outputs_into, root as course_root
+from renderer.variants import set_variant
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -56,15 +60,11 @@ def _timed(fn) -> float:
 
 def measure(course: Path, repeat: int, variant: str | None, peer: Path | None = None,
             only: list[str] | None = None) -> dict:
-    from renderer.variants import set_variant
-
     variant = set_variant(variant, quiet=True)
-    import drjit as dr
-    import mitsuba as mi
+    import drjit as dr  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
+    import mitsuba as mi  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
 
-    from converters.course_scene import load_scene
-    from converters.description import scene_dict
-    from converters.to_mitsuba import load_scene_dict
+    from converters.to_mitsuba import load_scene_dict  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
 
     def render(scene):
         image = mi.render(scene)
@@ -150,8 +150,6 @@ def report(results: dict) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from core.entry import ArgumentParser
-
     parser = ArgumentParser(prog="python -m benchmarks.render_speed", description=__doc__.split("\n\n")[0])
     parser.add_argument("--json", type=Path, metavar="PATH", help="also write the numbers as JSON")
     parser.add_argument("--repeat", type=int, default=5, help="timed runs per measurement (default 5)")

@@ -37,8 +37,11 @@ from pathlib import Path
 if __name__ == "__main__" and not __package__:
     sys.path[0] = str(Path(__file__).resolve().parents[1])
 
+import tempfile
+
 from benchmarks import crossval, error_vs_time, machine, render_speed, write_json
 from benchmarks.course import record
+from core.entry import ArgumentParser
 from core.markdown import replace_section
 from course import root as course_root
 from validation.crossval import FURNACE_SIGMAS
@@ -81,8 +84,6 @@ def run_scalar_suite(path: Path) -> dict:
 
 def run_power(path: Path, biases=(0.01, -0.01)) -> dict:
     """The full agreement check under an injected bias: which scenes fail."""
-    import tempfile
-
     runs = {}
     for bias in biases:
         with tempfile.TemporaryDirectory() as tmp:
@@ -197,8 +198,6 @@ def validation_section(cv: dict, evt: dict | None, suite: dict | None) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from core.entry import ArgumentParser
-
     parser = ArgumentParser(prog="python -m benchmarks.report", description=__doc__.split("\n\n")[0])
     parser.add_argument("--no-run", action="store_true", help="only rewrite the pages from docs/'s JSON")
     parser.add_argument("--steps", default=",".join(STEPS), help=f"comma-separated, of {', '.join(STEPS)}")

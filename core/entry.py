@@ -33,6 +33,8 @@ import threading
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 
+from core.errors import UsageError
+
 from .errors import ToolkitError
 
 
@@ -161,8 +163,6 @@ class ArgumentParser(argparse.ArgumentParser):
     under :func:`run`), not a usage block; every user-facing command parses with it."""
 
     def error(self, message: str):
-        from core.errors import UsageError
-
         raise UsageError(" ".join(message.split()))
 
 

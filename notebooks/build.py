@@ -25,6 +25,8 @@ if __name__ == "__main__":  # started by a Python without the project's packages
     from core.launcher import use_project_python
     use_project_python("python -m notebooks.build", "notebooks.build")
 
+import tempfile
+
 import nbformat
 from nbformat.v4 import new_code_cell, new_markdown_cell, new_notebook
 
@@ -174,10 +176,8 @@ def make(name: str) -> nbformat.NotebookNode:
 
 def execute(notebook: nbformat.NotebookNode, quick: bool = True, timeout: int = 3600) -> nbformat.NotebookNode:
     """Runs ``notebook`` in a fresh kernel of this Python, in the project folder."""
-    import tempfile
-
-    from jupyter_client import KernelManager
-    from nbclient import NotebookClient
+    from jupyter_client import KernelManager  # noqa: PLC0415  jupyter_client loads on use: --help and the paths without it stay quick
+    from nbclient import NotebookClient  # noqa: PLC0415  nbclient loads on use: --help and the paths without it stay quick
 
     os.environ["NOTEBOOK_QUICK"] = "1" if quick else "0"
     os.environ["PYTHONPATH"] = os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")]))

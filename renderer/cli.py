@@ -22,10 +22,13 @@ from pathlib import Path
 
 from core.entry import ArgumentParser, hold_signals, native_start_up, one_line, run
 from core.errors import ToolkitError, UsageError, describe
+from core.inputs import NotAnInputFile, read_input
 from core.numbers import ascii_int
 from course import ENVIRONMENT as COURSE_ENVIRONMENT, data_dir, resolve_scene
 
 from . import checks
+from .scene_flags import with_scene_flags
+from .variants import prepare_libllvm, set_variant
 
 DEFAULT_SCENE = "showcase"
 #: The course binary's default image size (its -size)
@@ -123,7 +126,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _depth(values: list[str] | None):
-    from .job import DepthOutput
+    from .job import DepthOutput  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
 
     if values is None:
         return None
@@ -139,7 +142,7 @@ def _depth(values: list[str] | None):
 def jobs_from_args(args: argparse.Namespace) -> list:
     """The render jobs one command line asks for (checked: numbers here, limits
     and outputs in :func:`checked_jobs`)."""
-    from .job import RenderJob, with_outputs_in
+    from .job import RenderJob, with_outputs_in  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
 
     checks.check_numbers(args.size[0], args.size[1], args.bounces, args.spp)
     base = dict(width=args.size[0], height=args.size[1], bounces=args.bounces, shadows=args.shadows,
@@ -160,7 +163,6 @@ def jobs_from_args(args: argparse.Namespace) -> list:
 
     data = data_dir(args.data)
     scenes = [resolve_scene(name, data) for name in (args.scenes or [DEFAULT_SCENE])]
-    from .scene_flags import with_scene_flags  # a scene's "# render:" header, where no flag overrides it
     if len(scenes) == 1 and any(single_outputs.values()):
         if args.exr is True:
             raise UsageError("--exr without a FILE writes <out>/<scene>.exr beside <out>/<scene>.png; "
@@ -209,8 +211,6 @@ BATCH_BYTES = 16 << 20
 
 def batch_lines(path: Path) -> list[tuple[int, str]]:
     """``(line number, text)`` of each logical line: ``\\`` at the end of a line continues it."""
-    from core.inputs import NotAnInputFile, read_input
-
     try:
         data = read_input(path, limit=BATCH_BYTES, allow_pipe=True)  # `--batch <(grep ...)` is a pipe
     except OSError as error:
@@ -256,7 +256,7 @@ class BatchLine:
 def jobs_from_batch(parser: argparse.ArgumentParser, path: Path, memory: int | None = None
                     ) -> tuple[list[BatchLine], list[str]]:
     """The good lines' jobs, and one ``FILE:LINE: message`` per bad line."""
-    from converters.course_scene import load_scene
+    from converters.course_scene import load_scene  # noqa: PLC0415  NumPy loads on use: --help stays quick
 
     good, errors, seen = [], [], {}
     for number, line in batch_lines(path):
@@ -304,9 +304,9 @@ def jobs_from_batch(parser: argparse.ArgumentParser, path: Path, memory: int | N
 
 # -- running -------------------------------------------------------------------------
 def _write_and_report(result, preview: Preview | None, progress, variant: str) -> None:
-    from imaging import colour, image_io
+    from imaging import colour, image_io  # noqa: PLC0415  NumPy loads on use: --help stays quick
 
-    from .job import write_outputs
+    from .job import write_outputs  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
 
     written = write_outputs(result)
     if preview is not None:
@@ -320,13 +320,11 @@ def _report(where: str, error: BaseException) -> str:
 
 
 def _run(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
-    from .variants import prepare_libllvm
-
     prepare_libllvm(args.variant)  # first: the checks below import Mitsuba, which loads libLLVM
     # a signal inside the import of Dr.Jit's extension aborts the process; --quiet: its start-up notices go
     with hold_signals(), native_start_up(quiet=args.quiet):
-        import drjit  # noqa: F401
-        import mitsuba  # noqa: F401
+        import drjit  # noqa: F401, PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
+        import mitsuba  # noqa: F401, PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
     if args.batch:
         given = [flag for flag, value, default in (
             ("SCENE", args.scenes, []), ("-input", args.input, None), ("-size", args.size, list(DEFAULT_SIZE)),
@@ -345,11 +343,9 @@ def _run(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
     if not work:
         raise UsageError(f"{args.batch}: no line can be rendered ({len(errors)} bad)")
 
-    from .variants import set_variant
-
     variant = set_variant(args.variant, quiet=args.quiet)
-    from .job import render
-    from .progress import RenderProgress
+    from .job import render  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
+    from .progress import RenderProgress  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
 
     failed = len(errors)
     batch = bool(args.batch)

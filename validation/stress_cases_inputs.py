@@ -26,16 +26,16 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from PIL import Image
 
 from imaging.image_io import CUBE_FACES
+from renderer.cli import main
 from validation.stress_scene import Case, material, scene
 
 
 def run_render_cli(folder: Path, argv: list[str]) -> tuple[int, str]:
     """``render.py``'s ``main(argv)`` run in-process in ``folder``: (exit code, stderr).
     Whatever escapes ``main`` propagates (the callers decide what that means)."""
-    from renderer.cli import main
-
     stderr = io.StringIO()
     cwd = os.getcwd()
     os.chdir(folder)
@@ -51,8 +51,6 @@ TINY = ["-size", "8", "6", "--quiet"]
 
 
 def _png(width: int, height: int, seed: int = 0) -> bytes:
-    from PIL import Image
-
     pixels = np.random.default_rng(seed).integers(0, 256, (height, width, 3), np.uint8)
     buffer = io.BytesIO()
     Image.fromarray(pixels).save(buffer, format="PNG")
