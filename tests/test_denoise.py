@@ -96,8 +96,8 @@ def np_accumulate(current, previous, index, valid, alpha, k, r, bounds=None):
 
 
 # -- fixtures ------------------------------------------------------------------------
-@pytest.fixture(scope="module")
-def buffers():
+@pytest.fixture(scope="module", name="buffers")
+def buffers_fixture():
     """Realistic buffers: G-buffers of our showcase scene and a noisy 1-spp path-traced beauty."""
     from conftest import _set
 
