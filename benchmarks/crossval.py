@@ -105,7 +105,8 @@ def main(argv: list[str] | None = None) -> int:
     parser = ArgumentParser(prog="python -m benchmarks.crossval", description=__doc__.split("\n\n")[0])
     parser.add_argument("--json", type=Path, metavar="PATH", help="write the numbers as JSON")
     parser.add_argument("--quick", action="store_true", help="a small version (CI)")
-    parser.add_argument("--course", type=Path, default=course_root(), help="course folder (default: $COURSE_ROOT, else ../shared/course)")
+    parser.add_argument("--course", type=Path, default=course_root(),
+                        help="course folder (default: $COURSE_ROOT, else ../shared/course)")
     parser.add_argument("--bias", type=float, default=0.0, metavar="FRACTION",
                         help="fault injection: scale whitted's shading by 1 + FRACTION (the run must then fail)")
     parser.add_argument("--agreement-only", action="store_true", help="skip the chi-square and furnace checks")

@@ -275,7 +275,8 @@ def bar_lines(results: dict) -> list[str]:
         ours = {m: v for m, v in value.items() if m != "raw" and m not in OIDN_ALONE}
         best = min(ours, key=ours.get)
         lines.append(
-            f"{name}, frame {last + 1}: svgf relMSE {value['svgf']:.4f} is {value['atrous+temporal'] / value['svgf']:.1f}x "
+            f"{name}, frame {last + 1}: svgf relMSE {value['svgf']:.4f} is "
+            f"{value['atrous+temporal'] / value['svgf']:.1f}x "
             f"lower than atrous+temporal (bar 2x) and {value['raw'] / value['svgf']:.0f}x lower than raw (bar 10x); "
             f"our best ({best}) {ours[best]:.4f} vs {BASELINE} {value[BASELINE]:.4f} "
             f"({'lower' if ours[best] < value[BASELINE] else 'not lower'}); stability svgf "
@@ -285,7 +286,8 @@ def bar_lines(results: dict) -> list[str]:
     if timing:
         size = "x".join(map(str, timing["size"]))
         cpu = timing.get("cpu_ratio_to_oidn", {})
-        parts = [f"{m} {timing['ms'][m]:.0f} ms = {b['ratio']:.2f}x (bar {b['bar']}x: {'met' if b['met'] else 'not met'}"
+        parts = [f"{m} {timing['ms'][m]:.0f} ms = {b['ratio']:.2f}x "
+                 f"(bar {b['bar']}x: {'met' if b['met'] else 'not met'}"
                  + (f"; CPU time {cpu[m]:.2f}x" if m in cpu else "") + ")"
                  for m, b in timing["bars"].items()]
         lines.append(f"speed at {size} ({BASELINE} execute {timing['ms'][BASELINE]:.0f} ms): " + "; ".join(parts))

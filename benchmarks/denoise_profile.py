@@ -110,7 +110,8 @@ def profile(frames, method: str) -> dict:
         packets = traffic["packet_gathers"]
         kernels.append({"kernel": position, "type": str(first["type"]).split(".")[-1], "size": int(first["size"]),
                         "operations": int(first.get("operation_count", 0)),
-                        "level": packets.get("8 floats", 0) >= LEVEL_GATHERS and packets.get("4 floats", 0) >= LEVEL_GATHERS,
+                        "level": (packets.get("8 floats", 0) >= LEVEL_GATHERS
+                                  and packets.get("4 floats", 0) >= LEVEL_GATHERS),
                         **traffic,
                         "ms": float(np.median([r[position]["execution_time"] for r in runs])),
                         "ms_min": float(min(r[position]["execution_time"] for r in runs)),

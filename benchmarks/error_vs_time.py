@@ -106,7 +106,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--quick", action="store_true", help="a small version (CI)")
     parser.add_argument("--json", type=Path, metavar="PATH", help="write the points and slopes as JSON")
     parser.add_argument("--out", type=Path, default=Path("out/error_vs_time"), help="folder for plots and CSV")
-    parser.add_argument("--course", type=Path, default=course_root(), help="course folder (default: $COURSE_ROOT, else ../shared/course)")
+    parser.add_argument("--course", type=Path, default=course_root(),
+                        help="course folder (default: $COURSE_ROOT, else ../shared/course)")
     args = parser.parse_args(argv)
     check_json(args.json)
 

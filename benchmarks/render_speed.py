@@ -82,8 +82,8 @@ def measure(course: Path, repeat: int, variant: str | None, peer: Path | None = 
             parsed = load_scene(job.scene)
             description = scene_dict(parsed, job.options())
             scene = load_scene_dict(description)
-            first = _timed(lambda: render(scene))
-            warm = [_timed(lambda: render(scene)) for _ in range(repeat)]
+            first = _timed(lambda scene=scene: render(scene))
+            warm = [_timed(lambda scene=scene: render(scene)) for _ in range(repeat)]
 
             # native direct vs whitted, same scene and spp, interleaved
             lights = max(1, len(parsed.lights))
@@ -93,8 +93,8 @@ def measure(course: Path, repeat: int, variant: str | None, peer: Path | None = 
             render(native_scene), render(ours_scene)
             native_t, ours_t = [], []
             for _ in range(repeat):
-                native_t.append(_timed(lambda: render(native_scene)))
-                ours_t.append(_timed(lambda: render(ours_scene)))
+                native_t.append(_timed(lambda scene=native_scene: render(scene)))
+                ours_t.append(_timed(lambda scene=ours_scene: render(scene)))
 
             command = [sys.executable, str(ROOT / "render.py"), *args, "--quiet", "--variant", variant]
             peer_command = [str(peer), *args] if peer else None
@@ -102,10 +102,10 @@ def measure(course: Path, repeat: int, variant: str | None, peer: Path | None = 
                 subprocess.run(c, cwd=course, check=True, stdout=subprocess.DEVNULL)  # warm the caches
             process, peer_process = [], []
             for _ in range(repeat):  # interleaved: both see the same machine load
-                process.append(_timed(lambda: subprocess.run(command, cwd=course, check=True)))
+                process.append(_timed(lambda command=command: subprocess.run(command, cwd=course, check=True)))
                 if peer_command:
-                    peer_process.append(_timed(lambda: subprocess.run(peer_command, cwd=course, check=True,
-                                                                      stdout=subprocess.DEVNULL)))
+                    peer_process.append(_timed(lambda command=peer_command: subprocess.run(
+                        command, cwd=course, check=True, stdout=subprocess.DEVNULL)))
             row = {"scene": run.scene, "variant": variant, "process_s": statistics.median(process),
                    "render_s": statistics.median(warm), "first_render_s": first,
                    "native_direct_s": statistics.median(native_t), "whitted_direct_s": statistics.median(ours_t)}
@@ -119,7 +119,7 @@ def measure(course: Path, repeat: int, variant: str | None, peer: Path | None = 
         batch.write_text("\n".join(" ".join(["a2", *outputs_into(r.arguments, tmp)]) for r in runs) + "\n")
         command = [sys.executable, str(ROOT / "render.py"), "--batch", str(batch), "--quiet", "--variant", variant]
         subprocess.run(command, cwd=course, check=True)
-        suite = [_timed(lambda: subprocess.run(command, cwd=course, check=True)) for _ in range(repeat)]
+        suite = [_timed(lambda command=command: subprocess.run(command, cwd=course, check=True)) for _ in range(repeat)]
     results = {"scenes": rows, "suite_wall_s": statistics.median(suite), "repeat": repeat,
                "command": "python -m benchmarks.render_speed" + (" --peer PATH" if peer else ""),
                "machine": machine(), "date": dt.date.today().isoformat()}

@@ -117,7 +117,8 @@ def results_section(images: dict | None, speed: dict | None) -> str:
                   "independent NumPy implementation of the course's semantics (`validation/reference_tracer.py`).",
                   ""]
     if speed and "machine" in speed:
-        lines += [f"`{speed['command']}`: the course's {len(speed['scenes'])} command lines at their sizes, {speed['scenes'][0]['variant']}, "
+        lines += [f"`{speed['command']}`: the course's {len(speed['scenes'])} command lines at their sizes, "
+                  f"{speed['scenes'][0]['variant']}, "
                   f"{speed['machine']}, {speed['date']}, medians of {speed['repeat']}. Process times are whole "
                   "processes from start to exit"
                   + (", ours and the peer binary's interleaved in the same run" if "peer" in speed else
@@ -167,7 +168,8 @@ def validation_section(cv: dict, evt: dict | None, suite: dict | None) -> str:
         deepest = max((a for a in agreement if a["scene"] == scene and a["spp"] == max(settings["spp"])),
                       key=lambda a: a["bounces"])
         ok = all(a["passed"] for a in agreement if a["scene"] == scene)
-        lines.append(f"| {scene} | " + " | ".join(cells) + f" | {round(100 * deepest['relative_bias'], 3) + 0.0:+.3f} ± "
+        lines.append(f"| {scene} | " + " | ".join(cells)
+                     + f" | {round(100 * deepest['relative_bias'], 3) + 0.0:+.3f} ± "
                      f"{100 * deepest['relative_bias_stderr']:.3f} % | {'yes' if ok else 'NO'} |")
     power = _load(DOCS / "crossval_bias.json")
     if power:
@@ -215,7 +217,8 @@ def main(argv: list[str] | None = None) -> int:
     if "crossval_power" in steps:
         run_power(DOCS / "crossval_bias.json")
     if "error_vs_time" in steps:
-        error_vs_time.main(["--json", str((DOCS / "error_vs_time.json").relative_to(ROOT)), "--out", str(DOCS.relative_to(ROOT))])
+        error_vs_time.main(["--json", str((DOCS / "error_vs_time.json").relative_to(ROOT)),
+                            "--out", str(DOCS.relative_to(ROOT))])
     if "scalar_suite" in steps:
         run_scalar_suite(DOCS / "scalar_suite.json")
 

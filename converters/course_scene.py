@@ -148,7 +148,8 @@ class _Parser(TokenReader):
                                  "angle": self.number}, {"center", "direction", "up", "angle"})
         direction, up, angle = np.array(values["direction"]), np.array(values["up"]), values["angle"]
         if not 0.0 < angle < 180.0:
-            raise SceneError(self.path, start.line, start.col, f"expected an angle in (0, 180) degrees, found {angle:g}")
+            raise SceneError(self.path, start.line, start.col,
+                             f"expected an angle in (0, 180) degrees, found {angle:g}")
         if np.linalg.norm(direction) == 0.0:
             raise SceneError(self.path, start.line, start.col, "expected a non-zero camera direction, found 0 0 0")
         if np.linalg.norm(np.cross(direction, up)) <= 1e-12 * np.linalg.norm(direction) * np.linalg.norm(up):

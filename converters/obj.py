@@ -45,7 +45,7 @@ def read_obj(path: Path) -> tuple[np.ndarray, np.ndarray]:
             continue
         fields = [m.group() for m in matches]
 
-        def col(i: int) -> int:
+        def col(i: int, matches=matches) -> int:
             return matches[i].start() + 1
 
         key = fields[0]

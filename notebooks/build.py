@@ -81,7 +81,8 @@ Two checks that the renderer computes what it claims:
     new_code_cell("""from benchmarks.crossval import plot_agreement, plot_light_paths, summary_table
 from course import root as course_root
 from validation import crossval
-materials, angles = (crossval.QUICK_MATERIALS, crossval.QUICK_ANGLES) if QUICK else (crossval.MATERIALS, crossval.ANGLES)
+materials, angles = ((crossval.QUICK_MATERIALS, crossval.QUICK_ANGLES) if QUICK
+                     else (crossval.MATERIALS, crossval.ANGLES))
 scenes = crossval.scene_paths(course_root(), quick=QUICK)
 steps = 2 * len(materials) * len(angles) + len(scenes) * (3 * 2 if QUICK else 5 * 2)   # bounce counts x spps
 with counting(crossval, ["chi2_case", "furnace_albedo", "agreement"], desc="cross-validation", total=steps):

@@ -89,8 +89,8 @@ def build_parser() -> argparse.ArgumentParser:
                                                        "then SCENE names are rendered)")
     course.add_argument("-size", action=Once, nargs=2, type=ascii_int, metavar=("W", "H"), default=list(DEFAULT_SIZE),
                         help=f"image width and height in pixels (default: {DEFAULT_SIZE[0]} {DEFAULT_SIZE[1]})")
-    course.add_argument("-output", action=Once, metavar="FILE", help="beauty image, .png .bmp .tga (8-bit, course encoding) "
-                                                        "or .exr (float) (default: none)")
+    course.add_argument("-output", action=Once, metavar="FILE",
+                        help="beauty image, .png .bmp .tga (8-bit, course encoding) or .exr (float) (default: none)")
     course.add_argument("-normals", action=Once, metavar="FILE", help="normal image, (N + 1) / 2 (default: none)")
     course.add_argument("-depth", action=Once, nargs=3, metavar=("MIN", "MAX", "FILE"),
                         help="depth image, (t - MIN) / (MAX - MIN), clamped (default: none)")
@@ -103,8 +103,9 @@ def build_parser() -> argparse.ArgumentParser:
     ours = parser.add_argument_group("toolkit options")
     ours.add_argument("--variant", action=Once, help="Mitsuba variant (default: llvm_ad_rgb if a usable LLVM exists, "
                                         "else scalar_rgb with one line saying why)")
-    ours.add_argument("--data", action=Once, metavar="DIR", help="course data folder for scene names "
-                                                    f"(default: ${COURSE_ENVIRONMENT}/data, else ../shared/course/data)")
+    ours.add_argument("--data", action=Once, metavar="DIR",
+                      help="course data folder for scene names "
+                           f"(default: ${COURSE_ENVIRONMENT}/data, else ../shared/course/data)")
     ours.add_argument("--out", action=Once, metavar="DIR", default="out",
                       help="output folder for named scenes: <out>/<scene>.png (default: out)")
     ours.add_argument("--exr", action=Once, nargs="?", const=True, metavar="FILE",

@@ -484,6 +484,6 @@ def test_denoise_shows_progress_only_on_a_terminal(variant_llvm_ad_rgb, tmp_path
     assert main([str(folder), str(tmp_path / "out"), "--radius", "1"]) == 0
     captured = capsys.readouterr()
     assert captured.err == "" and "3 frames ->" in captured.out
-    finished = subprocess.run([sys.executable, "-m", "denoise", str(folder), str(tmp_path / "command"), "--radius", "1"],
-                              cwd=ROOT, capture_output=True, text=True, timeout=300)
+    finished = subprocess.run([sys.executable, "-m", "denoise", str(folder), str(tmp_path / "command"),
+                               "--radius", "1"], cwd=ROOT, capture_output=True, text=True, timeout=300)
     assert finished.returncode == 0 and finished.stderr == "", finished.stderr

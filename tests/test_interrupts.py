@@ -50,7 +50,8 @@ def test_a_render_of_facing_mirrors_stops_within_two_seconds(tmp_path, variant, 
     out.mkdir()
     result = interrupt(render_command(scene, SIZES[variant], variant, out / "mirrors.png"),
                        delay=start_up + 1.5, signum=signum, cwd=tmp_path, group=group)
-    print(f"{variant} {signal.Signals(signum).name}{' to the group' if group else ''}: start-up {start_up:.2f} s, exit {result.seconds:.2f} s "
+    print(f"{variant} {signal.Signals(signum).name}{' to the group' if group else ''}: "
+          f"start-up {start_up:.2f} s, exit {result.seconds:.2f} s "
           f"after the signal, code {result.code}")
     assert result.running, "the render ended before the signal"
     assert result.code == 128 + signum, result.stderr[-2000:]

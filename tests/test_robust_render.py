@@ -408,7 +408,7 @@ def test_an_interruption_wrapped_by_native_code_is_an_interrupted_exit(capsys):
             except Interrupted as stop:
                 raise ImportError("initializing the extension") from stop
         except ImportError:
-            raise SystemError("<built-in function __import__> returned a result with an exception set")
+            raise SystemError("<built-in function __import__> returned a result with an exception set")  # noqa: B904  as CPython: implicit context
 
     assert run("render.py", wrapped) == 143
     assert capsys.readouterr().err.strip().splitlines() == [

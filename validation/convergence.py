@@ -140,7 +140,8 @@ def measure(paths: list[Path], size: int, spp_by_method: dict[str, list[int]], r
             slope, to_target = fit_slope(curve)
             slopes.append({"scene": path.stem, "method": method, "slope": slope, "spp_slope": fit_spp_slope(curve),
                            "seconds_to_relmse_1e-3": to_target})
-            progress(f"{path.stem} {method}: slope {slope:.2f} (per spp {slopes[-1]['spp_slope']:.2f}), relMSE 1e-3 after "
+            progress(f"{path.stem} {method}: slope {slope:.2f} (per spp {slopes[-1]['spp_slope']:.2f}), "
+                     "relMSE 1e-3 after "
                      f"{'n/a' if to_target is None else f'{to_target:.3g} s'}")
     return {"points": points, "slopes": slopes,
             "settings": {"image_size": size, "spp": spp_by_method, "reference_spp": reference_spp}}

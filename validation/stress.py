@@ -56,8 +56,8 @@ def scaled(scene, scale: float, offset: float):
         return tuple((move @ np.append(np.asarray(p, np.float64), 1.0))[:3])
 
     camera = dataclasses.replace(scene.camera, center=point(scene.camera.center))
-    lights = [dataclasses.replace(l, position=point(l.position), falloff=l.falloff / scale ** 2)
-              if isinstance(l, PointLight) else l for l in scene.lights]
+    lights = [dataclasses.replace(light, position=point(light.position), falloff=light.falloff / scale ** 2)
+              if isinstance(light, PointLight) else light for light in scene.lights]
     objects = [dataclasses.replace(o, to_world=move @ o.to_world) for o in scene.objects]
     return dataclasses.replace(scene, camera=camera, lights=lights, objects=objects)
 
@@ -142,7 +142,8 @@ def fuzz(examples: int, seed: int = 0) -> int:
     for face in CUBE_FACES:
         (folder / "sky").mkdir(exist_ok=True)
         (folder / "sky" / f"{face}.png").write_bytes(b"not a png")
-    valid = base_scene(num_objects=4, objects=DEFAULTS["objects"] + " MaterialIndex 0 TriangleMesh { obj_file mesh.obj }")
+    valid = base_scene(num_objects=4,
+                       objects=DEFAULTS["objects"] + " MaterialIndex 0 TriangleMesh { obj_file mesh.obj }")
     valid_tokens = re.findall(r"[{}]|[^\s{}]+", valid)
 
     def check(text: str) -> None:
@@ -205,8 +206,8 @@ CLI_VOCABULARY = ["-input", "-size", "-output", "-normals", "-depth", "-bounces"
                   "c.jpg", "dir", "dir/x.png", "new/y.bmp", "ro.png", "link.png", "notes.txt/x.png", "b.sh",
                   "nope_rgb", "scalar_spectral", "é.png", "-", "--", "-size=4", "empty.sh", "linkdir/x.png",
                   "dangling.png", "-bounces", "1000"]
-SHELL_VOCABULARY = ["-h", "--help", "a2", "${BIN}", "python3", "render.py", "clear", "echo", "mkdir", "-p", "cd", "#", "\\", "'",
-                    '"', ";", "&&", "|"]
+SHELL_VOCABULARY = ["-h", "--help", "a2", "${BIN}", "python3", "render.py", "clear", "echo", "mkdir", "-p", "cd", "#",
+                    "\\", "'", '"', ";", "&&", "|"]
 
 
 def fuzz_cli(examples: int, seed: int = 0) -> int:

@@ -141,8 +141,8 @@ def interrupt(argv: list, delay: float, signum: int, cwd: Path = ROOT, timeout: 
     seconds (``group``: to its whole process group, as a terminal's Ctrl-C
     does), and waits (up to ``timeout``) for it to exit."""
     with tempfile.TemporaryFile() as err:
-        process = subprocess.Popen([str(a) for a in argv], cwd=cwd, stdout=subprocess.DEVNULL, stderr=err, start_new_session=True,
-                                   env={**os.environ, **(env or {})})
+        process = subprocess.Popen([str(a) for a in argv], cwd=cwd, stdout=subprocess.DEVNULL, stderr=err,
+                                   start_new_session=True, env={**os.environ, **(env or {})})
         try:
             time.sleep(delay)
             running = process.poll() is None
