@@ -270,7 +270,7 @@ def write_exr(path: str | Path, layers: Mapping[str, np.ndarray]) -> None:
         for k, suffix in enumerate(suffixes):
             key = f"{name}.{suffix}" if name else suffix
             channels[key] = np.ascontiguousarray(data[..., k])
-    import OpenEXR  # noqa: PLC0415  imported on use: it adds a sixth of a second to start-up
+    import OpenEXR  # noqa: PLC0415  OpenEXR loads on use: start-up without EXR stays quick
 
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
     with atomic_path(path, ".exr") as tmp:

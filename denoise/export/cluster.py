@@ -37,7 +37,7 @@ POLL_S = 0.05
 def has_dashboard() -> bool:
     """Dask serves its dashboard only where bokeh is installed."""
     try:  # a probe: bokeh is optional
-        import bokeh  # noqa: F401, PLC0415  bokeh loads on use: --help and the paths without it stay quick
+        import bokeh  # noqa: F401, PLC0415  a probe for an optional package, made only when a cluster starts
     except ImportError:
         return False
     return True
