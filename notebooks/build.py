@@ -81,8 +81,7 @@ Two checks that the renderer computes what it claims:
     new_code_cell("""from benchmarks.crossval import plot_agreement, plot_light_paths, summary_table
 from course import root as course_root
 from validation import crossval
-materials, angles = ((crossval.QUICK_MATERIALS, crossval.QUICK_ANGLES) if QUICK
-                     else (crossval.MATERIALS, crossval.ANGLES))
+materials, angles = (crossval.QUICK_MATERIALS, crossval.QUICK_ANGLES) if QUICK else (crossval.MATERIALS, crossval.ANGLES)
 scenes = crossval.scene_paths(course_root(), quick=QUICK)
 steps = 2 * len(materials) * len(angles) + len(scenes) * (3 * 2 if QUICK else 5 * 2)   # bounce counts x spps
 with counting(crossval, ["chi2_case", "furnace_albedo", "agreement"], desc="cross-validation", total=steps):
@@ -95,7 +94,7 @@ assert all(c["p_value"] >= 0.01 for c in results["chi2"])
 assert all(f["albedo"] <= 1 + 4 * f["stderr"] for f in results["furnace"])
 assert all(a["relmse_whitted_path"] <= 2 * a["relmse_path_path"] for a in results["agreement"])
 print(f"all criteria hold: {len(results['chi2'])} chi-square cases, {len(results['furnace'])} furnace cases, "
-      f"{len(results['agreement'])} whitted/path comparisons")"""),
+      f"{len(results['agreement'])} whitted/path comparisons")"""),  # noqa: E501  the cell as stored in crossval.ipynb
     new_markdown_cell("""Where the scene has one light, whitted and the restricted path tracer compute
 the same thing sample for sample (ratio ≈ 0). With several lights the path
 tracer picks one light per sample, so it is noisier; the ratio is then about
