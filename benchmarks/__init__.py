@@ -2,16 +2,19 @@
 denoising, scale-out, stress; the checks themselves live in :mod:`validation`."""
 from __future__ import annotations
 
+import datetime as dt
 import json
 import os
 import platform
 from pathlib import Path
 
+from core.errors import OutputError
+from imaging.image_io import atomic_path
+from renderer.checks import check_writable
+
 
 def write_json(path: Path, data) -> None:
     """Writes ``data`` as indented JSON, atomically (temporary name, then rename)."""
-    from imaging.image_io import atomic_path
-
     with atomic_path(path, ".json") as tmp:
         tmp.write_text(json.dumps(data, indent=2) + "\n")
 
@@ -26,13 +29,12 @@ def machine() -> str:
                 break
     except OSError:
         pass
-    return f"{model}, {os.cpu_count()} cores, {platform.system()} {platform.release()}, Python {platform.python_version()}"
+    return (f"{model}, {os.cpu_count()} cores, {platform.system()} {platform.release()}, "
+            f"Python {platform.python_version()}")
 
 
 def stamp(command: list[str]) -> dict:
     """Where and when a measurement was taken, and by which command (without --json's path)."""
-    import datetime as dt
-
     words = [w for k, w in enumerate(command) if w != "--json" and (k == 0 or command[k - 1] != "--json")]
     return {"command": " ".join(words), "machine": machine(), "date": dt.date.today().isoformat()}
 
@@ -42,8 +44,6 @@ def check_json(path: Path | None) -> None:
     not a folder, and a file we may write."""
     if path is None:
         return
-    from core.errors import OutputError
-    from renderer.checks import check_writable
 
     if path.is_dir():
         raise OutputError(f"--json {path}: a folder; give a file name such as {path / 'results.json'}")

@@ -22,16 +22,16 @@ if __name__ == "__main__" and not __package__:
     sys.path[0] = str(Path(__file__).resolve().parents[1])
 
 from benchmarks import machine, write_json
+from core.entry import ArgumentParser
 from course import root as course_root
+from renderer.variants import set_variant
 from validation.course_images import RECORD, ROOT, image_counts, render_grading_images
 from validation.metrics import TOLERANCE
 
 
 def record(course: Path, variant: str | None, path: Path = RECORD) -> dict:
     """Renders the grading lines and writes their counts to ``path``."""
-    import mitsuba as mi
-
-    from renderer.variants import set_variant
+    import mitsuba as mi  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
 
     variant = set_variant(variant, quiet=True)
     with tempfile.TemporaryDirectory() as tmp:
@@ -44,8 +44,6 @@ def record(course: Path, variant: str | None, path: Path = RECORD) -> dict:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from core.entry import ArgumentParser
-
     parser = ArgumentParser(prog="python -m benchmarks.course", description=__doc__.split("\n\n")[0])
     parser.add_argument("--record", action="store_true", help=f"write the counts to {RECORD.relative_to(ROOT)}")
     parser.add_argument("--variant", help="variant (default: llvm_ad_rgb where usable)")
@@ -55,8 +53,6 @@ def main(argv: list[str] | None = None) -> int:
     if args.record:
         counts = record(args.course, args.variant)["images"]
     else:
-        from renderer.variants import set_variant
-
         variant = set_variant(args.variant, quiet=True)
         with tempfile.TemporaryDirectory() as tmp:
             render_grading_images(args.course, Path(tmp), variant)

@@ -23,7 +23,10 @@ if __name__ == "__main__" and not __package__:
 import numpy as np
 
 from benchmarks import check_json, stamp, write_json
+from converters.scene_variants import with_mirror_sampling, with_path_tracer, without_ambient, without_background
+from core.entry import ArgumentParser
 from course import root as course_root
+from renderer.variants import set_variant
 from validation.crossval import biased_whitted, failures, render, run
 
 
@@ -50,7 +53,7 @@ def summary_table(results: dict) -> str:
 def plot_agreement(results: dict):
     """Per scene and bounce count: the largest tile |z| over its bound (pass: below 1),
     and relMSE(whitted, path) / relMSE(path, path') (pass: below 2)."""
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # noqa: PLC0415  matplotlib loads on use: --help and the paths without it stay quick
 
     rows = results["agreement"]
     scenes = list(dict.fromkeys(r["scene"] for r in rows))
@@ -77,9 +80,7 @@ def plot_agreement(results: dict):
 
 def plot_light_paths(path: Path, size: int = 160, spp: int = 64, bounces: int = 3):
     """Whitted, the path tracer on Whitted's light paths, and the full path tracer."""
-    import matplotlib.pyplot as plt
-
-    from converters.scene_variants import with_mirror_sampling, with_path_tracer, without_ambient, without_background
+    import matplotlib.pyplot as plt  # noqa: PLC0415  matplotlib loads on use: --help and the paths without it stay quick
 
     common = dict(bounces=bounces, shadows=True, spp=spp, jitter=True)
     whitted_paths = (without_ambient, without_background)
@@ -101,18 +102,16 @@ def plot_light_paths(path: Path, size: int = 160, spp: int = 64, bounces: int = 
 
 
 def main(argv: list[str] | None = None) -> int:
-    from core.entry import ArgumentParser
-
     parser = ArgumentParser(prog="python -m benchmarks.crossval", description=__doc__.split("\n\n")[0])
     parser.add_argument("--json", type=Path, metavar="PATH", help="write the numbers as JSON")
     parser.add_argument("--quick", action="store_true", help="a small version (CI)")
-    parser.add_argument("--course", type=Path, default=course_root(), help="course folder (default: $COURSE_ROOT, else ../shared/course)")
+    parser.add_argument("--course", type=Path, default=course_root(),
+                        help="course folder (default: $COURSE_ROOT, else ../shared/course)")
     parser.add_argument("--bias", type=float, default=0.0, metavar="FRACTION",
                         help="fault injection: scale whitted's shading by 1 + FRACTION (the run must then fail)")
     parser.add_argument("--agreement-only", action="store_true", help="skip the chi-square and furnace checks")
     args = parser.parse_args(argv)
     check_json(args.json)
-    from renderer.variants import set_variant
 
     set_variant(None, quiet=True)
     if args.bias:

@@ -38,8 +38,15 @@ import mitsuba as mi
 import numpy as np
 
 from benchmarks import machine, write_json
-from benchmarks.denoise import (QUICK_TIMING, RESULTS_PAGE, SEQUENCES, TIMING, check_work_and_json, make_method,
-                                timing_folder)
+from benchmarks.denoise import (
+    QUICK_TIMING,
+    RESULTS_PAGE,
+    SEQUENCES,
+    TIMING,
+    check_work_and_json,
+    make_method,
+    timing_folder,
+)
 from core import entry
 from core.entry import ArgumentParser
 from core.errors import UsageError
@@ -103,7 +110,8 @@ def profile(frames, method: str) -> dict:
         packets = traffic["packet_gathers"]
         kernels.append({"kernel": position, "type": str(first["type"]).split(".")[-1], "size": int(first["size"]),
                         "operations": int(first.get("operation_count", 0)),
-                        "level": packets.get("8 floats", 0) >= LEVEL_GATHERS and packets.get("4 floats", 0) >= LEVEL_GATHERS,
+                        "level": (packets.get("8 floats", 0) >= LEVEL_GATHERS
+                                  and packets.get("4 floats", 0) >= LEVEL_GATHERS),
                         **traffic,
                         "ms": float(np.median([r[position]["execution_time"] for r in runs])),
                         "ms_min": float(min(r[position]["execution_time"] for r in runs)),

@@ -36,14 +36,17 @@ if __name__ == "__main__" and not __package__:
     sys.path[0] = str(Path(__file__).resolve().parents[1])
 
 from benchmarks import check_json, stamp, write_json
+from core.entry import ArgumentParser
 from course import root as course_root
+from imaging.image_io import atomic_path
+from renderer.variants import set_variant
 from validation.convergence import TARGET_RELMSE, measure, settings
 from validation.crossval import scene_paths
 
 
 def plot_scene(results: dict, scene: str):
     """Log-log relMSE and FLIP against seconds for one scene; returns the figure."""
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # noqa: PLC0415  matplotlib loads on use: --help and the paths without it stay quick
 
     fig, (ax_mse, ax_flip) = plt.subplots(1, 2, figsize=(10, 4))
     for method in sorted({p["method"] for p in results["points"]}):
@@ -69,8 +72,6 @@ def plot_scene(results: dict, scene: str):
 
 
 def write_outputs(results: dict, out: Path) -> list[Path]:
-    from imaging.image_io import atomic_path
-
     out.mkdir(parents=True, exist_ok=True)
     written = []
     for scene in sorted({p["scene"] for p in results["points"]}):
@@ -78,7 +79,7 @@ def write_outputs(results: dict, out: Path) -> list[Path]:
         with atomic_path(out / f"{scene}.png", ".png") as tmp:
             fig.savefig(tmp, dpi=90, format="png")
         written.append(out / f"{scene}.png")
-        import matplotlib.pyplot as plt
+        import matplotlib.pyplot as plt  # noqa: PLC0415  matplotlib loads on use: --help and the paths without it stay quick
 
         plt.close(fig)
     with atomic_path(out / "error_vs_time.csv", ".csv") as tmp:
@@ -101,16 +102,14 @@ def slope_table(results: dict) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from core.entry import ArgumentParser
-
     parser = ArgumentParser(prog="python -m benchmarks.error_vs_time", description=__doc__.split("\n\n")[0])
     parser.add_argument("--quick", action="store_true", help="a small version (CI)")
     parser.add_argument("--json", type=Path, metavar="PATH", help="write the points and slopes as JSON")
     parser.add_argument("--out", type=Path, default=Path("out/error_vs_time"), help="folder for plots and CSV")
-    parser.add_argument("--course", type=Path, default=course_root(), help="course folder (default: $COURSE_ROOT, else ../shared/course)")
+    parser.add_argument("--course", type=Path, default=course_root(),
+                        help="course folder (default: $COURSE_ROOT, else ../shared/course)")
     args = parser.parse_args(argv)
     check_json(args.json)
-    from renderer.variants import set_variant
 
     set_variant(None, quiet=True)
     size, spps, reference = settings(args.quick)
@@ -118,7 +117,7 @@ def main(argv: list[str] | None = None) -> int:
                       progress=lambda line: print(line, file=sys.stderr))
     for path in write_outputs(results, args.out):
         print(path)
-    import mitsuba as mi
+    import mitsuba as mi  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
 
     results.update(variant=mi.variant(), **stamp(["python -m benchmarks.error_vs_time", *(argv or sys.argv[1:])]))
     if args.json:

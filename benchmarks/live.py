@@ -24,6 +24,7 @@ from pathlib import Path
 
 from benchmarks import check_json, stamp, write_json
 from core.entry import ArgumentParser
+from core.errors import UsageError
 from core.numbers import ascii_int
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -40,7 +41,6 @@ def start_server(scene: str, size, method: str, variant: str | None, freeze: boo
     line = process.stdout.readline()
     if "http://" not in line:
         process.kill()
-        from core.errors import UsageError
 
         raise UsageError(f"the live server did not start: {process.stderr.read().strip()[-300:]}")
     return process, line.split("open ", 1)[1].split()[0]
@@ -52,7 +52,7 @@ def percentile(values: list[float], q: float) -> float:
 
 
 def measure(url: str, seconds: float, screenshot: Path | None) -> dict:
-    from playwright.sync_api import sync_playwright
+    from playwright.sync_api import sync_playwright  # noqa: PLC0415  playwright loads on use: --help and the paths without it stay quick
 
     with sync_playwright() as playwright:
         browser = playwright.chromium.launch(executable_path=str(CHROMIUM), headless=True, args=["--no-sandbox"])
@@ -108,8 +108,6 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     check_json(args.json)
     if not CHROMIUM.exists():
-        from core.errors import UsageError
-
         raise UsageError(f"{CHROMIUM} missing: ./dev setup installs Debian's chromium")
     process, url = start_server(args.scene, args.size, args.method, args.variant, not args.no_freeze)
     try:

@@ -43,7 +43,11 @@ if __name__ == "__main__" and not __package__:
     sys.path[0] = str(Path(__file__).resolve().parents[1])
 
 from benchmarks import check_json, machine, write_json
+from converters.course_scene import load_scene
+from converters.description import scene_dict
+from core.entry import ArgumentParser
 from course import course_runs, outputs_into, root as course_root
+from renderer.variants import set_variant
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -56,15 +60,11 @@ def _timed(fn) -> float:
 
 def measure(course: Path, repeat: int, variant: str | None, peer: Path | None = None,
             only: list[str] | None = None) -> dict:
-    from renderer.variants import set_variant
-
     variant = set_variant(variant, quiet=True)
-    import drjit as dr
-    import mitsuba as mi
+    import drjit as dr  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
+    import mitsuba as mi  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
 
-    from converters.course_scene import load_scene
-    from converters.description import scene_dict
-    from converters.to_mitsuba import load_scene_dict
+    from converters.to_mitsuba import load_scene_dict  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
 
     def render(scene):
         image = mi.render(scene)
@@ -82,8 +82,8 @@ def measure(course: Path, repeat: int, variant: str | None, peer: Path | None = 
             parsed = load_scene(job.scene)
             description = scene_dict(parsed, job.options())
             scene = load_scene_dict(description)
-            first = _timed(lambda: render(scene))
-            warm = [_timed(lambda: render(scene)) for _ in range(repeat)]
+            first = _timed(lambda scene=scene: render(scene))
+            warm = [_timed(lambda scene=scene: render(scene)) for _ in range(repeat)]
 
             # native direct vs whitted, same scene and spp, interleaved
             lights = max(1, len(parsed.lights))
@@ -93,8 +93,8 @@ def measure(course: Path, repeat: int, variant: str | None, peer: Path | None = 
             render(native_scene), render(ours_scene)
             native_t, ours_t = [], []
             for _ in range(repeat):
-                native_t.append(_timed(lambda: render(native_scene)))
-                ours_t.append(_timed(lambda: render(ours_scene)))
+                native_t.append(_timed(lambda scene=native_scene: render(scene)))
+                ours_t.append(_timed(lambda scene=ours_scene: render(scene)))
 
             command = [sys.executable, str(ROOT / "render.py"), *args, "--quiet", "--variant", variant]
             peer_command = [str(peer), *args] if peer else None
@@ -102,10 +102,10 @@ def measure(course: Path, repeat: int, variant: str | None, peer: Path | None = 
                 subprocess.run(c, cwd=course, check=True, stdout=subprocess.DEVNULL)  # warm the caches
             process, peer_process = [], []
             for _ in range(repeat):  # interleaved: both see the same machine load
-                process.append(_timed(lambda: subprocess.run(command, cwd=course, check=True)))
+                process.append(_timed(lambda command=command: subprocess.run(command, cwd=course, check=True)))
                 if peer_command:
-                    peer_process.append(_timed(lambda: subprocess.run(peer_command, cwd=course, check=True,
-                                                                      stdout=subprocess.DEVNULL)))
+                    peer_process.append(_timed(lambda command=peer_command: subprocess.run(
+                        command, cwd=course, check=True, stdout=subprocess.DEVNULL)))
             row = {"scene": run.scene, "variant": variant, "process_s": statistics.median(process),
                    "render_s": statistics.median(warm), "first_render_s": first,
                    "native_direct_s": statistics.median(native_t), "whitted_direct_s": statistics.median(ours_t)}
@@ -119,7 +119,7 @@ def measure(course: Path, repeat: int, variant: str | None, peer: Path | None = 
         batch.write_text("\n".join(" ".join(["a2", *outputs_into(r.arguments, tmp)]) for r in runs) + "\n")
         command = [sys.executable, str(ROOT / "render.py"), "--batch", str(batch), "--quiet", "--variant", variant]
         subprocess.run(command, cwd=course, check=True)
-        suite = [_timed(lambda: subprocess.run(command, cwd=course, check=True)) for _ in range(repeat)]
+        suite = [_timed(lambda command=command: subprocess.run(command, cwd=course, check=True)) for _ in range(repeat)]
     results = {"scenes": rows, "suite_wall_s": statistics.median(suite), "repeat": repeat,
                "command": "python -m benchmarks.render_speed" + (" --peer PATH" if peer else ""),
                "machine": machine(), "date": dt.date.today().isoformat()}
@@ -150,8 +150,6 @@ def report(results: dict) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from core.entry import ArgumentParser
-
     parser = ArgumentParser(prog="python -m benchmarks.render_speed", description=__doc__.split("\n\n")[0])
     parser.add_argument("--json", type=Path, metavar="PATH", help="also write the numbers as JSON")
     parser.add_argument("--repeat", type=int, default=5, help="timed runs per measurement (default 5)")

@@ -37,8 +37,11 @@ from pathlib import Path
 if __name__ == "__main__" and not __package__:
     sys.path[0] = str(Path(__file__).resolve().parents[1])
 
+import tempfile
+
 from benchmarks import crossval, error_vs_time, machine, render_speed, write_json
 from benchmarks.course import record
+from core.entry import ArgumentParser
 from core.markdown import replace_section
 from course import root as course_root
 from validation.crossval import FURNACE_SIGMAS
@@ -81,8 +84,6 @@ def run_scalar_suite(path: Path) -> dict:
 
 def run_power(path: Path, biases=(0.01, -0.01)) -> dict:
     """The full agreement check under an injected bias: which scenes fail."""
-    import tempfile
-
     runs = {}
     for bias in biases:
         with tempfile.TemporaryDirectory() as tmp:
@@ -116,7 +117,8 @@ def results_section(images: dict | None, speed: dict | None) -> str:
                   "independent NumPy implementation of the course's semantics (`validation/reference_tracer.py`).",
                   ""]
     if speed and "machine" in speed:
-        lines += [f"`{speed['command']}`: the course's {len(speed['scenes'])} command lines at their sizes, {speed['scenes'][0]['variant']}, "
+        lines += [f"`{speed['command']}`: the course's {len(speed['scenes'])} command lines at their sizes, "
+                  f"{speed['scenes'][0]['variant']}, "
                   f"{speed['machine']}, {speed['date']}, medians of {speed['repeat']}. Process times are whole "
                   "processes from start to exit"
                   + (", ours and the peer binary's interleaved in the same run" if "peer" in speed else
@@ -135,8 +137,8 @@ def validation_section(cv: dict, evt: dict | None, suite: dict | None) -> str:
     chi2, furnace, agreement = cv["chi2"], cv["furnace"], cv["agreement"]
     settings = cv["settings"]
     materials = ", ".join(dict.fromkeys("{}/{}/{:g}".format(c["kd"], c["ks"], c["shininess"]) for c in chi2))
-    angles = ", ".join("{:g}°".format(a) for a in sorted({c["theta_deg"] for c in chi2}))
-    lines = [f"Regenerate with `python -m benchmarks.report` (each paragraph names its command, machine and "
+    angles = ", ".join(f"{a:g}°" for a in sorted({c["theta_deg"] for c in chi2}))
+    lines = ["Regenerate with `python -m benchmarks.report` (each paragraph names its command, machine and "
              "date). Raw numbers in `docs/validation/`; the notebooks `notebooks/crossval.ipynb` and "
              "`notebooks/error_vs_time.ipynb` show the same with explanations.", "",
              f"`{cv['command']}` ({settings['variant']}, {cv['machine']}, {cv['date']}):", "",
@@ -166,7 +168,8 @@ def validation_section(cv: dict, evt: dict | None, suite: dict | None) -> str:
         deepest = max((a for a in agreement if a["scene"] == scene and a["spp"] == max(settings["spp"])),
                       key=lambda a: a["bounces"])
         ok = all(a["passed"] for a in agreement if a["scene"] == scene)
-        lines.append(f"| {scene} | " + " | ".join(cells) + f" | {round(100 * deepest['relative_bias'], 3) + 0.0:+.3f} ± "
+        lines.append(f"| {scene} | " + " | ".join(cells)
+                     + f" | {round(100 * deepest['relative_bias'], 3) + 0.0:+.3f} ± "
                      f"{100 * deepest['relative_bias_stderr']:.3f} % | {'yes' if ok else 'NO'} |")
     power = _load(DOCS / "crossval_bias.json")
     if power:
@@ -197,8 +200,6 @@ def validation_section(cv: dict, evt: dict | None, suite: dict | None) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from core.entry import ArgumentParser
-
     parser = ArgumentParser(prog="python -m benchmarks.report", description=__doc__.split("\n\n")[0])
     parser.add_argument("--no-run", action="store_true", help="only rewrite the pages from docs/'s JSON")
     parser.add_argument("--steps", default=",".join(STEPS), help=f"comma-separated, of {', '.join(STEPS)}")
@@ -216,7 +217,8 @@ def main(argv: list[str] | None = None) -> int:
     if "crossval_power" in steps:
         run_power(DOCS / "crossval_bias.json")
     if "error_vs_time" in steps:
-        error_vs_time.main(["--json", str((DOCS / "error_vs_time.json").relative_to(ROOT)), "--out", str(DOCS.relative_to(ROOT))])
+        error_vs_time.main(["--json", str((DOCS / "error_vs_time.json").relative_to(ROOT)),
+                            "--out", str(DOCS.relative_to(ROOT))])
     if "scalar_suite" in steps:
         run_scalar_suite(DOCS / "scalar_suite.json")
 

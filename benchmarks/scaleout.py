@@ -144,7 +144,8 @@ def main(argv: list[str] | None = None) -> int:
         result = measure(args.frames, tuple(args.size), args.reference_spp, args.batch_spp, args.workers,
                          args.work or Path(scratch))
     print(json.dumps(result, indent=2))
-    print(f"efficiency {result['efficiency']:.3f}, per worker {result['parallel_efficiency']:.3f} (bar >= 0.9), overhead {100 * result['overhead_fraction']:.2f} % "
+    print(f"efficiency {result['efficiency']:.3f}, per worker {result['parallel_efficiency']:.3f} (bar >= 0.9), "
+          f"overhead {100 * result['overhead_fraction']:.2f} % "
           f"of the median task (bar <= 5 %), identical: {result['identical']}", file=sys.stderr)
     if args.json:
         write_json(args.json, result)

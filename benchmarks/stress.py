@@ -24,14 +24,13 @@ from benchmarks import check_json, write_json
 from core.entry import ArgumentParser, native_start_up
 from core.errors import UsageError
 from core.numbers import ascii_int
+from renderer.variants import set_variant
 from validation.stress import fuzz, fuzz_cli, run_case
 from validation.stress_cases import all_cases
 from validation.stress_denoise import denoise_cases
 
 
 def run(fuzz_examples: int, quick: bool, only: list[str] | None = None) -> dict:
-    from renderer.variants import set_variant
-
     with native_start_up():
         set_variant(None, quiet=True)
 

@@ -32,10 +32,11 @@ import sys
 import tempfile
 from pathlib import Path
 
-
 from core.entry import ArgumentParser, hold_signals, native_start_up, run
-from core.numbers import ascii_int
 from core.errors import OutputError, UsageError
+from core.numbers import ascii_int
+from renderer.checks import check_limits, check_numbers
+from renderer.scene_flags import DEFAULTS, with_scene_flags
 
 EXAMPLES = """examples:
   python -m converters scenes/showcase.txt -o showcase.xml
@@ -91,8 +92,6 @@ def render_settings(args: argparse.Namespace) -> dict:
 
 def flags_text(settings: dict) -> str:
     """The render flags of ``settings`` as a command line (defaults left out)."""
-    from renderer.scene_flags import DEFAULTS
-
     words = []
     if (settings.get("width", 800), settings.get("height", 800)) != (800, 800):
         words.append(f"-size {settings['width']} {settings['height']}")
@@ -110,13 +109,11 @@ def convert(source: Path, target: Path, root: Path | None = None, settings: dict
     ``settings``: render flags as in :func:`render_settings`; the scene's
     ``# render:`` header fills in the ones left out.
     """
-    from renderer.checks import check_limits, check_numbers
-    from renderer.job import RenderJob
-    from renderer.scene_flags import with_scene_flags
+    from renderer.job import RenderJob  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
 
-    from .course_scene import load_scene
-    from .description import scene_dict
-    from .xml_writer import write_xml
+    from .course_scene import load_scene  # noqa: PLC0415  NumPy loads on use: --help stays quick
+    from .description import scene_dict  # noqa: PLC0415  NumPy loads on use: --help stays quick
+    from .xml_writer import write_xml  # noqa: PLC0415  NumPy loads on use: --help stays quick
 
     scene = load_scene(source.resolve())  # absolute paths, written relative to the XML
     final = with_scene_flags(source, dict(settings or {}))
@@ -180,7 +177,7 @@ def _main(argv: list[str] | None) -> int:
     # a signal inside the import of Dr.Jit's extension aborts the process: held until it is done;
     # no rendering here, so Dr.Jit's notices (an unusable HOME) do not concern it
     with hold_signals(), native_start_up():
-        import mitsuba as mi
+        import mitsuba as mi  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
 
     if mi.variant() is None:
         mi.set_variant("scalar_rgb")  # only for the transform type; no rendering here

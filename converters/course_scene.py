@@ -39,8 +39,18 @@ from imaging.image_io import CUBE_FACES, read_cube_map
 from mi_plugins.camera_basis import course_camera_basis
 
 from . import transforms
-from .model import (Background, Camera, DirectionalLight, Material, Plane, PointLight, Scene,
-                    Sphere, Triangle, TriangleMesh)
+from .model import (
+    Background,
+    Camera,
+    DirectionalLight,
+    Material,
+    Plane,
+    PointLight,
+    Scene,
+    Sphere,
+    Triangle,
+    TriangleMesh,
+)
 from .obj import read_obj
 from .tokens import FLOAT32_MAX, Token, TokenReader, tokenize
 
@@ -138,7 +148,8 @@ class _Parser(TokenReader):
                                  "angle": self.number}, {"center", "direction", "up", "angle"})
         direction, up, angle = np.array(values["direction"]), np.array(values["up"]), values["angle"]
         if not 0.0 < angle < 180.0:
-            raise SceneError(self.path, start.line, start.col, f"expected an angle in (0, 180) degrees, found {angle:g}")
+            raise SceneError(self.path, start.line, start.col,
+                             f"expected an angle in (0, 180) degrees, found {angle:g}")
         if np.linalg.norm(direction) == 0.0:
             raise SceneError(self.path, start.line, start.col, "expected a non-zero camera direction, found 0 0 0")
         if np.linalg.norm(np.cross(direction, up)) <= 1e-12 * np.linalg.norm(direction) * np.linalg.norm(up):

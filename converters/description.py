@@ -273,8 +273,8 @@ def object_dict(scene: Scene, index: int) -> dict:
 
 def _quaternion_xyzw(r: np.ndarray) -> list[float]:
     """Unit quaternion (x, y, z, w) of a rotation matrix (Dr.Jit's conversion)."""
-    import drjit as dr
-    from drjit.scalar import Matrix3f64
+    import drjit as dr  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
+    from drjit.scalar import Matrix3f64  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
 
     q = dr.matrix_to_quat(Matrix3f64(np.asarray(r, np.float64).tolist()))
     return [float(q[0]), float(q[1]), float(q[2]), float(q[3])]

@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from core.errors import SceneError, describe
+from core.inputs import NotAnInputFile, read_input
 
 #: The renderer stores coordinates as float32
 FLOAT32_MAX = float(np.finfo(np.float32).max)
@@ -23,8 +24,6 @@ _IGNORED = {"vn", "vp", "o", "g", "s", "usemtl", "mtllib", "l"}
 
 def read_obj(path: Path) -> tuple[np.ndarray, np.ndarray]:
     """Returns ``(positions (V,3) float64, faces (F,3) uint32)``, 0-based."""
-    from core.inputs import NotAnInputFile, read_input
-
     try:
         data = read_input(path)
     except OSError as error:
@@ -46,7 +45,7 @@ def read_obj(path: Path) -> tuple[np.ndarray, np.ndarray]:
             continue
         fields = [m.group() for m in matches]
 
-        def col(i: int) -> int:
+        def col(i: int, matches=matches) -> int:
             return matches[i].start() + 1
 
         key = fields[0]

@@ -9,7 +9,7 @@ them. Apply them in any order, e.g.
 """
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
 Variant = Callable[[dict], dict]
 

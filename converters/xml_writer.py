@@ -133,7 +133,8 @@ def write_xml(description: dict, path: str | Path, source: str | None = None, no
     writer.emit(0, '<scene version="3.0.0">')
     if source:
         made = f" {note}" if note else ""
-        writer.emit(1, f"<!-- {_comment_text(f'Converted from {source} by converters/{made}; load with optimize=False')} -->")
+        text = _comment_text(f"Converted from {source} by converters/{made}; load with optimize=False")
+        writer.emit(1, f"<!-- {text} -->")
     for key, value in lower(description).items():
         if key == "type":
             continue

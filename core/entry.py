@@ -30,8 +30,10 @@ import os
 import signal
 import sys
 import threading
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from typing import Callable, Iterator
+
+from core.errors import UsageError
 
 from .errors import ToolkitError
 
@@ -161,8 +163,6 @@ class ArgumentParser(argparse.ArgumentParser):
     under :func:`run`), not a usage block; every user-facing command parses with it."""
 
     def error(self, message: str):
-        from core.errors import UsageError
-
         raise UsageError(" ".join(message.split()))
 
 

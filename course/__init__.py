@@ -111,7 +111,7 @@ class CourseRun:
     def job(self, course: Path | None = None, outputs: Path | None = None):
         """The line as a :class:`renderer.job.RenderJob`: the input relative to ``course``
         (the folder the line runs in), outputs moved into ``outputs`` if given."""
-        from renderer.job import DepthOutput, RenderJob
+        from renderer.job import DepthOutput, RenderJob  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
 
         flags = self.flags()
         course = root() if course is None else course

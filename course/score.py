@@ -24,10 +24,13 @@ if __name__ == "__main__":  # started by a Python without the project's packages
     use_project_python("python -m course.score", "course.score")
 
 import numpy as np
+from tqdm import tqdm
 
+from core.entry import ArgumentParser, run
 from core.errors import FrameError
 from course import ENVIRONMENT, root
 from imaging.image_io import IMAGE_DECODE_ERRORS, atomic_path, read_png, write_image
+from renderer.checks import check_writable
 from validation.metrics import MAX_BAD_FRACTION, TOLERANCE, bad_pixels, flip_error, flip_heat_map
 
 PROG = "python -m course.score"
@@ -174,8 +177,6 @@ def write_report(report: Path, scores: list[ImageScore], folder: Path, reference
 
 
 def _parser() -> argparse.ArgumentParser:
-    from core.entry import ArgumentParser
-
     parser = ArgumentParser(prog=PROG, description=__doc__.split("\n", 1)[0].split(": ", 1)[1],
                             formatter_class=argparse.RawDescriptionHelpFormatter,
                             epilog="exit status: 0 when every image meets the course's bar, 1 when one fails or is "
@@ -189,8 +190,6 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def _main(argv: list[str] | None) -> int:
-    from renderer.checks import check_writable
-
     args = _parser().parse_args(argv)
     if not args.folder.is_dir():
         raise FrameError(f"{args.folder}: not a folder")
@@ -201,7 +200,6 @@ def _main(argv: list[str] | None) -> int:
     count = len(reference_images(reference))  # checked before the first image
     report = args.report or args.folder / "score.md"
     check_writable("--report", report)
-    from tqdm import tqdm
 
     with tqdm(total=count, desc="scoring", unit="image", delay=1.0, leave=False,
               disable=None) as bar:
@@ -214,8 +212,6 @@ def _main(argv: list[str] | None) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from core.entry import run
-
     return run(PROG, lambda: _main(argv))
 
 

@@ -139,14 +139,14 @@ class ASVGFParams:
                 raise UsageError(f"asvgf: {name} must be a whole number from {low} to {high}, got {value!r}")
 
     @staticmethod
-    def hand_set(**changes) -> "ASVGFParams":
+    def hand_set(**changes) -> ASVGFParams:
         """The parameters set by hand, whatever the parameter file says."""
         return ASVGFParams(**{**{name: value for name, (value, _, _) in CONTINUOUS.items()}, **changes})
 
     def continuous(self) -> dict[str, float]:
         return {name: getattr(self, name) for name in CONTINUOUS}
 
-    def with_values(self, values: dict[str, float]) -> "ASVGFParams":
+    def with_values(self, values: dict[str, float]) -> ASVGFParams:
         return replace(self, **values)
 
 
@@ -165,10 +165,10 @@ class FilterValues:
     antilag_threshold: object
 
     @staticmethod
-    def of(p: ASVGFParams) -> "FilterValues":
+    def of(p: ASVGFParams) -> FilterValues:
         return FilterValues(**p.continuous())
 
-    def widened(self, width: int) -> "FilterValues":
+    def widened(self, width: int) -> FilterValues:
         """Dr.Jit values gathered to one lane per pixel, evaluated: the backward
         pass then adds each frame's gradients into a parameter with one scatter,
         instead of one reduction per use of it in every tap."""

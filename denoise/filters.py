@@ -256,7 +256,8 @@ def joint_bilateral(frame: FrameArrays, p: EdgeWeights = EdgeWeights(), window: 
     return frame.tensor(total / weights)
 
 
-def atrous(frame: FrameArrays, p: EdgeWeights = EdgeWeights(), levels: AtrousLevels | int = AtrousLevels()) -> mi.TensorXf:
+def atrous(frame: FrameArrays, p: EdgeWeights = EdgeWeights(),
+           levels: AtrousLevels | int = AtrousLevels()) -> mi.TensorXf:
     """The À-Trous wavelet: ``levels`` passes of a 5x5 B3-spline kernel with
     holes (step 2^i), each with the bilateral edge-stopping weights; the
     colour sigma halves from one level to the next."""

@@ -43,7 +43,19 @@ if __name__ == "__main__":  # started by a Python without the project's packages
     from core.launcher import use_project_python
     use_project_python("python -m denoise.fit", "denoise.fit")
 
+from dataclasses import replace
+
+import numpy as np
+
+from core.entry import ArgumentParser, run
 from core.errors import UsageError  # noqa: E402
+from core.numbers import ascii_float, ascii_int
+from imaging.image_io import atomic_path, read_exr_rgb
+from renderer.variants import set_variant
+from validation.metrics import relmse
+
+from .export import Spec, export, reference_folder
+from .frames import frame_indices, read_frame
 
 # Dr.Jit, Mitsuba, NumPy and the denoiser's modules are imported inside the functions:
 # the variant is chosen first (llvm_ad_rgb), and --help and argument errors do not wait for them
@@ -68,15 +80,10 @@ def prepare(folder: Path, scale_from: int | None = None, scale: float = SWITCH_S
     """Every frame of ``folder`` with its ground truth from ``FOLDER_reference``,
     as the Denoiser would feed asvgf (usable values, albedo demodulation, back
     projection); beauty and truth of frames >= ``scale_from`` times ``scale``."""
-    import mitsuba as mi
-    import numpy as np
+    import mitsuba as mi  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
 
-    from imaging.image_io import read_exr_rgb
-
-    from .export import reference_folder
-    from .filters import FrameArrays, demodulate, reproject
-    from .frames import frame_indices, read_frame
-    from .methods import make
+    from .filters import FrameArrays, demodulate, reproject  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
+    from .methods import make  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
 
     def tensor(a):
         return mi.TensorXf(np.ascontiguousarray(a, np.float32))
@@ -103,15 +110,15 @@ def prepare(folder: Path, scale_from: int | None = None, scale: float = SWITCH_S
 
 def relmse_loss(image, reference, epsilon: float = 1e-2):
     """validation.metrics.relmse's ``mean((x - ref)² / (ref² + ε))`` as a differentiable Dr.Jit Float."""
-    import drjit as dr
+    import drjit as dr  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
 
     return dr.mean(dr.square(image.array - reference.array) / (dr.square(reference.array) + epsilon))
 
 
 def run_sequence(frames: list[PreparedFrame], params, values=None) -> list:
     """asvgf over ``frames``: the remodulated results (TensorXf), history carried along."""
-    from .asvgf import asvgf
-    from .filters import remodulate
+    from .asvgf import asvgf  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
+    from .filters import remodulate  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
 
     history, results = None, []
     for f in frames:
@@ -135,10 +142,10 @@ class Fit:
     """Adam on the logarithms of the continuous parameters, kept in range."""
 
     def __init__(self, params, rate: float):
-        import drjit as dr
-        import mitsuba as mi
+        import drjit as dr  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
+        import mitsuba as mi  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
 
-        from .asvgf import CONTINUOUS
+        from .asvgf import CONTINUOUS  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
 
         self.params, self.ranges = params, CONTINUOUS
         self.optimizer = mi.ad.Adam(lr=rate)
@@ -148,9 +155,8 @@ class Fit:
         self.dr = dr
 
     def values(self):
-        import mitsuba as mi
 
-        from .asvgf import FilterValues
+        from .asvgf import FilterValues  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
 
         dr = self.dr
         return FilterValues(**{name: dr.clip(dr.exp(self.optimizer[name]), max(low, 1e-6), high)
@@ -179,8 +185,6 @@ def display_path(path: Path) -> str:
 
 
 def write_parameters(path: Path, values: dict[str, float], loss: float, hand_set_loss: float, sources) -> None:
-    from imaging.image_io import atomic_path
-
     data = {"parameters": {k: round(v, 6) for k, v in values.items()},
             "training_loss": loss, "hand_set_loss": hand_set_loss,
             "training": [display_path(s) for s in sources]}
@@ -190,16 +194,8 @@ def write_parameters(path: Path, values: dict[str, float], loss: float, hand_set
 
 def evaluate(folder: Path, switch: int | None) -> dict[str, tuple[list[float], list[float]]]:
     """Per method: (relMSE per frame as rendered or dimmed, relMSE of the images divided by the dimming)."""
-    import numpy as np
-    from dataclasses import replace
-
-    from imaging.image_io import read_exr_rgb
-    from validation.metrics import relmse
-
-    from .asvgf import ASVGFParams
-    from .export import reference_folder
-    from .frames import frame_indices, read_frame
-    from .methods import from_name
+    from .asvgf import ASVGFParams  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
+    from .methods import from_name  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
 
     indices = frame_indices(folder)
     factors = [SWITCH_SCALE if switch is not None and i >= switch else 1.0 for i in indices]
@@ -235,9 +231,6 @@ def print_evaluation(folder: Path, switch: int) -> None:
 
 
 def _parser() -> argparse.ArgumentParser:
-    from core.entry import ArgumentParser
-    from core.numbers import ascii_float, ascii_int
-
     parser = ArgumentParser(prog="python -m denoise.fit", description=__doc__.split("\n\n")[0])
     parser.add_argument("specs", type=Path, nargs="*", metavar="SPEC.json",
                         help="training sequences (default: scenes/sequences/training/*.json)")
@@ -263,9 +256,6 @@ def _main(argv: list[str] | None) -> int:
         raise UsageError(f"--steps must be from 1 to 10000, got {args.steps}")
     if not (0.0 < args.rate <= 10.0):
         raise UsageError(f"--rate must be in (0, 10], got {args.rate}")
-    from renderer.variants import set_variant
-
-    from .export import Spec, export
 
     if args.evaluate is not None:
         if not (args.evaluate / "beauty_0.exr").is_file():
@@ -276,7 +266,7 @@ def _main(argv: list[str] | None) -> int:
 
     loaded = [(path, Spec.load(path)) for path in specs]  # all checked before any work
     set_variant("llvm_ad_rgb", quiet=True)
-    from .asvgf import ASVGFParams
+    from .asvgf import ASVGFParams  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
 
     sequences = []
     for path, spec in loaded:
@@ -302,8 +292,6 @@ def _main(argv: list[str] | None) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from core.entry import run
-
     return run("python -m denoise.fit", lambda: _main(argv))
 
 

@@ -135,7 +135,8 @@ def _read_exr(path: Path) -> dict:
     except FileNotFoundError:
         raise
     except Exception as error:  # OpenEXR reports damage as RuntimeError/OSError without the name
-        raise FrameError(f"{path}: not a readable EXR ({' '.join(str(error).split()) or type(error).__name__})") from None
+        reason = " ".join(str(error).split()) or type(error).__name__
+        raise FrameError(f"{path}: not a readable EXR ({reason})") from None
     if not channels:
         raise FrameError(f"{path}: the EXR has no channels")
     return channels
@@ -173,7 +174,8 @@ def read_frame(folder: Path, index: int) -> FrameData:
     if not finite.all():
         raise FrameError(f"{paths['ID']}: NaN or inf object ids")
     if np.any(np.abs(raw_ids - ids) > 1e-3):
-        raise FrameError(f"{paths['ID']}: object ids must be whole numbers, found {raw_ids[np.abs(raw_ids - ids) > 1e-3][0]:g}")
+        raise FrameError(f"{paths['ID']}: object ids must be whole numbers, "
+                         f"found {raw_ids[np.abs(raw_ids - ids) > 1e-3][0]:g}")
     if ids.size and (ids.min() < -1 or ids.max() >= len(objects)):
         bad = int(ids.max()) if ids.max() >= len(objects) else int(ids.min())
         raise FrameError(f"{paths['ID']}: object id {bad}, but {matrix_path.name} has matrices for "

@@ -32,11 +32,16 @@ if __name__ == "__main__":  # started by a Python without the project's packages
 
 import numpy as np
 
+from core.entry import ArgumentParser, run
 from core.errors import FrameError, OutputError, UsageError
 from imaging.image_io import atomic_path, read_exr_rgb
+from renderer.checks import check_writable
+from renderer.variants import set_variant
 from validation.metrics import flip_error, relmse, stability, temporal_relmse
 
+from .frames import frame_indices, read_frame
 from .methods import from_name
+from .pipeline import check_folder
 
 PROG = "python -m denoise.score"
 DEFAULT_PATTERN = "result_{i}.exr"
@@ -87,8 +92,6 @@ def read_rgb(path: Path) -> np.ndarray:
 
 
 def reference_indices(reference: Path) -> list[int]:
-    from .frames import frame_indices
-
     if not reference.is_dir():
         raise FrameError(f"--reference {reference}: not a folder")
     indices = frame_indices(reference)
@@ -122,9 +125,6 @@ def read_sized(paths: list[Path], truth: list[np.ndarray], what: str) -> list[np
 
 def read_frames(folder: Path, indices: list[int], truth: list[np.ndarray]):
     """The frame folder's frames at ``indices`` (each checked, and sized like the truth)."""
-    from .frames import read_frame
-    from .pipeline import check_folder
-
     have = set(check_folder(folder))
     lacking = [i for i in indices if i not in have]
     if lacking:
@@ -203,8 +203,8 @@ def tables(report: dict) -> list[str]:
 
 def write_plot(path: Path, report: dict) -> None:
     """relMSE, FLIP and (with frames) temporal relMSE per frame, a line per method."""
-    from matplotlib.figure import Figure  # without pyplot: no display, no global state
-    from matplotlib.ticker import MaxNLocator
+    from matplotlib.figure import Figure  # noqa: PLC0415  without pyplot: no display, no global state
+    from matplotlib.ticker import MaxNLocator  # noqa: PLC0415  matplotlib loads on use: --help and the paths without it stay quick
 
     indices, scores = report["indices"], report["scores"]
     panels = [("relMSE", "relmse"), ("mean FLIP", "flip")]
@@ -234,8 +234,6 @@ def write_json(path: Path, report: dict, arguments: dict) -> None:
 
 
 def _parser() -> argparse.ArgumentParser:
-    from core.entry import ArgumentParser
-
     parser = ArgumentParser(prog=PROG, description=__doc__.split("\n", 1)[0].split(": ", 1)[1],
                             formatter_class=argparse.RawDescriptionHelpFormatter,
                             epilog="example: python -m denoise.score out/mine --reference out/seq_reference "
@@ -255,8 +253,6 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def _main(argv: list[str] | None) -> int:
-    from renderer.checks import check_writable
-
     args = _parser().parse_args(argv)
     if args.plot is not None and args.plot.suffix.lower() != ".png":
         raise UsageError(f"--plot writes PNG: name it .png, got {args.plot}")
@@ -270,7 +266,6 @@ def _main(argv: list[str] | None) -> int:
         raise UsageError("--compare runs our methods on the frames: give --frames FRAME_DIR")
     check_methods(args.compare)
     if args.frames is not None:  # back projection and our methods run in Dr.Jit
-        from renderer.variants import set_variant
 
         set_variant(args.variant, quiet=True)
     report = score_sequence(args.results, args.reference, args.frames, args.pattern, tuple(args.compare))
@@ -285,8 +280,6 @@ def _main(argv: list[str] | None) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from core.entry import run
-
     return run(PROG, lambda: _main(argv))
 
 

@@ -33,8 +33,16 @@ import mitsuba as mi
 
 from core.errors import UsageError
 
-from .filters import (B3, FrameArrays, check_positive, check_whole, inv_two_sigma_sq, luminance, neg_exp,
-                      plane_distance_sq)
+from .filters import (
+    B3,
+    FrameArrays,
+    check_positive,
+    check_whole,
+    inv_two_sigma_sq,
+    luminance,
+    neg_exp,
+    plane_distance_sq,
+)
 
 GAUSS3 = (0.25, 0.5, 0.25)
 EPSILON = 1e-10

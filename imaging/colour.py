@@ -17,7 +17,7 @@ def to_srgb_8bit(image: np.ndarray) -> np.ndarray:
     """Linear Rec.709 radiance to 8-bit sRGB (IEC 61966-2-1 transfer function)."""
     with warnings.catch_warnings():  # colour-science warns that SciPy is absent; unused here
         warnings.simplefilter("ignore")
-        import colour  # imported on use: it takes most of a second
+        import colour  # noqa: PLC0415  colour-science loads on use: it is slow to import
     values = np.nan_to_num(np.asarray(image, np.float64), nan=0.0, posinf=1.0, neginf=0.0)
     encoded = colour.cctf_encoding(np.clip(values, 0.0, 1.0), function="sRGB")
     return np.round(encoded * 255.0).astype(np.uint8)

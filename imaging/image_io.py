@@ -13,17 +13,17 @@ import errno
 import functools
 import os
 import struct
+import subprocess
 import zlib
+from collections.abc import Iterator, Mapping
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Iterator, Mapping
 
 import numpy as np
 from PIL import Image
 
 from core.errors import OutputError, SceneError
-
 
 #: Longest file name (bytes) where the folder's file system does not say
 DEFAULT_NAME_MAX = 255
@@ -173,9 +173,7 @@ def write_video(path: str | Path, frames: list[np.ndarray], fps: int = 2) -> Non
     status, which imageio's writer ignores: a full disk left a truncated
     video in place) is an :class:`OutputError` with FFmpeg's last line.
     """
-    import subprocess
-
-    import imageio_ffmpeg
+    import imageio_ffmpeg  # noqa: PLC0415  imageio_ffmpeg loads on use: --help and the paths without it stay quick
 
     path = Path(path)
     height, width = frames[0].shape[:2]
@@ -272,7 +270,7 @@ def write_exr(path: str | Path, layers: Mapping[str, np.ndarray]) -> None:
         for k, suffix in enumerate(suffixes):
             key = f"{name}.{suffix}" if name else suffix
             channels[key] = np.ascontiguousarray(data[..., k])
-    import OpenEXR  # imported on use: it adds a sixth of a second to start-up
+    import OpenEXR  # noqa: PLC0415  OpenEXR loads on use: start-up without EXR stays quick
 
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
     with atomic_path(path, ".exr") as tmp:
@@ -315,7 +313,7 @@ def exr_complete(path: Path, lines_per_chunk: int) -> bool:
 
 def read_exr(path: str | Path) -> dict[str, np.ndarray]:
     """Reads every channel of an EXR as float32 (H, W) arrays, keyed by channel name."""
-    import OpenEXR
+    import OpenEXR  # noqa: PLC0415  OpenEXR loads on use: --help and the paths without it stay quick
 
     with OpenEXR.File(str(path), separate_channels=True) as exr:
         return {name: np.asarray(channel.pixels, np.float32) for name, channel in exr.channels().items()}

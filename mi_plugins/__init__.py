@@ -35,7 +35,7 @@ _registered: set[str] = set()
 
 
 def _active_variant() -> str:
-    import mitsuba as mi  # here: importing this package must not load Dr.Jit (see renderer.variants)
+    import mitsuba as mi  # noqa: PLC0415  importing this package must not load Dr.Jit (see renderer.variants)
 
     variant = mi.variant()
     if variant is None:
@@ -62,7 +62,7 @@ def plugin_class(name: str) -> type:
 
 def register() -> None:
     """Registers every plugin for the active variant (once per variant)."""
-    import mitsuba as mi
+    import mitsuba as mi  # noqa: PLC0415  importing this package must not load Dr.Jit (see renderer.variants)
 
     variant = _active_variant()
     if variant in _registered:

@@ -77,7 +77,7 @@ class CourseCamera(mi.Sensor):
         self.pixel_centers = bool(props.get("pixel_centers", True))
         self.parameters_changed()
 
-    def parameters_changed(self, keys: list[str] = []):
+    def parameters_changed(self, keys: list[str] | None = None):
         """Recomputes the ray basis from ``origin``, ``direction``, ``up`` and
         ``fov``, and the pixel mapping from the film."""
         def host(value) -> np.ndarray:

@@ -5,6 +5,7 @@ from pathlib import Path
 import drjit as dr
 import mitsuba as mi
 
+from imaging.image_io import read_cube_map
 
 
 class CubeMapEmitter(mi.Emitter):
@@ -39,7 +40,6 @@ class CubeMapEmitter(mi.Emitter):
 
     def __init__(self, props: mi.Properties):
         super().__init__(props)
-        from imaging.image_io import read_cube_map
         # relative to the XML file's folder when loaded from XML
         self.folder = Path(str(mi.file_resolver().resolve(props.get("folder"))))
         faces = read_cube_map(self.folder)  # (6, N, N, 4) uint8 RGBX, faces in CUBE_FACES order

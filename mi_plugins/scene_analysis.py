@@ -41,7 +41,7 @@ class LightTable:
         self.values = mi.TensorXf(np.array(values, np.float32))  # 3 per light: intensity (point) or irradiance
 
     @staticmethod
-    def of(lights: list) -> "LightTable":
+    def of(lights: list) -> LightTable:
         """The table of ``(emitter, kind)`` pairs, kinds from :func:`light_kind`."""
         # (values read one by one: evaluating them together makes one kernel with
         # thousands of outputs, which LLVM compiles for a minute)
@@ -139,7 +139,7 @@ def analyse_scene(scene: mi.Scene, max_unrolled_lights: int, ray_epsilon: float,
     kinds = [light_kind(light) for light in lights]
     looped = sum(k is not None for k in kinds) > max_unrolled_lights
     unrolled = [light for light, kind in zip(lights, kinds) if not (looped and kind is not None)]
-    table = LightTable.of([(l, k) for l, k in zip(lights, kinds) if k is not None]) if looped else None
+    table = LightTable.of([(light, k) for light, k in zip(lights, kinds) if k is not None]) if looped else None
     mirrors = any(s.bsdf() is not None and mi.has_flag(s.bsdf().flags(), mi.BSDFFlags.DeltaReflection)
                   for s in shapes)
     # table rows: a vectorised shape pointer is a registry index (0: none), a scalar

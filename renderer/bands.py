@@ -26,6 +26,7 @@ import numpy as np
 from tqdm import tqdm
 
 from core.entry import hold_signals, native_start_up
+from renderer.variants import set_variant
 
 #: Renders of less work than this (ray casts, as :func:`description_work`
 #: counts them) render in-process: they take well under a second, less than
@@ -61,13 +62,11 @@ def _start(pickled_description: bytes, variant: str) -> None:
     process has said what there was to say) are held back here."""
     global _scene, _description
     with native_start_up():
-        from renderer.variants import set_variant
-
         set_variant(variant, quiet=True)
         description = pickle.loads(pickled_description)
-    import mitsuba as mi
+    import mitsuba as mi  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
 
-    from converters.to_mitsuba import load_scene_dict
+    from converters.to_mitsuba import load_scene_dict  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
 
     mi.set_log_level(mi.LogLevel.Error)  # not the scalar-performance warning, once per worker
     _description = description
@@ -75,7 +74,7 @@ def _start(pickled_description: bytes, variant: str) -> None:
 
 
 def _render_band(rows: tuple[int, int]):
-    import mitsuba as mi
+    import mitsuba as mi  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
 
     y0, y1 = rows
     sensor = dict(_description["sensor"])

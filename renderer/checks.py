@@ -20,6 +20,7 @@ import resource
 from pathlib import Path
 
 from core.errors import LimitError, OutputError, UsageError
+from mi_plugins.aovs import AOV_CHANNELS
 
 #: Deepest mirror recursion accepted. Each bounce multiplies by the mirror's
 #: specular colour; past a few dozen bounces nothing changes in an 8-bit image
@@ -60,8 +61,6 @@ def render_samples(job) -> int:
 
 def render_memory(job) -> int:
     """Bytes a render of ``job`` needs at its peak (see :data:`COPIES`)."""
-    from mi_plugins.aovs import AOV_CHANNELS
-
     options = job.options()
     channels = BEAUTY_CHANNELS + sum(len(AOV_CHANNELS[name]) for name in job.aovs)
     return BASELINE_BYTES + options.width * options.height * channels * 4 * COPIES
@@ -133,7 +132,7 @@ def job_outputs(job) -> list[tuple[str, Path]]:
 
 def job_inputs(job) -> list[tuple[str, Path]]:
     """``(what, path)`` for every file ``job`` reads: the scene, its meshes and cube-map faces."""
-    from converters.course_scene import referenced_files
+    from converters.course_scene import referenced_files  # noqa: PLC0415  NumPy loads on use: --help stays quick
 
     return [("the scene", Path(job.scene))] + [("the input", path) for path in referenced_files(job.scene)]
 
@@ -158,13 +157,13 @@ def check_writable(flag: str, path: Path) -> None:
     created, and we may write there (and replace it, if it exists)."""
     if path.name in ("", ".", ".."):
         raise OutputError(f"{flag} {path}: expected a file name, found a folder")
-    from imaging.image_io import output_target
+    from imaging.image_io import output_target  # noqa: PLC0415  NumPy loads on use: --help stays quick
 
     try:
         target = output_target(path)
     except OutputError as error:
         raise OutputError(f"{flag} {error}") from None
-    from imaging.image_io import is_read_only
+    from imaging.image_io import is_read_only  # noqa: PLC0415  NumPy loads on use: --help stays quick
 
     if is_read_only(target):
         raise OutputError(f"{flag} {path}: the existing file is read-only")

@@ -21,11 +21,14 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from core.entry import ArgumentParser, hold_signals, native_start_up, one_line, run
-from core.numbers import ascii_int
 from core.errors import ToolkitError, UsageError, describe
+from core.inputs import NotAnInputFile, read_input
+from core.numbers import ascii_int
 from course import ENVIRONMENT as COURSE_ENVIRONMENT, data_dir, resolve_scene
 
 from . import checks
+from .scene_flags import with_scene_flags
+from .variants import prepare_libllvm, set_variant
 
 DEFAULT_SCENE = "showcase"
 #: The course binary's default image size (its -size)
@@ -86,8 +89,8 @@ def build_parser() -> argparse.ArgumentParser:
                                                        "then SCENE names are rendered)")
     course.add_argument("-size", action=Once, nargs=2, type=ascii_int, metavar=("W", "H"), default=list(DEFAULT_SIZE),
                         help=f"image width and height in pixels (default: {DEFAULT_SIZE[0]} {DEFAULT_SIZE[1]})")
-    course.add_argument("-output", action=Once, metavar="FILE", help="beauty image, .png .bmp .tga (8-bit, course encoding) "
-                                                        "or .exr (float) (default: none)")
+    course.add_argument("-output", action=Once, metavar="FILE",
+                        help="beauty image, .png .bmp .tga (8-bit, course encoding) or .exr (float) (default: none)")
     course.add_argument("-normals", action=Once, metavar="FILE", help="normal image, (N + 1) / 2 (default: none)")
     course.add_argument("-depth", action=Once, nargs=3, metavar=("MIN", "MAX", "FILE"),
                         help="depth image, (t - MIN) / (MAX - MIN), clamped (default: none)")
@@ -100,8 +103,9 @@ def build_parser() -> argparse.ArgumentParser:
     ours = parser.add_argument_group("toolkit options")
     ours.add_argument("--variant", action=Once, help="Mitsuba variant (default: llvm_ad_rgb if a usable LLVM exists, "
                                         "else scalar_rgb with one line saying why)")
-    ours.add_argument("--data", action=Once, metavar="DIR", help="course data folder for scene names "
-                                                    f"(default: ${COURSE_ENVIRONMENT}/data, else ../shared/course/data)")
+    ours.add_argument("--data", action=Once, metavar="DIR",
+                      help="course data folder for scene names "
+                           f"(default: ${COURSE_ENVIRONMENT}/data, else ../shared/course/data)")
     ours.add_argument("--out", action=Once, metavar="DIR", default="out",
                       help="output folder for named scenes: <out>/<scene>.png (default: out)")
     ours.add_argument("--exr", action=Once, nargs="?", const=True, metavar="FILE",
@@ -123,7 +127,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _depth(values: list[str] | None):
-    from .job import DepthOutput
+    from .job import DepthOutput  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
 
     if values is None:
         return None
@@ -139,7 +143,7 @@ def _depth(values: list[str] | None):
 def jobs_from_args(args: argparse.Namespace) -> list:
     """The render jobs one command line asks for (checked: numbers here, limits
     and outputs in :func:`checked_jobs`)."""
-    from .job import RenderJob, with_outputs_in
+    from .job import RenderJob, with_outputs_in  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
 
     checks.check_numbers(args.size[0], args.size[1], args.bounces, args.spp)
     base = dict(width=args.size[0], height=args.size[1], bounces=args.bounces, shadows=args.shadows,
@@ -160,7 +164,6 @@ def jobs_from_args(args: argparse.Namespace) -> list:
 
     data = data_dir(args.data)
     scenes = [resolve_scene(name, data) for name in (args.scenes or [DEFAULT_SCENE])]
-    from .scene_flags import with_scene_flags  # a scene's "# render:" header, where no flag overrides it
     if len(scenes) == 1 and any(single_outputs.values()):
         if args.exr is True:
             raise UsageError("--exr without a FILE writes <out>/<scene>.exr beside <out>/<scene>.png; "
@@ -209,8 +212,6 @@ BATCH_BYTES = 16 << 20
 
 def batch_lines(path: Path) -> list[tuple[int, str]]:
     """``(line number, text)`` of each logical line: ``\\`` at the end of a line continues it."""
-    from core.inputs import NotAnInputFile, read_input
-
     try:
         data = read_input(path, limit=BATCH_BYTES, allow_pipe=True)  # `--batch <(grep ...)` is a pipe
     except OSError as error:
@@ -256,7 +257,7 @@ class BatchLine:
 def jobs_from_batch(parser: argparse.ArgumentParser, path: Path, memory: int | None = None
                     ) -> tuple[list[BatchLine], list[str]]:
     """The good lines' jobs, and one ``FILE:LINE: message`` per bad line."""
-    from converters.course_scene import load_scene
+    from converters.course_scene import load_scene  # noqa: PLC0415  NumPy loads on use: --help stays quick
 
     good, errors, seen = [], [], {}
     for number, line in batch_lines(path):
@@ -304,9 +305,9 @@ def jobs_from_batch(parser: argparse.ArgumentParser, path: Path, memory: int | N
 
 # -- running -------------------------------------------------------------------------
 def _write_and_report(result, preview: Preview | None, progress, variant: str) -> None:
-    from imaging import colour, image_io
+    from imaging import colour, image_io  # noqa: PLC0415  NumPy loads on use: --help stays quick
 
-    from .job import write_outputs
+    from .job import write_outputs  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
 
     written = write_outputs(result)
     if preview is not None:
@@ -320,14 +321,11 @@ def _report(where: str, error: BaseException) -> str:
 
 
 def _run(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
-    from .variants import prepare_libllvm
-
     prepare_libllvm(args.variant)  # first: the checks below import Mitsuba, which loads libLLVM
     # a signal inside the import of Dr.Jit's extension aborts the process; --quiet: its start-up notices go
     with hold_signals(), native_start_up(quiet=args.quiet):
-        import mitsuba  # noqa: F401
-
-        import drjit  # noqa: F401
+        import drjit  # noqa: F401, PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
+        import mitsuba  # noqa: F401, PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
     if args.batch:
         given = [flag for flag, value, default in (
             ("SCENE", args.scenes, []), ("-input", args.input, None), ("-size", args.size, list(DEFAULT_SIZE)),
@@ -346,11 +344,9 @@ def _run(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
     if not work:
         raise UsageError(f"{args.batch}: no line can be rendered ({len(errors)} bad)")
 
-    from .variants import set_variant
-
     variant = set_variant(args.variant, quiet=args.quiet)
-    from .job import render
-    from .progress import RenderProgress
+    from .job import render  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
+    from .progress import RenderProgress  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
 
     failed = len(errors)
     batch = bool(args.batch)

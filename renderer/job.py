@@ -6,13 +6,13 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
+import mitsuba as mi
 import numpy as np
 
 from converters.course_scene import load_scene
 from converters.description import RenderOptions, scene_dict
 from converters.to_mitsuba import load_scene_dict
-from imaging import colour as encoding
-from imaging import image_io
+from imaging import colour as encoding, image_io
 from imaging.filters import centre_sample_3x, downsample_3x
 from mi_plugins.aovs import AOV_CHANNELS
 
@@ -94,9 +94,7 @@ def render(job: RenderJob) -> RenderResult:
     pixels, whose centre is the output pixel's. Only the beauty is averaged
     (and filtered).
     """
-    import mitsuba as mi
-
-    import drjit as dr
+    import drjit as dr  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
 
     seconds = {}
     start = time.perf_counter()

@@ -82,8 +82,8 @@ def render_in_launches(scene, spp: int, jitter: bool, seed: int = 0, launch_samp
     camera than the scene's. The integrator gets the sensor's sampler seeded
     per launch; ``whitted`` draws nothing from it.
     """
-    import drjit as dr
-    import mitsuba as mi
+    import drjit as dr  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
+    import mitsuba as mi  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
 
     sensor = sensor or scene.sensors()[0]
     width, height = (int(v) for v in sensor.film().size())
@@ -152,8 +152,8 @@ def trace(scene, sensor, width: int, spp: int, jitter: bool, seed: int, ids: np.
           each: int) -> list:
     """Samples ``first .. first + each - 1`` of each pixel in ``ids``, RGB then
     AOVs, traced (not yet evaluated: ``dr.eval`` of them launches one kernel)."""
-    import drjit as dr
-    import mitsuba as mi
+    import drjit as dr  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
+    import mitsuba as mi  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
 
     with dr.suspend_grad():
         count = len(ids) * each

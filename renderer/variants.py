@@ -23,10 +23,12 @@ import re
 import signal
 import subprocess
 import sys
+from importlib.util import find_spec
 from pathlib import Path
 
 from core.entry import hold_signals
 from core.errors import UsageError
+from mi_plugins import register as register_plugins
 
 #: Oldest libLLVM major version that Dr.Jit 1.5 works with
 MIN_LLVM = 17
@@ -78,7 +80,6 @@ def _key(path: str) -> str | None:
     except OSError:
         return None
     try:  # the installed Dr.Jit, by its file's stamp (cheaper than reading package metadata)
-        from importlib.util import find_spec
         origin = find_spec("drjit").origin
         drjit = f"{origin}@{os.stat(origin).st_mtime_ns}"
     except (ImportError, AttributeError, TypeError, OSError):  # no Dr.Jit: the probe then says no anyway
@@ -207,7 +208,7 @@ def choose_variant(requested: str | None = None, quiet: bool = False) -> str:
     variant = requested or DEFAULT_JIT_VARIANT
     library, notes = prepare_libllvm(requested)  # before Mitsuba is imported (see there)
 
-    import mitsuba as mi
+    import mitsuba as mi  # noqa: PLC0415  importing Dr.Jit loads the libLLVM chosen just above
 
     usable = [v for v in mi.variants() if v.endswith("_rgb")]  # the plugins shade in RGB
     if variant not in usable:
@@ -227,14 +228,12 @@ def set_variant(requested: str | None = None, quiet: bool = False) -> str:
     # Ctrl-C / SIGTERM wait until Dr.Jit has started: raised inside its
     # initialisation they become an ImportError or SystemError with a traceback
     with hold_signals():
-        import mitsuba as mi
-
-        import mi_plugins
+        import mitsuba as mi  # noqa: PLC0415  inside hold_signals, after choose_variant has chosen the libLLVM
 
         try:
             mi.set_variant(variant)
         except (ImportError, RuntimeError, AttributeError) as error:  # e.g. a cuda_* variant without a GPU
             raise UsageError(f"--variant {variant} cannot be used here: "
                              f"{' '.join(str(error).split())[:200]}") from None
-        mi_plugins.register()
+        register_plugins()
     return variant

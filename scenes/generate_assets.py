@@ -117,7 +117,8 @@ def main() -> None:
     _write_text(ROOT / "meshes" / "torus.obj", torus_obj())
     _write_text(ROOT / "meshes" / "gem.obj", gem_obj())
     for face in FACES:
-        write_image(ROOT / "tex" / "sky" / f"{face}.png", to_course_8bit(sky_radiance(face_directions(face, CUBE_SIZE))))
+        write_image(ROOT / "tex" / "sky" / f"{face}.png",
+                    to_course_8bit(sky_radiance(face_directions(face, CUBE_SIZE))))
     for path in sorted((ROOT / "meshes").glob("*.obj")) + sorted((ROOT / "tex").rglob("*.png")):
         print(path.relative_to(ROOT.parent))
 

@@ -3,8 +3,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from converters.model import Scene
 from converters.description import RenderOptions, scene_dict
+from converters.model import Scene
 from converters.scene_variants import apply
 from converters.to_mitsuba import load_scene_dict
 from imaging.colour import to_course_8bit

@@ -199,7 +199,8 @@ def test_temporal_accumulation_matches_numpy(variant_vectorised_rgb, changes):
     reference = np_temporal(c, p, history, index, valid)
     for o, r, k in zip(ours, reference, (3, 3, 2, 1)):
         assert close(arrays(o, k), r) < 1e-5
-    assert 1 < reference[3].min() or (reference[3] < np.where(valid, history[3].reshape(-1)[index] + 1, 1).reshape(H, W)).any()
+    assert 1 < reference[3].min() or (
+        reference[3] < np.where(valid, history[3].reshape(-1)[index] + 1, 1).reshape(H, W)).any()
     assert (np.abs(reference[1] - c) > 1e-3).any()  # the history is in it
 
 

@@ -13,11 +13,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
 from conftest import SCALAR_FALLBACK
+from helpers import MAX_BAD_FRACTION, bad_fraction, encode, render_layers
+
 from converters.course_scene import load_scene
 from course import CourseRun, course_runs, grading_lines
-from helpers import MAX_BAD_FRACTION, bad_fraction, encode, render_layers
 from imaging.image_io import read_png
 from validation.course_images import RECORD, allowed_bad_pixels, image_counts, render_grading_images
 from validation.metrics import bad_pixels
@@ -100,11 +100,12 @@ def check_band_on_scalar(course):
         layers = split_layers(image, options.aovs)
         if job.filter:
             layers = {name: downsample_3x(data) for name, data in layers.items()}
-        outputs = [(job.output, lambda: colour.to_course_8bit(layers[""]))]
+        outputs = [(job.output, lambda layers=layers: colour.to_course_8bit(layers[""]))]
         if job.normals:
-            outputs.append((job.normals, lambda: colour.to_course_8bit(colour.normals_to_rgb(layers["normal"]))))
+            outputs.append((job.normals,
+                            lambda layers=layers: colour.to_course_8bit(colour.normals_to_rgb(layers["normal"]))))
         if job.depth:
-            outputs.append((job.depth.path, lambda: colour.to_course_8bit(
+            outputs.append((job.depth.path, lambda layers=layers, job=job: colour.to_course_8bit(
                 colour.depth_to_grey(layers["depth"], job.depth.near, job.depth.far))))
         for reference, make in outputs:
             expected, ours = read_png(reference)[y0:y1], make()

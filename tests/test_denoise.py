@@ -96,8 +96,8 @@ def np_accumulate(current, previous, index, valid, alpha, k, r, bounds=None):
 
 
 # -- fixtures ------------------------------------------------------------------------
-@pytest.fixture(scope="module")
-def buffers():
+@pytest.fixture(scope="module", name="buffers")
+def buffers_fixture():
     """Realistic buffers: G-buffers of our showcase scene and a noisy 1-spp path-traced beauty."""
     from conftest import _set
 
@@ -485,6 +485,5 @@ def test_denoise_shows_progress_only_on_a_terminal(variant_llvm_ad_rgb, tmp_path
     captured = capsys.readouterr()
     assert captured.err == "" and "3 frames ->" in captured.out
     finished = subprocess.run([sys.executable, "-m", "denoise", str(folder), str(tmp_path / "command"),
-                               "--radius", "1"],
-                              cwd=ROOT, capture_output=True, text=True, timeout=300)
+                               "--radius", "1"], cwd=ROOT, capture_output=True, text=True, timeout=300)
     assert finished.returncode == 0 and finished.stderr == "", finished.stderr

@@ -46,7 +46,8 @@ def test_matches_the_benchmark_on_an_exported_sequence(variant_vectorised_rgb, t
     assert denoise_main([str(frames), str(tmp_path / "svgf_results"), "--method", "svgf"]) == 0
     ours = tmp_path / "score.json"
     status, out, err = score(capsys, tmp_path / "svgf_results", "--reference", f"{frames}_reference", "--frames",
-                             frames, "--compare", "svgf", "oidn-high", "raw", "--json", ours, "--plot", tmp_path / "p.png")
+                             frames, "--compare", "svgf", "oidn-high", "raw", "--json", ours,
+                             "--plot", tmp_path / "p.png")
     assert status == 0 and err == "", err
     expected = json.loads(benchmark.read_text())
     rows = {(r["method"], r["frame"]): r for r in expected["results"]}
@@ -134,7 +135,7 @@ def test_without_frames_there_is_no_temporal_figure(sequence, tmp_path, capsys):
 
 def test_a_pattern_names_the_results(sequence, capsys):
     _, reference, results, images, truth = sequence
-    for i, image in enumerate(images):
+    for i in range(len(images)):
         (results / f"result_{i}.exr").rename(results / f"frame_{i:04d}.exr")
     status, out, _ = score(capsys, results, "--reference", reference, "--pattern", "frame_{i:04d}.exr")
     assert status == 0 and f"| results | 1 | {relmse(images[1], truth[1]):.5f} |" in out

@@ -15,7 +15,6 @@ import time
 from pathlib import Path
 
 import pytest
-
 from test_export import BATCH_SPP, TINY
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -12,7 +12,6 @@ import time
 from pathlib import Path
 
 import pytest
-
 from test_export import TINY
 
 pytest.importorskip("distributed")

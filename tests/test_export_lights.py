@@ -7,9 +7,9 @@ import json
 
 import numpy as np
 import pytest
+from test_export import BATCH_SPP, TINY, rgb
 
 from core.errors import SpecError
-from test_export import BATCH_SPP, TINY, rgb
 
 
 def course_scene(name: str):

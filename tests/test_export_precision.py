@@ -3,11 +3,8 @@
 samples equals one sample to < 1e-4, for the noisy pass and the reference."""
 from __future__ import annotations
 
-import json
-
 import numpy as np
 import pytest
-
 from test_export import rgb
 
 #: one point light over a diffuse floor and sphere: with pixel-centre rays and

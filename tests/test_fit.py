@@ -5,7 +5,6 @@ import json
 
 import numpy as np
 import pytest
-
 from test_asvgf import H, W, synthetic
 from test_denoise import tensors
 

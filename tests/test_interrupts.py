@@ -14,8 +14,8 @@ import time
 from pathlib import Path
 
 import pytest
-
 from conftest import SCALAR_FALLBACK
+
 from validation.stress_cases_system import FACING_MIRRORS
 from validation.stress_system import ROOT, interrupt, python, run_command
 
@@ -50,7 +50,8 @@ def test_a_render_of_facing_mirrors_stops_within_two_seconds(tmp_path, variant, 
     out.mkdir()
     result = interrupt(render_command(scene, SIZES[variant], variant, out / "mirrors.png"),
                        delay=start_up + 1.5, signum=signum, cwd=tmp_path, group=group)
-    print(f"{variant} {signal.Signals(signum).name}{' to the group' if group else ''}: start-up {start_up:.2f} s, exit {result.seconds:.2f} s "
+    print(f"{variant} {signal.Signals(signum).name}{' to the group' if group else ''}: "
+          f"start-up {start_up:.2f} s, exit {result.seconds:.2f} s "
           f"after the signal, code {result.code}")
     assert result.running, "the render ended before the signal"
     assert result.code == 128 + signum, result.stderr[-2000:]

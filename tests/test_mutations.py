@@ -20,10 +20,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
 from conftest import SCALAR_FALLBACK
-from converters.course_scene import load_scene
 from helpers import render_layers
+
+from converters.course_scene import load_scene
 from imaging.image_io import read_exr
 from validation import convergence, crossval
 

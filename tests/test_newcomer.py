@@ -12,10 +12,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import MAX_BAD_FRACTION, bad_fraction, encode
 
 from core.errors import SceneError
 from course import root as course_root
-from helpers import MAX_BAD_FRACTION, bad_fraction, encode
 
 ROOT = Path(__file__).resolve().parent.parent
 COURSE_SCENES = course_root() / "data"

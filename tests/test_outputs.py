@@ -8,10 +8,10 @@ from pathlib import Path
 import mitsuba as mi
 import numpy as np
 import pytest
+from helpers import MAX_BAD_FRACTION, bad_fraction, encode, render_layers
 
 from converters.__main__ import main as convert_main
 from converters.course_scene import load_scene
-from helpers import MAX_BAD_FRACTION, bad_fraction, encode, render_layers
 from imaging import image_io
 from renderer.scene_flags import read_scene_flags
 
@@ -120,6 +120,7 @@ def test_freshness_check_ignores_last_bits_but_not_changes(tmp_path):
 
 def test_xml_renders_like_the_dict(variant_llvm_ad_rgb):
     from conftest import SCALAR_FALLBACK
+
     from converters.description import RenderOptions, scene_dict
 
     for name in ("showcase", "transforms"):

@@ -5,9 +5,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import MAX_BAD_FRACTION, bad_fraction, encode, render_layers
 
 from converters.course_scene import load_scene
-from helpers import MAX_BAD_FRACTION, bad_fraction, encode, render_layers
 from imaging.colour import depth_to_grey, normals_to_rgb
 from validation.reference_tracer import ReferenceTracer
 

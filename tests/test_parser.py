@@ -87,7 +87,8 @@ def test_defaults_and_attached_braces():
 @pytest.mark.parametrize("body, where, expected", [
     ("Group { numObjects 1 MaterialIndex 5 Sphere { center 0 0 0 radius 1 } }", "5:", "material index in 0..1"),
     ("Group { numObjects 2 MaterialIndex 0 Sphere { center 0 0 0 radius 1 } }", "5:", "2 objects"),
-    ("Group { numObjects 1 MaterialIndex 0 Sphere { center 0 0 radius 1 } }", "5:", "expected a number, found 'radius'"),
+    ("Group { numObjects 1 MaterialIndex 0 Sphere { center 0 0 radius 1 } }", "5:",
+     "expected a number, found 'radius'"),
     ("Group { numObjects 1 MaterialIndex 0 Sphere { center 0 0 nan radius 1 } }", "5:", "finite number"),
     ("Group { numObjects 1 MaterialIndex 0 Cone { } }", "5:", "expected an object"),
     ("Group { numObjects 1 Sphere { center 0 0 0 radius 1 } }", "5:", "MaterialIndex before"),

@@ -6,8 +6,8 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
-from validation.reference_tracer import ReferenceTracer, normalize
 from converters.course_scene import load_scene
+from validation.reference_tracer import ReferenceTracer, normalize
 
 ROOT = __import__("pathlib").Path(__file__).resolve().parent.parent
 
@@ -104,8 +104,9 @@ def test_plugin_classes_follow_the_variant(variant_vectorised_rgb):
     """Each variant has its own classes, built once: a class obtained earlier is
     never replaced under its holder, and the factory always builds the active
     variant's (the old registration reloaded the modules on a switch)."""
-    import mi_plugins
     from conftest import _set
+
+    import mi_plugins
 
     vectorised = type(mi.load_dict({"type": "phong"}))
     _set("scalar_rgb")
@@ -189,9 +190,8 @@ def test_whitted_analysis_is_never_another_scenes(variant_vectorised_rgb, monkey
 
 
 def _teardown_works(monkeypatch, broken: bool) -> bool:
-    import drjit as dr
-
     import conftest
+    import drjit as dr
 
     if broken:
         monkeypatch.setattr(conftest, "_clean_up", lambda previous: None)

@@ -22,11 +22,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import MAX_BAD_FRACTION, bad_fraction, encode
 
 from converters.course_scene import parse_scene
 from converters.description import RenderOptions, scene_dict
 from converters.to_mitsuba import load_scene_dict
-from helpers import MAX_BAD_FRACTION, bad_fraction, encode
 from renderer.job import RenderJob, render
 from renderer.launches import pixel_order, render_in_launches
 from validation.stress import scaled
@@ -273,7 +273,6 @@ def render_image(scene) -> np.ndarray:
 
 
 def render_lights(text: str, unrolled: int, size=(48, 36), stats=False):
-    import mitsuba as mi
 
     description = scene_dict(parsed(text), RenderOptions(width=size[0], height=size[1], stats=stats, **FLAGS))
     description["integrator"]["max_unrolled_lights"] = unrolled
@@ -409,7 +408,7 @@ def test_an_interruption_wrapped_by_native_code_is_an_interrupted_exit(capsys):
             except Interrupted as stop:
                 raise ImportError("initializing the extension") from stop
         except ImportError:
-            raise SystemError("<built-in function __import__> returned a result with an exception set")
+            raise SystemError("<built-in function __import__> returned a result with an exception set")  # noqa: B904  as CPython: implicit context
 
     assert run("render.py", wrapped) == 143
     assert capsys.readouterr().err.strip().splitlines() == [

@@ -9,7 +9,6 @@ import signal
 from pathlib import Path
 
 import pytest
-
 from test_export import BATCH_SPP, TINY, folder_bytes
 
 pytest.importorskip("distributed")

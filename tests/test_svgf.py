@@ -3,8 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
-from test_denoise import B3, buffers, close, np_normalize, shifted, tensors  # noqa: F401 (fixture)
+from test_denoise import B3, buffers_fixture, close, np_normalize, shifted, tensors  # noqa: F401 (the fixture "buffers")
 
 LUM = np.array([0.2126, 0.7152, 0.0722])
 

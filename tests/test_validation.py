@@ -2,15 +2,12 @@
 from __future__ import annotations
 
 import json
-import os
 import subprocess
 import sys
 from pathlib import Path
 
-import nbformat
-import pytest
-
 from conftest import COURSE, SCALAR_FALLBACK
+
 from validation import convergence, crossval
 
 ROOT = Path(__file__).resolve().parent.parent

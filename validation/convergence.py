@@ -33,6 +33,16 @@ from pathlib import Path
 
 import numpy as np
 
+from converters.course_scene import load_scene
+from converters.description import RenderOptions, scene_dict
+from converters.scene_variants import (
+    apply,
+    with_mirror_sampling,
+    with_path_tracer,
+    without_ambient,
+    without_background,
+    without_ray_epsilon,
+)
 from validation.metrics import flip_error, relmse
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -53,9 +63,6 @@ def method_options(method: str, path: Path) -> dict:
     """RenderOptions fields (beyond size, spp, seed) of a method, and under
     "variants" the :mod:`converters.scene_variants` functions it applies: both
     render whitted's light paths (shadows on, so the two have the same visibility)."""
-    from converters.scene_variants import (with_mirror_sampling, with_path_tracer, without_ambient,
-                                           without_background, without_ray_epsilon)
-
     common = dict(jitter=True, bounces=flags_for(path)["bounces"], shadows=True)
     whitted_paths = (without_ambient, without_background)
     if method == "whitted":
@@ -67,13 +74,10 @@ def method_options(method: str, path: Path) -> dict:
 
 
 def render_timed(path: Path, size: int, spp: int, seed: int, options: dict) -> tuple[np.ndarray, float]:
-    import drjit as dr
-    import mitsuba as mi
+    import drjit as dr  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
+    import mitsuba as mi  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
 
-    from converters.course_scene import load_scene
-    from converters.description import RenderOptions, scene_dict
-    from converters.scene_variants import apply
-    from converters.to_mitsuba import load_scene_dict
+    from converters.to_mitsuba import load_scene_dict  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
 
     fields = {name: value for name, value in options.items() if name != "variants"}
     scene = load_scene_dict(apply(scene_dict(load_scene(path), RenderOptions(width=size, height=size, spp=spp,
@@ -136,7 +140,8 @@ def measure(paths: list[Path], size: int, spp_by_method: dict[str, list[int]], r
             slope, to_target = fit_slope(curve)
             slopes.append({"scene": path.stem, "method": method, "slope": slope, "spp_slope": fit_spp_slope(curve),
                            "seconds_to_relmse_1e-3": to_target})
-            progress(f"{path.stem} {method}: slope {slope:.2f} (per spp {slopes[-1]['spp_slope']:.2f}), relMSE 1e-3 after "
+            progress(f"{path.stem} {method}: slope {slope:.2f} (per spp {slopes[-1]['spp_slope']:.2f}), "
+                     "relMSE 1e-3 after "
                      f"{'n/a' if to_target is None else f'{to_target:.3g} s'}")
     return {"points": points, "slopes": slopes,
             "settings": {"image_size": size, "spp": spp_by_method, "reference_spp": reference_spp}}

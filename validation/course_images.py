@@ -14,6 +14,8 @@ import shlex
 from pathlib import Path
 
 from course import course_runs, outputs_into
+from imaging.image_io import read_png
+from renderer.cli import main
 from validation.metrics import MAX_BAD_FRACTION, bad_pixels
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -27,8 +29,6 @@ REGRESSION_SLACK = 10
 
 def render_grading_images(course: Path, folder: Path, variant: str | None = None) -> None:
     """All grading command lines in one ``render.py --batch`` run, outputs into ``folder``."""
-    from renderer.cli import main
-
     batch = folder / "grading.sh"
     batch.write_text("\n".join(shlex.join(["a2", *outputs_into(run.arguments, folder)])
                                for run in course_runs(course)) + "\n")
@@ -44,8 +44,6 @@ def render_grading_images(course: Path, folder: Path, variant: str | None = None
 
 def image_counts(course: Path, folder: Path) -> dict[str, dict[str, int]]:
     """Bad pixels per reference image of ``sample_out`` against ``folder``'s image of that name."""
-    from imaging.image_io import read_png
-
     counts = {}
     for reference in sorted((course / "sample_out").glob("a0*.png")):
         expected = read_png(reference)

@@ -39,6 +39,17 @@ from statistics import NormalDist
 
 import numpy as np
 
+from converters.course_scene import load_scene
+from converters.description import RenderOptions, scene_dict
+from converters.scene_variants import (
+    apply,
+    with_mirror_sampling,
+    with_path_tracer,
+    without_ambient,
+    without_background,
+    without_ray_epsilon,
+)
+from renderer.variants import set_variant
 from validation.metrics import relmse
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -75,7 +86,7 @@ def _phong(kd, ks, s, sampling="phong") -> dict:
 
 def chi2_case(kd: float, ks: float, shininess: float, theta: float, sample_count: int = 1_000_000) -> dict:
     """Mitsuba's chi-square test of the phong BSDF's sampling against its pdf."""
-    from mitsuba.chi2 import BSDFAdapter, ChiSquareTest, SphericalDomain
+    from mitsuba.chi2 import BSDFAdapter, ChiSquareTest, SphericalDomain  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
 
     wi = [math.sin(math.radians(theta)), 0.0, math.cos(math.radians(theta))]
     sample_func, pdf_func = BSDFAdapter("phong", _phong(kd, ks, shininess), wi=wi)
@@ -92,8 +103,8 @@ def chi2_case(kd: float, ks: float, shininess: float, theta: float, sample_count
 def furnace_albedo(kd: float, ks: float, shininess: float, theta: float, samples: int = 1 << 20,
                    seed: int = 7) -> tuple[float, float]:
     """Monte Carlo directional albedo (mean, standard error) from the BSDF's own sampling."""
-    import drjit as dr
-    import mitsuba as mi
+    import drjit as dr  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
+    import mitsuba as mi  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
 
     bsdf = mi.load_dict(_phong(kd, ks, shininess))
     u = np.random.default_rng(seed).random((3, samples))
@@ -203,12 +214,9 @@ def scene_paths(course: Path | None, quick: bool = False) -> list[Path]:
 def render(path: Path, size: int, variants=(), **options) -> np.ndarray:
     """Renders with the active variant; ``options`` are :class:`RenderOptions` fields,
     ``variants`` :mod:`converters.scene_variants` functions applied in order."""
-    import mitsuba as mi
+    import mitsuba as mi  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
 
-    from converters.course_scene import load_scene
-    from converters.description import RenderOptions, scene_dict
-    from converters.scene_variants import apply
-    from converters.to_mitsuba import load_scene_dict
+    from converters.to_mitsuba import load_scene_dict  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
 
     description = apply(scene_dict(load_scene(path), RenderOptions(width=size, height=size, **options)), variants)
     return np.array(mi.render(load_scene_dict(description)), np.float32)[..., :3]
@@ -217,9 +225,6 @@ def render(path: Path, size: int, variants=(), **options) -> np.ndarray:
 def agreement(path: Path, bounces: int, spp: int, size: int) -> Agreement:
     """whitted vs path restricted to Whitted's light paths: per-tile z-scores of their
     difference (same pixel samples) and relMSE against that of path vs path."""
-    from converters.scene_variants import (with_mirror_sampling, with_path_tracer, without_ambient,
-                                           without_background, without_ray_epsilon)
-
     common = dict(bounces=bounces, shadows=True, spp=spp, jitter=True)
     whitted_paths = (without_ambient, without_background)
     path_only = (with_path_tracer, with_mirror_sampling)
@@ -242,9 +247,7 @@ def agreement(path: Path, bounces: int, spp: int, size: int) -> Agreement:
 def biased_whitted(fraction: float):
     """Fault injection: whitted's local shading scaled by ``1 + fraction`` (for the
     active variant) while the context lasts. A check with power fails under it."""
-    import mitsuba as mi
-
-    from renderer.variants import set_variant
+    import mitsuba as mi  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
 
     if mi.variant() is None:
         set_variant(None, quiet=True)
@@ -266,9 +269,7 @@ def run(course: Path | None, quick: bool, size: int | None = None, spps: list[in
         variant: str | None = None) -> dict:
     """All checks; ``size``/``spps``/``bounce_list``/``paths`` override the agreement's
     settings, ``bsdf=False`` skips the chi-square and furnace checks."""
-    import mitsuba as mi
-
-    from renderer.variants import set_variant
+    import mitsuba as mi  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
 
     if variant is not None or mi.variant() is None:
         set_variant(variant, quiet=True)

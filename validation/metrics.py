@@ -34,7 +34,7 @@ def flip_heat_map(image: np.ndarray, reference: np.ndarray) -> tuple[float, np.n
 
 def evaluate_flip(image: np.ndarray, reference: np.ndarray, heat_map: bool) -> tuple[float, np.ndarray]:
     """flip-evaluator's (mean, map) under :func:`flip_error`'s conventions; the map magma-coloured with ``heat_map``."""
-    import flip_evaluator
+    import flip_evaluator  # noqa: PLC0415  flip_evaluator loads on use: --help and the paths without it stay quick
 
     error_map, mean, _ = flip_evaluator.evaluate(np.clip(reference, 0, 1).astype(np.float32),
                                                  np.clip(image, 0, 1).astype(np.float32), "LDR",
@@ -61,9 +61,9 @@ def back_projected(frames, images) -> list[tuple[np.ndarray, np.ndarray]]:
     """For frames 1.., (image t at the pixels that keep history, image t-1 at
     the pixels they came from), through the denoiser's back projection."""
     # Dr.Jit loads only for the temporal figures: the image metrics above stay NumPy-only
-    import mitsuba as mi
+    import mitsuba as mi  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
 
-    from denoise.filters import reproject
+    from denoise.filters import reproject  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
 
     def tensor(a):
         return mi.TensorXf(np.ascontiguousarray(a, np.float32))

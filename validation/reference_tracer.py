@@ -13,8 +13,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from converters.model import DirectionalLight, Plane, Scene, Sphere, Triangle, TriangleMesh
 from converters.description import ray_epsilons
+from converters.model import DirectionalLight, Plane, Scene, Sphere, Triangle, TriangleMesh
 from imaging.image_io import CUBE_FACES as FACES, read_png
 from mi_plugins.camera_basis import course_camera_basis
 
@@ -186,7 +186,7 @@ class ReferenceTracer:
             ix, iy = np.floor(fx).astype(int), np.floor(fy).astype(int)
             alpha, beta = (fx - ix)[:, None], (fy - iy)[:, None]
 
-            def px(i, j):
+            def px(i, j, face=face):
                 return self.cube[face, np.clip(j, 0, n - 1), np.clip(i, 0, n - 1)]
 
             out[mask] = ((1 - alpha) * (1 - beta) * px(ix, iy) + alpha * (1 - beta) * px(ix + 1, iy)

@@ -10,6 +10,7 @@ with ``file:line:col``, may come out) and :func:`fuzz_cli` the command line.
 from __future__ import annotations
 
 import dataclasses
+import os
 import re
 import tempfile
 from pathlib import Path
@@ -17,10 +18,14 @@ from pathlib import Path
 import numpy as np
 
 from converters import transforms
+from converters.course_scene import load_scene, parse_scene
+from converters.description import RenderOptions, scene_dict
 from converters.model import PointLight
 from core.errors import SceneError
+from imaging.colour import to_course_8bit
 from imaging.image_io import CUBE_FACES
 from validation.metrics import TOLERANCE, bad_fraction
+from validation.reference_tracer import ReferenceTracer
 from validation.stress_cases_inputs import contract_problems, run_render_cli
 from validation.stress_scene import DEFAULTS, Case, scene as base_scene
 
@@ -51,18 +56,17 @@ def scaled(scene, scale: float, offset: float):
         return tuple((move @ np.append(np.asarray(p, np.float64), 1.0))[:3])
 
     camera = dataclasses.replace(scene.camera, center=point(scene.camera.center))
-    lights = [dataclasses.replace(l, position=point(l.position), falloff=l.falloff / scale ** 2)
-              if isinstance(l, PointLight) else l for l in scene.lights]
+    lights = [dataclasses.replace(light, position=point(light.position), falloff=light.falloff / scale ** 2)
+              if isinstance(light, PointLight) else light for light in scene.lights]
     objects = [dataclasses.replace(o, to_world=move @ o.to_world) for o in scene.objects]
     return dataclasses.replace(scene, camera=camera, lights=lights, objects=objects)
 
 
 def _layers(scene, flags: dict) -> dict:
-    import mitsuba as mi
+    import mitsuba as mi  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
 
-    from converters.description import RenderOptions, scene_dict
-    from converters.to_mitsuba import load_scene_dict
-    from renderer.job import split_layers
+    from converters.to_mitsuba import load_scene_dict  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
+    from renderer.job import split_layers  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
 
     width, height = flags.get("size", SIZE)
     options = RenderOptions(width=width, height=height, bounces=flags["bounces"], shadows=flags["shadows"],
@@ -73,8 +77,6 @@ def _layers(scene, flags: dict) -> dict:
 
 def _compare(a: np.ndarray, b: np.ndarray, case: Case, what: str) -> tuple[bool, str]:
     """The course's tolerance (or the case's): fraction of pixels over 2/255, and the largest difference."""
-    from imaging.colour import to_course_8bit
-
     a, b = to_course_8bit(a), to_course_8bit(b)
     bad, worst = bad_fraction(a, b, TOLERANCE), int(np.abs(a.astype(int) - b.astype(int)).max())
     passed = bad <= case.tolerance and worst <= case.max_difference
@@ -85,8 +87,6 @@ def run_case(case: Case) -> tuple[bool, str]:
     """(passed, what happened) for one case."""
     if hasattr(case, "check"):  # a command-line case (validation.stress_cases_inputs.CliCase)
         return case.check()
-    from converters.course_scene import load_scene, parse_scene
-    from converters.description import scene_dict
 
     with tempfile.TemporaryDirectory() as tmp:
         path = _write(Path(tmp), case)
@@ -115,8 +115,6 @@ def run_case(case: Case) -> tuple[bool, str]:
             other = _layers(parse_scene(case.match, path), case.flags)
             return _compare(layers[""], other[""], case, "the equivalent")
         if case.reference:
-            from validation.reference_tracer import ReferenceTracer
-
             width, height = case.flags.get("size", SIZE)
             beauty, _, _ = ReferenceTracer(scene).render(width, height, case.flags["bounces"], case.flags["shadows"])
             return _compare(layers[""], beauty, case, "the NumPy reference")
@@ -136,10 +134,7 @@ VOCABULARY = ["{", "}", "PerspectiveCamera", "Lights", "Background", "Materials"
 
 def fuzz(examples: int, seed: int = 0) -> int:
     """Runs the three fuzzers; returns how many inputs were tried. Raises on the first escape."""
-    from hypothesis import HealthCheck, given, settings, strategies as st
-
-    from converters.course_scene import load_scene, parse_scene
-    from converters.description import scene_dict
+    from hypothesis import HealthCheck, given, settings, strategies as st  # noqa: PLC0415  hypothesis loads on use: --help and the paths without it stay quick
 
     count = 0
     folder = Path(tempfile.mkdtemp(prefix="stress-fuzz-"))
@@ -147,7 +142,8 @@ def fuzz(examples: int, seed: int = 0) -> int:
     for face in CUBE_FACES:
         (folder / "sky").mkdir(exist_ok=True)
         (folder / "sky" / f"{face}.png").write_bytes(b"not a png")
-    valid = base_scene(num_objects=4, objects=DEFAULTS["objects"] + " MaterialIndex 0 TriangleMesh { obj_file mesh.obj }")
+    valid = base_scene(num_objects=4,
+                       objects=DEFAULTS["objects"] + " MaterialIndex 0 TriangleMesh { obj_file mesh.obj }")
     valid_tokens = re.findall(r"[{}]|[^\s{}]+", valid)
 
     def check(text: str) -> None:
@@ -210,8 +206,8 @@ CLI_VOCABULARY = ["-input", "-size", "-output", "-normals", "-depth", "-bounces"
                   "c.jpg", "dir", "dir/x.png", "new/y.bmp", "ro.png", "link.png", "notes.txt/x.png", "b.sh",
                   "nope_rgb", "scalar_spectral", "é.png", "-", "--", "-size=4", "empty.sh", "linkdir/x.png",
                   "dangling.png", "-bounces", "1000"]
-SHELL_VOCABULARY = ["-h", "--help", "a2", "${BIN}", "python3", "render.py", "clear", "echo", "mkdir", "-p", "cd", "#", "\\", "'",
-                    '"', ";", "&&", "|"]
+SHELL_VOCABULARY = ["-h", "--help", "a2", "${BIN}", "python3", "render.py", "clear", "echo", "mkdir", "-p", "cd", "#",
+                    "\\", "'", '"', ";", "&&", "|"]
 
 
 def fuzz_cli(examples: int, seed: int = 0) -> int:
@@ -219,9 +215,7 @@ def fuzz_cli(examples: int, seed: int = 0) -> int:
     in a scratch folder: each must end in exit 0, or exit 2 with one
     ``render.py: error:`` line (per bad batch line), never a traceback or another
     exception. Returns how many inputs were tried; raises on the first escape."""
-    import os
-
-    from hypothesis import HealthCheck, given, settings, strategies as st
+    from hypothesis import HealthCheck, given, settings, strategies as st  # noqa: PLC0415  hypothesis loads on use: --help and the paths without it stay quick
 
 
     folder = Path(tempfile.mkdtemp(prefix="stress-cli-"))

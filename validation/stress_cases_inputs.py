@@ -26,16 +26,16 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from PIL import Image
 
 from imaging.image_io import CUBE_FACES
-from validation.stress_scene import DEFAULTS, Case, material, scene
+from renderer.cli import main
+from validation.stress_scene import Case, material, scene
 
 
 def run_render_cli(folder: Path, argv: list[str]) -> tuple[int, str]:
     """``render.py``'s ``main(argv)`` run in-process in ``folder``: (exit code, stderr).
     Whatever escapes ``main`` propagates (the callers decide what that means)."""
-    from renderer.cli import main
-
     stderr = io.StringIO()
     cwd = os.getcwd()
     os.chdir(folder)
@@ -51,8 +51,6 @@ TINY = ["-size", "8", "6", "--quiet"]
 
 
 def _png(width: int, height: int, seed: int = 0) -> bytes:
-    from PIL import Image
-
     pixels = np.random.default_rng(seed).integers(0, 256, (height, width, 3), np.uint8)
     buffer = io.BytesIO()
     Image.fromarray(pixels).save(buffer, format="PNG")
@@ -102,7 +100,8 @@ def scene_cases() -> list[Case]:
         Case("number beyond float32 (1e39)", scene(center="0 1e39 6"), "error", expect="float32"),
         Case("negative number beyond float32", scene(angle="40", up="0 1 -4e38"), "error", expect="float32"),
         Case("OBJ vertex beyond float32", scene(objects="MaterialIndex 0 TriangleMesh { obj_file big.obj }",
-                                                num_objects=1), "error", expect="big.obj:2:3: expected a number of magnitude",
+                                                num_objects=1), "error",
+             expect="big.obj:2:3: expected a number of magnitude",
              files={"big.obj": b"v 0 0 0\nv 5e38 0 0\nv 0 1 0\nf 1 2 3\n"}),
         Case("falloff 1e-40 makes the intensity infinite",
              scene(lights="PointLight { position 1 3 2 color 1 1 1 falloff 1e-40 } "
@@ -320,7 +319,8 @@ def cli_cases() -> list[CliCase]:
         # batches
         CliCase("batch: bad lines reported, good lines rendered",
                 ("--batch", "b.sh", "--quiet"), 2,
-                ("b.sh:2: -size wants positive", "b.sh:3: expected a course command line", "b.sh:5: bad.txt:1:1: expected a PerspectiveCamera"),
+                ("b.sh:2: -size wants positive", "b.sh:3: expected a course command line",
+                 "b.sh:5: bad.txt:1:1: expected a PerspectiveCamera"),
                 {**scene_file, "bad.txt": b"", "b.sh": b"a2 -input s.txt -size 8 6 -output a.png\n"
                                                       b"a2 -input s.txt -size 0 6 -output b.png\n"
                                                       b"clear\n"

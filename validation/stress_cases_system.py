@@ -17,9 +17,9 @@ import shutil
 import signal
 import tempfile
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
 
 from validation.stress_scene import scene
 from validation.stress_system import ROOT, full_disk, interrupt, python, run_command, temporary_files

@@ -9,9 +9,9 @@ from __future__ import annotations
 import contextlib
 import io
 import tempfile
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Callable
 
 import mitsuba as mi
 import numpy as np
@@ -74,7 +74,8 @@ def sigma_to_zero(method):
     def check():
         frames = [_frame(1)]
         out = _run(frames, method=method, temporal=False,
-                   bilateral=dict(sigma_coord=1e-30, sigma_color=1e-30, sigma_normal=1e-30, sigma_plane=1e-30, radius=3))
+                   bilateral=dict(sigma_coord=1e-30, sigma_color=1e-30, sigma_normal=1e-30, sigma_plane=1e-30,
+                                  radius=3))
         ok, detail = _finite(out)
         return ok and _close(out[0], frames[0].beauty)[0], detail + "; equals the input (no neighbour has weight)"
     return check

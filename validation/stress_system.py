@@ -22,10 +22,10 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Iterator
 
 ROOT = Path(__file__).resolve().parent.parent
 #: Size of the test file system: a few previous files and one page of room fit
@@ -141,8 +141,8 @@ def interrupt(argv: list, delay: float, signum: int, cwd: Path = ROOT, timeout: 
     seconds (``group``: to its whole process group, as a terminal's Ctrl-C
     does), and waits (up to ``timeout``) for it to exit."""
     with tempfile.TemporaryFile() as err:
-        process = subprocess.Popen([str(a) for a in argv], cwd=cwd, stdout=subprocess.DEVNULL, stderr=err, start_new_session=True,
-                                   env={**os.environ, **(env or {})})
+        process = subprocess.Popen([str(a) for a in argv], cwd=cwd, stdout=subprocess.DEVNULL, stderr=err,
+                                   start_new_session=True, env={**os.environ, **(env or {})})
         try:
             time.sleep(delay)
             running = process.poll() is None

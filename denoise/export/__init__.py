@@ -58,8 +58,9 @@ The package's modules, each importing only those above it:
 ``spec`` (the schema and its checks), ``animation`` (the scene at a time),
 ``sequence`` (settings, key, batches, seeds), ``tasks`` (a worker's scene
 cache, rendering one task), ``files`` (crash-safe writes, staging files,
-folder locks), ``store`` (folders: done, claimed, resumed, written), ``recorder`` (results as they come, the manifest), ``cluster``
-(Dask), ``runners`` (the whole export), ``cli`` (``python -m denoise.export``).
+folder locks), ``store`` (folders: done, claimed, resumed, written),
+``recorder`` (results as they come, the manifest), ``cluster`` (Dask),
+``runners`` (the whole export), ``cli`` (``python -m denoise.export``).
 """
 from __future__ import annotations
 

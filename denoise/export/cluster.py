@@ -22,8 +22,8 @@ import signal
 import sys
 import threading
 import time
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from typing import Callable, Iterator
 
 from core.errors import UsageError
 
@@ -37,7 +37,7 @@ POLL_S = 0.05
 def has_dashboard() -> bool:
     """Dask serves its dashboard only where bokeh is installed."""
     try:  # a probe: bokeh is optional
-        import bokeh  # noqa: F401
+        import bokeh  # noqa: F401, PLC0415  a probe for an optional package, made only when a cluster starts
     except ImportError:
         return False
     return True
@@ -54,7 +54,7 @@ def dask_setup(worker) -> None:
 @contextmanager
 def dask_client(scheduler: str | None = None, workers: int | None = None) -> Iterator[tuple[object, int | None]]:
     """(a Dask client, the Dr.Jit thread count each worker should use)."""
-    from distributed import Client, LocalCluster  # Dask loads only for cluster exports
+    from distributed import Client, LocalCluster  # noqa: PLC0415  Dask loads only for cluster exports
 
     cluster = None
     if scheduler:
@@ -123,7 +123,7 @@ def deferred_signals() -> Iterator[Callable[[], None]]:
 def run_futures(client, tasks: list[Task], recorder: Recorder, after_task: Callable[[Task], None] | None = None,
                 total_frames: int = 0) -> None:
     """Submits ``tasks`` (earlier frames first) and records results as they complete."""
-    from distributed import as_completed  # Dask loads only for cluster exports
+    from distributed import as_completed  # noqa: PLC0415  Dask loads only for cluster exports
 
     futures = {}
     for order, task in enumerate(tasks):

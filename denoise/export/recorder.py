@@ -11,8 +11,15 @@ import numpy as np
 from tqdm import tqdm
 
 from .sequence import EXPORT_FORMAT, Sequence, seed
-from .store import (assemble_reference, batch_path, frame_done, reference_done, save_batch, write_frame_files,
-                    write_record)
+from .store import (
+    assemble_reference,
+    batch_path,
+    frame_done,
+    reference_done,
+    save_batch,
+    write_frame_files,
+    write_record,
+)
 from .tasks import Task
 
 

@@ -3,17 +3,17 @@ missing tasks run in this process or on Dask, the manifest written."""
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable
 
 from core.errors import SpecError
 from course import data_dir, resolve_scene
 
 from .cluster import cluster_description, dask_client, run_futures
+from .files import locked, remove_staging
 from .recorder import Recorder, progress_bar
 from .sequence import DEFAULT_BATCH_SPP, Sequence
 from .spec import MAX_SAMPLES_PER_RENDER, MAX_SPP, Spec
-from .files import locked, remove_staging
 from .store import check_folder, claim_folder, plan, recover
 from .tasks import Task, course_scene, run_task
 
@@ -36,7 +36,7 @@ def sequences_for(specs: list[tuple[str, Spec]], out: Path, data: Path | None = 
     """One :class:`Sequence` per (name, spec); one spec writes ``out`` itself,
     several write ``out/<name>``. Scenes are loaded and checked here, before any work."""
     # Mitsuba loads on first use: the command chooses the libLLVM before Dr.Jit starts
-    import mitsuba as mi
+    import mitsuba as mi  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
 
     if batch_spp < 1 or batch_spp > MAX_SPP:
         raise SpecError(f"--batch-spp: expected 1..{MAX_SPP}, found {batch_spp}")

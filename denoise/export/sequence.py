@@ -67,7 +67,9 @@ class Sequence:
         settings.pop("seeds")
         settings.pop("scene_file")  # the same scene moved elsewhere renders the same noise
         settings.pop("scene_sha256")
-        settings.pop("spp_per_render")  # below it a pass is one render, as before the limit; above, other seeds  # (recorded after the first folders were made: not part of their seeds)
+        # below the limit a pass is one render, as without it; above, other seeds (recorded
+        # after the first folders were made: not part of their seeds)
+        settings.pop("spp_per_render")
         return hashlib.sha256(json.dumps(settings, sort_keys=True).encode()).hexdigest()
 
     def batches(self) -> list[tuple[str, int]]:

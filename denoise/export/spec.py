@@ -80,7 +80,7 @@ class Spec:
     lights: dict = dataclasses.field(default_factory=dict)
 
     @staticmethod
-    def load(path: Path, **overrides) -> "Spec":
+    def load(path: Path, **overrides) -> Spec:
         """The spec in ``path`` with ``overrides`` (None: keep), checked (:class:`SpecError`)."""
         path = Path(path)
         try:
@@ -93,7 +93,7 @@ class Spec:
         return Spec.from_dict(data, str(path))
 
     @staticmethod
-    def from_dict(data: dict, source: str = "spec") -> "Spec":
+    def from_dict(data: dict, source: str = "spec") -> Spec:
         if not isinstance(data, dict):
             raise SpecError(f"{source}: expected an object, found {data!r}")
         known = {f.name for f in dataclasses.fields(Spec)}

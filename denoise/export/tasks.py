@@ -58,8 +58,8 @@ def prepare_process(variant: str, threads: int | None) -> None:
     """Sets this process's Mitsuba variant and Dr.Jit thread count (None: keep)
     for the tasks it runs (a Dask worker's start-up, or this process's)."""
     # Dr.Jit loads on first use: the command chooses the libLLVM (set_variant) before it starts
-    import drjit as dr
-    import mitsuba as mi
+    import drjit as dr  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
+    import mitsuba as mi  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
 
     if mi.variant() != variant:
         set_variant(variant, quiet=True)
@@ -81,9 +81,9 @@ def loaded_frame(sequence: Sequence, frame: int):
     scene's own, the sensor ``sensor`` shoots through pixel centres and
     ``sensor_jittered`` at sub-pixel positions."""
     # Mitsuba loads on first use (see prepare_process)
-    import mitsuba as mi
+    import mitsuba as mi  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
 
-    from converters.to_mitsuba import load_scene_dict
+    from converters.to_mitsuba import load_scene_dict  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
 
     cache_key = (sequence.key, sequence.scene_path, frame)
     if cache_key in _LOADED:
@@ -117,7 +117,7 @@ def render_held(mi_scene, integrator, sensor, spp: int, seed: int) -> np.ndarray
     has: the signal is held until the render is back and raised then, before
     that image can be used."""
     # Mitsuba loads on first use (see prepare_process)
-    import mitsuba as mi
+    import mitsuba as mi  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
 
     with hold_signals():
         image = mi.render(mi_scene, integrator=integrator, sensor=sensor, spp=spp, seed=seed)
@@ -156,7 +156,7 @@ def worker_address() -> str:
 def run_task(task: Task) -> tuple[object, dict]:
     """Renders one task on :data:`RENDER_THREADS` Dr.Jit threads (the
     process's count restored after); returns (its result, its timing)."""
-    import drjit as dr  # loads on first use (see prepare_process)
+    import drjit as dr  # noqa: PLC0415  loads on first use (see prepare_process)
 
     prepare_process(task.sequence.variant, task.threads)
     threads = dr.thread_count()
@@ -172,7 +172,7 @@ def run_task(task: Task) -> tuple[object, dict]:
 
 def _render_task(task: Task) -> tuple[object, dict]:
     """Renders one task; returns (its result, its timing)."""
-    from renderer.job import split_layers  # loads Mitsuba: on first use (see prepare_process)
+    from renderer.job import split_layers  # noqa: PLC0415  loads Mitsuba: on first use (see prepare_process)
 
     start = time.perf_counter()
     sequence = task.sequence

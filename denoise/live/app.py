@@ -3,14 +3,21 @@ frame loop and server wired together until Ctrl-C (exit 130)."""
 from __future__ import annotations
 
 import argparse
+import asyncio
 import os
 import sys
 from pathlib import Path
 
+import mi_plugins
 from core.entry import ArgumentParser, run
+from core.errors import UsageError
 from core.numbers import ascii_int
+from course import data_dir, resolve_scene
+from renderer.variants import set_variant
 
+from .frame_loop import FrameLoop, SceneRenderer
 from .methods import METHOD_NAMES
+from .session import Session
 
 DESCRIPTION = ("watch a scene rendered at 1 spp and denoised, live, in a browser: serves a local page (it prints "
                "the address and opens nothing); drag to orbit, right-drag or Shift+drag to pan, wheel to dolly, "
@@ -37,32 +44,23 @@ def parser() -> argparse.ArgumentParser:
 
 
 def _main(argv: list[str] | None) -> int:
-    import asyncio
-
-    from core.errors import UsageError
-
     args = parser().parse_args(argv)
     width, height = args.size
     if not (1 <= width <= MAX_SIDE and 1 <= height <= MAX_SIDE):
         raise UsageError(f"--size: expected 1..{MAX_SIDE} pixels per side, found {width} {height}")
     if not 0 <= args.port <= 65535:
         raise UsageError(f"--port: expected 0..65535, found {args.port}")
-    from course import data_dir, resolve_scene
-    from renderer.variants import set_variant
 
-    from .server import check_port
+    from .server import check_port  # noqa: PLC0415  aiohttp loads on use: --help and the paths without it stay quick
 
     check_port(args.host, args.port)
     scene_path = resolve_scene(args.scene, data_dir(args.data))
     variant = set_variant(args.variant, quiet=True)
     if variant.startswith("scalar"):
         raise UsageError(f"the live page needs a JIT variant (llvm_* or cuda_*), not {variant}")
-    import mi_plugins
 
     mi_plugins.register()
-    from .frame_loop import FrameLoop, SceneRenderer
-    from .server import LiveServer, hello_message  # aiohttp after the checks: --help and errors stay quick
-    from .session import Session
+    from .server import LiveServer, hello_message  # noqa: PLC0415  aiohttp after the checks: --help and errors stay quick
 
     renderer = SceneRenderer(scene_path, width, height, freeze=not args.no_freeze)
     session = Session(renderer.scene.camera, renderer.light, renderer.pivot_distance(), args.method)

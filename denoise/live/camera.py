@@ -26,7 +26,7 @@ class LiveCamera(plugin_class("course_camera")):
     sensor replays with the new view.
     """
 
-    def parameters_changed(self, keys: list[str] = []):
+    def parameters_changed(self, keys: list[str] | None = None):
         super().parameters_changed(keys)
         self.host_origin = self.ray_origin
         self.ray_origin = mi.Point3f(self.ray_origin)

@@ -27,10 +27,20 @@ import threading
 import time
 from pathlib import Path
 
+import drjit as dr
+import mitsuba as mi
 import numpy as np
+from PIL import Image
 
+from converters.course_scene import load_scene
+from converters.description import RenderOptions, scene_dict
+from converters.model import PointLight
+from converters.scene_variants import with_path_tracer, without_ambient
+from converters.to_mitsuba import load_scene_dict
 from denoise.export import GBUFFER_AOVS
 from denoise.frames import FrameData, camera_matrices, depth_range
+from imaging.colour import tone_map
+from renderer.job import split_layers
 
 from .methods import RAW, method_for, retuned
 from .session import Session, View
@@ -46,16 +56,7 @@ class SceneRenderer:
     """One course scene loaded once, rendered frame after frame from any view."""
 
     def __init__(self, scene_path: Path, width: int, height: int, freeze: bool = True):
-        import drjit as dr
-        import mitsuba as mi
-
-        from converters.course_scene import load_scene
-        from converters.description import RenderOptions, scene_dict
-        from converters.model import PointLight
-        from converters.scene_variants import with_path_tracer, without_ambient
-        from converters.to_mitsuba import load_scene_dict
-
-        from . import camera
+        from . import camera  # noqa: PLC0415  it derives from the active variant's course_camera: only after set_variant
 
         camera.register()
         self.width, self.height, self.frozen = width, height, freeze
@@ -88,8 +89,6 @@ class SceneRenderer:
         return along if np.isfinite(along) and along > 0 else 1.0
 
     def set_view(self, view: View) -> None:
-        import mitsuba as mi
-
         camera = view.camera
         for name in ("sensor", "sensor_jittered"):
             self.params[f"{name}.origin"] = mi.ScalarPoint3f(camera.center)
@@ -103,10 +102,6 @@ class SceneRenderer:
         """The frame of ``view`` (beauty with sampler seed ``seed``) and the
         seconds of each pass ("gbuffers", "render"); the G-buffers are those
         of the last frame while the camera stays where it was."""
-        import mitsuba as mi
-
-        from renderer.job import split_layers
-
         start = time.perf_counter()
         self.set_view(view)
         if view.camera != self.last_camera:  # the G-buffers depend on the camera alone
@@ -136,9 +131,6 @@ def sample_image(scene, integrator, sensor, seed) -> list:
     Launched without ``mi.render``: its binding swaps the process's SIGINT
     handler while it runs (and keeps its own after a nested render, as
     ``whitted``'s is), so Ctrl-C would reach neither Python nor the server."""
-    import drjit as dr
-    import mitsuba as mi
-
     with dr.suspend_grad():
         width, height = (int(v) for v in sensor.film().size())
         index = dr.arange(mi.UInt32, width * height)
@@ -160,8 +152,6 @@ def render_beauty(scene, integrator, sensor, seed) -> list:
 
 def to_image(channels: list, width: int, height: int) -> np.ndarray:
     """Flat channels as one (H, W, C) float32 image (one kernel computes them all)."""
-    import drjit as dr
-
     dr.eval(*channels)
     return np.stack([np.asarray(c, np.float32) for c in channels], axis=-1).reshape(height, width, len(channels))
 
@@ -177,15 +167,11 @@ class JPEGEncoder:
     through a table of that function, built once (a frame is then one lookup)."""
 
     def __init__(self, quality: int = JPEG_QUALITY):
-        from imaging.colour import tone_map
-
         self.quality = quality
         self.table = tone_map(np.linspace(0.0, TONE_MAP_WHITE, TONE_MAP_ENTRIES, dtype=np.float64))
         self.scale = np.float32((TONE_MAP_ENTRIES - 1) / TONE_MAP_WHITE)
 
     def __call__(self, image: np.ndarray) -> bytes:
-        from PIL import Image
-
         index = np.nan_to_num(np.asarray(image, np.float32) * self.scale + np.float32(0.5), nan=0.0)
         index = np.clip(index, 0, TONE_MAP_ENTRIES - 1).astype(np.int32)
         buffer = io.BytesIO()

@@ -14,9 +14,13 @@ from __future__ import annotations
 
 import asyncio
 import signal
+import socket
 from pathlib import Path
 
 from aiohttp import WSMsgType, web
+
+from core.entry import Interrupted
+from core.errors import UsageError
 
 from .methods import METHOD_NAMES, describe
 from .session import MessageError, Session, parse_message
@@ -32,10 +36,6 @@ LOOPBACK = ("127.0.0.1", "localhost", "::1")
 def check_port(host: str, port: int) -> None:
     """Raises UsageError (one line) where ``host:port`` cannot be listened on,
     before the scene is loaded (aiohttp binds it again once ready)."""
-    import socket
-
-    from core.errors import UsageError
-
     try:
         family = socket.AF_INET6 if ":" in host else socket.AF_INET
         with socket.socket(family, socket.SOCK_STREAM) as probe:
@@ -154,8 +154,6 @@ class LiveServer:
 
     async def serve(self, ready) -> None:
         """Listens until cancelled (or the frame loop fails); ``ready(url)`` once listening."""
-        from core.errors import UsageError
-
         self.loop = asyncio.get_running_loop()
         runner = web.AppRunner(self.app, handle_signals=False, access_log=None)
         await runner.setup()
@@ -175,8 +173,6 @@ class LiveServer:
         # process ends, and the page sees its connection drop
         await self.failed.wait()
         if self.signal is not None:
-            from core.entry import Interrupted
-
             raise Interrupted(self.signal)
 
 

@@ -10,8 +10,8 @@ override :meth:`SpatialFilterMethod.spatial` alone.
 """
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, replace
-from typing import Callable
 
 import drjit as dr
 import mitsuba as mi
@@ -20,8 +20,17 @@ import numpy as np
 from core.errors import FrameError
 from core.numbers import ascii_float, ascii_int
 
-from ..filters import (EdgeWeights, FrameArrays, OutlierParams, TemporalParams, accumulate, demodulate,
-                       remodulate, remove_outliers, reproject)
+from ..filters import (
+    EdgeWeights,
+    FrameArrays,
+    OutlierParams,
+    TemporalParams,
+    accumulate,
+    demodulate,
+    remodulate,
+    remove_outliers,
+    reproject,
+)
 from ..frames import FrameData
 
 #: beauty values beyond +-this are clamped to it (NaN and inf become 0) before any filter:
