@@ -6,7 +6,7 @@ Ctrl-C and SIGTERM are one line and 130 / 143 in every phase, the imports includ
 import signal
 import sys
 
-from core.entry import exit_on_signals  # first: standard library only, before the heavy imports
+from core.start_up import exit_on_signals  # first: standard library only, before the heavy imports
 
 if __name__ == "__main__":  # started by a Python without the project's packages: use ./.venv's
     exit_on_signals("render.py")  # first, until main's core.entry.run takes over

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 if __name__ == "__main__":
     # first: Ctrl-C and SIGTERM during the imports are one line (core.entry is standard library only)
-    from core.entry import exit_on_signals
+    from core.start_up import exit_on_signals
     exit_on_signals("python -m converters")
     # started by a Python without the project's packages: use ./.venv's
     from core.launcher import use_project_python

@@ -16,7 +16,7 @@
 - :func:`native_start_up` keeps a native library's own start-up notices
   (Dr.Jit's "could not use ~/.drjit as the kernel cache directory" where
   HOME is unusable) off stderr, unless the start-up fails;
-- before ``run`` starts (the imports of a script), :func:`exit_on_signals`
+- before ``run`` starts (the imports of a script), :func:`core.start_up.exit_on_signals`
   makes both signals print the same line and exit at once (nothing is
   written yet); :func:`hold_signals` defers them past code that must not be
   interrupted (a native library's initialisation).
@@ -36,6 +36,7 @@ from contextlib import contextmanager
 from core.errors import UsageError
 
 from .errors import ToolkitError
+from .start_up import INTERRUPTED, STOP_SIGNALS
 
 
 class Interrupted(BaseException):
@@ -48,27 +49,6 @@ class Interrupted(BaseException):
 
 def _raise_interrupted(signum, frame):
     raise Interrupted(signum)
-
-
-#: What an interrupted command prints (after ``PROG: ``)
-INTERRUPTED = "interrupted; finished files are complete, unfinished ones were not written"
-#: SIGHUP too: a closed terminal or SSH session would otherwise kill the
-#: process at once, leaving an unfinished write's temporary file behind
-_STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
-
-
-def exit_on_signals(prog: str) -> None:
-    """SIGINT and SIGTERM print the interrupted line and exit (130 / 143) at
-    once: for a script's start-up, before :func:`run` installs its handlers
-    (a KeyboardInterrupt there would be a traceback from inside some import)."""
-    line = f"{prog}: {INTERRUPTED}\n".encode()
-
-    def stop(signum, frame):
-        os.write(2, line)
-        os._exit(128 + signum)
-
-    for signum in _STOP_SIGNALS:
-        signal.signal(signum, stop)
 
 
 @contextmanager
@@ -87,7 +67,7 @@ def hold_signals() -> Iterator[list[int]]:
         yield pending
         return
     previous = {signum: signal.signal(signum, lambda signum, frame: pending.append(signum))
-                for signum in _STOP_SIGNALS}
+                for signum in STOP_SIGNALS}
     try:
         yield pending
     finally:

@@ -237,7 +237,7 @@ class PhongBSDF(mi.BSDF):
         callback.put("specular_reflectance", self.ks, mi.ParamFlags.Differentiable)
         callback.put("exponent", self.exponent_parameter, mi.ParamFlags.Differentiable)
 
-    def parameters_changed(self, keys: list[str] = []):
+    def parameters_changed(self, keys: list[str] | None = None):
         # ks > 0 decides whether there is a mirror lobe; the exponent is read back to the host
         self._update_flags()
 

@@ -24,14 +24,20 @@ import sys
 import time
 from pathlib import Path
 
-PROG = "python -m notebooks.build"
-
 if __name__ == "__main__":  # started by a Python without the project's packages: use ./.venv's
     from core.launcher import use_project_python
-    use_project_python(PROG, "notebooks.build")
+    use_project_python("python -m notebooks.build", "notebooks.build")
+
+import tempfile
 
 import nbformat
 from nbformat.v4 import new_code_cell, new_markdown_cell, new_notebook
+
+from core.entry import ArgumentParser
+from core.errors import OutputError
+from imaging.image_io import atomic_path
+
+PROG = "python -m notebooks.build"
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
@@ -310,10 +316,8 @@ def make(name: str) -> nbformat.NotebookNode:
 
 def execute(notebook: nbformat.NotebookNode, quick: bool = True, timeout: int = 3600) -> nbformat.NotebookNode:
     """Runs ``notebook`` in a fresh kernel of this Python, in the project folder."""
-    import tempfile
-
-    from jupyter_client import KernelManager
-    from nbclient import NotebookClient
+    from jupyter_client import KernelManager  # noqa: PLC0415  only where notebooks run (not for --help)
+    from nbclient import NotebookClient  # noqa: PLC0415  as above
 
     os.environ["NOTEBOOK_QUICK"] = "1" if quick else "0"
     os.environ["PYTHONPATH"] = os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")]))
@@ -374,9 +378,6 @@ def problems(notebook: nbformat.NotebookNode) -> list[str]:
 def write(notebook: nbformat.NotebookNode, path: Path, size: str) -> None:
     """Writes ``notebook`` to ``path`` atomically (a full disk leaves the old file
     as it was), its size recorded in its metadata under :data:`METADATA`."""
-    from core.errors import OutputError
-    from imaging.image_io import atomic_path
-
     notebook.metadata[METADATA] = {"size": size}
     with atomic_path(path, ".ipynb") as tmp:
         try:
@@ -391,8 +392,6 @@ def stored_size(notebook: nbformat.NotebookNode) -> str | None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from core.entry import ArgumentParser
-
     parser = ArgumentParser(prog=PROG, description=__doc__.split("\n\n")[0],
                             formatter_class=argparse.RawDescriptionHelpFormatter,
                             epilog="example:\n  python -m notebooks.build --only crossval")

@@ -6,8 +6,16 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
+import matplotlib.pyplot as plt
 import numpy as np
 
+from converters.scene_variants import (
+    with_mirror_sampling,
+    with_path_tracer,
+    without_ambient,
+    without_background,
+    without_ray_epsilon,
+)
 from validation import convergence, crossval, inverse_rendering
 
 
@@ -17,9 +25,6 @@ def whitted_path_difference(path: Path, size: int, spp: int, bounces: int = 3) -
     check of :mod:`validation.crossval` renders them), and the full path tracer;
     with the mean of whitted - path over the image relative to path's mean, and
     its standard error (pixels are independent)."""
-    from converters.scene_variants import (with_mirror_sampling, with_path_tracer, without_ambient,
-                                           without_background, without_ray_epsilon)
-
     common = dict(bounces=bounces, shadows=True, spp=spp, jitter=True, seed=1)
     whitted_paths = (without_ambient, without_background)
     whitted = crossval.render(path, size, variants=(*whitted_paths, without_ray_epsilon), **common)
@@ -39,8 +44,6 @@ def plot_whitted_path_difference(renders: dict):
     """Four panels: whitted, path on Whitted's light paths, their difference
     (blue: path brighter, red: whitted brighter; the colour bar's range is the
     99.5th percentile of the difference), and the full path tracer."""
-    import matplotlib.pyplot as plt
-
     difference = renders["difference"].mean(axis=-1)
     scale = max(float(np.percentile(np.abs(difference), 99.5)), 1e-6)
     fig, axes = plt.subplots(1, 4, figsize=(17, 4.6))
@@ -100,8 +103,6 @@ def plot_fit(history: list[dict], truth: dict = inverse_rendering.TRUTH):
     """The loss over the steps; every fitted value over its true value (converged:
     1); and each parameter's error against the truth in the unit of its
     tolerance (below the red line: recovered)."""
-    import matplotlib.pyplot as plt
-
     steps = [h["step"] for h in history]
     fig, (ax_loss, ax_value, ax_error) = plt.subplots(1, 3, figsize=(17, 4.4))
     ax_loss.semilogy(steps, [h["loss"] for h in history])
@@ -135,8 +136,6 @@ def plot_fit(history: list[dict], truth: dict = inverse_rendering.TRUTH):
 
 def plot_images(images: dict):
     """Images side by side, titled by their keys, clipped to [0, 1]."""
-    import matplotlib.pyplot as plt
-
     fig, axes = plt.subplots(1, len(images), figsize=(3.6 * len(images), 3.9))
     for ax, (title, image) in zip(axes, images.items()):
         ax.imshow(np.clip(image, 0, 1))

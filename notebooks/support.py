@@ -7,8 +7,12 @@ from contextlib import contextmanager
 from functools import wraps
 from pathlib import Path
 
+import matplotlib.pyplot as plt
 import numpy as np
+from IPython.display import display
 from tqdm import tqdm
+
+from validation import convergence
 
 
 def progress_bar(total: int | None, desc: str) -> tqdm:
@@ -45,9 +49,6 @@ def counting(module, names: list[str], desc: str, total: int | None = None):
 def show(figure) -> None:
     """Displays ``figure`` once (inline backends would show a pyplot figure
     again at the end of the cell) and frees it."""
-    from IPython.display import display
-    import matplotlib.pyplot as plt
-
     display(figure)
     plt.close(figure)
 
@@ -65,8 +66,6 @@ def retimed(results: dict, paths: list[Path], repeats: int) -> dict:
     same scene, spp and seed, so the same image and error), and the slopes
     fitted again. On a machine shared with other jobs one timing may catch a
     burst of their load; the median of three does not follow it."""
-    from validation import convergence
-
     by_scene = {path.stem: path for path in paths}
     size = results["settings"]["image_size"]
     points = []

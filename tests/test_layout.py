@@ -24,8 +24,9 @@ HOMES = {"relmse": "validation/metrics.py", "flip_error": "validation/metrics.py
          "flip_heat_map": "validation/metrics.py"}
 #: the packages users run; they never need the checks or the measurements
 PRODUCTION = ("core", "converters", "course", "mi_plugins", "imaging", "renderer", "denoise")
-#: the commands that score a student's own output: checks that users run, so they use validation's metrics
-SCORING = ("course/score.py", "denoise/score.py")
+#: the commands that measure against a ground truth (a student's output, the fit's loss): checks that
+#: users run, so they use validation's metrics
+SCORING = ("course/score.py", "denoise/score.py", "denoise/fit.py")
 
 
 def sources(root: Path):

@@ -1,0 +1,30 @@
+"""A command's first line of defence against signals, standard library only.
+
+A script imports this before anything else (``core.entry`` itself takes a
+moment to import on a loaded machine): from then on SIGINT, SIGTERM and SIGHUP
+print the interrupted line and exit with 128 + the signal at once, until
+``core.entry.run`` installs its own handlers. Earlier than this a signal lands
+in Python's own start-up, which no program can handle.
+"""
+import os
+import signal
+
+#: What an interrupted command prints (after ``PROG: ``)
+INTERRUPTED = "interrupted; finished files are complete, unfinished ones were not written"
+#: SIGHUP too: a closed terminal or SSH session would otherwise kill the
+#: process at once, leaving an unfinished write's temporary file behind
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+
+
+def exit_on_signals(prog: str) -> None:
+    """The stop signals print the interrupted line and exit (128 + signal) at
+    once: for a script's start-up, before ``core.entry.run`` installs its
+    handlers (a KeyboardInterrupt there would be a traceback from inside some import)."""
+    line = f"{prog}: {INTERRUPTED}\n".encode()
+
+    def stop(signum, frame):
+        os.write(2, line)
+        os._exit(128 + signum)
+
+    for signum in STOP_SIGNALS:
+        signal.signal(signum, stop)
