@@ -27,7 +27,7 @@ import numpy as np
 from tqdm import tqdm
 
 from core.entry import ArgumentParser, run
-from core.errors import FrameError
+from core.errors import FrameError, UsageError
 from course import ENVIRONMENT, root
 from imaging.image_io import IMAGE_DECODE_ERRORS, atomic_path, read_png, write_image
 from renderer.checks import check_writable
@@ -199,6 +199,10 @@ def _main(argv: list[str] | None) -> int:
                          "or pass --reference DIR")
     count = len(reference_images(reference))  # checked before the first image
     report = args.report or args.folder / "score.md"
+    if report.suffix.lower() != ".md":  # never onto an image being scored
+        raise UsageError(f"--report writes Markdown: name it .md, got {report}")
+    if report.resolve().parent == reference.resolve():
+        raise UsageError(f"--report {report}: inside the reference folder; write it elsewhere")
     check_writable("--report", report)
 
     with tqdm(total=count, desc="scoring", unit="image", delay=1.0, leave=False,

@@ -75,6 +75,10 @@ def check_pattern(pattern: str) -> str:
     if fields != ["i"] or "/" in pattern:
         raise UsageError(f"--pattern {pattern!r}: a file name with exactly one {{i}} for the frame index, "
                          f"e.g. {DEFAULT_PATTERN!r}")
+    try:
+        pattern.format(i=0)
+    except (ValueError, TypeError) as error:  # a format spec an integer does not take, e.g. {i:q}
+        raise UsageError(f"--pattern {pattern!r}: {error}") from None
     return pattern
 
 
@@ -256,6 +260,8 @@ def _main(argv: list[str] | None) -> int:
     args = _parser().parse_args(argv)
     if args.plot is not None and args.plot.suffix.lower() != ".png":
         raise UsageError(f"--plot writes PNG: name it .png, got {args.plot}")
+    if args.json is not None and args.json.suffix.lower() != ".json":  # never onto a frame or a result
+        raise UsageError(f"--json writes JSON: name it .json, got {args.json}")
     for flag, path in (("--plot", args.plot), ("--json", args.json)):
         if path is not None:
             if path.is_dir():

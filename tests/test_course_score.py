@@ -156,3 +156,14 @@ def test_runs_as_a_module(subset):
                           cwd=ROOT, capture_output=True, text=True, timeout=120)
     assert done.returncode == 0 and done.stderr == "", done.stderr
     assert "4 of 4 images meet the course's bar" in done.stdout
+
+
+@pytest.mark.parametrize("name", ["a01.png", "notes.txt"])
+def test_a_report_that_is_not_markdown_is_refused_before_anything_is_written(course, tmp_path, capsys, name):
+    """``--report`` onto a scored image would have replaced it with the Markdown."""
+    folder = copy_of(course / "sample_out", tmp_path / "mine")
+    before = (folder / "a01.png").read_bytes()
+    status, _, err = score(capsys, folder, "--reference", course / "sample_out", "--report", folder / name)
+    assert status == 2
+    assert err.count("\n") == 1 and "--report writes Markdown: name it .md" in err
+    assert (folder / "a01.png").read_bytes() == before and not (folder / "a01").exists()

@@ -187,3 +187,17 @@ def test_bad_inputs_are_one_line_and_exit_2(sequence, tmp_path, capsys, case, me
     assert status == 2 and out == ""
     assert err.count("\n") == 1 and err.startswith("python -m denoise.score: error: "), err
     assert re.search(message, err.strip()), err
+
+
+@pytest.mark.parametrize("pattern", ["result_{i:q}.exr", "result_{i:s}.exr"])
+def test_a_pattern_that_cannot_be_formatted_is_one_line(capsys, tmp_path, pattern):
+    status, _, err = score(capsys, tmp_path, "--reference", tmp_path, "--pattern", pattern)
+    assert status == 2 and err.count("\n") == 1 and f"--pattern {pattern!r}" in err, err
+
+
+def test_json_must_be_named_json(capsys, tmp_path):
+    """``--json`` onto a reference frame would have replaced the ground truth."""
+    frame = tmp_path / "beauty_0.exr"
+    frame.write_bytes(b"exr")
+    status, _, err = score(capsys, tmp_path, "--reference", tmp_path, "--json", frame)
+    assert status == 2 and "--json writes JSON: name it .json" in err and frame.read_bytes() == b"exr"

@@ -115,7 +115,8 @@ def test_batches_split_each_half_exactly():
     ({"camera": {"zoom": 2}}, "unknown keys zoom"),
     ({"camera": {"dolly": float("nan")}}, "camera.dolly: expected a finite number"),
     ({"objects": {"x": {}}}, "expected an object index"),
-    ({"objects": {"1": {"rotate": {"axis": [0, 0, 0], "degrees": 3}}}}, "non-zero axis"),
+    ({"objects": {"1": {"rotate": {"axis": [0, 0, 0], "degrees": 3}}}}, "expected an axis of length"),
+    ({"objects": {"1": {"rotate": {"axis": [1e-170, 0, 0], "degrees": 3}}}}, "expected an axis of length"),
     ({"size": [16384, 16384], "spp": 64}, "samples in one render"),
 ])
 def test_bad_specs_are_refused_before_any_work(change, message):

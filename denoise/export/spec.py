@@ -64,6 +64,15 @@ def _keys(value, name: str, source: str, known: set[str]) -> dict:
     return value
 
 
+#: a rotation axis is normalised in float64 and its matrix rounded to float32: beyond these
+#: lengths its square underflows or overflows (an axis of 1e-320 gave NaN frames)
+MIN_AXIS_LENGTH, MAX_AXIS_LENGTH = 1e-100, 1e100
+
+
+def usable_axis(axis: list[float]) -> bool:
+    length = math.sqrt(sum(a * a for a in axis))
+    return MIN_AXIS_LENGTH <= length <= MAX_AXIS_LENGTH
+
 @dataclasses.dataclass(frozen=True)
 class Spec:
     scene: str
@@ -158,8 +167,9 @@ class Spec:
                 rotate = _keys(move["rotate"], f"{name}.rotate", source, {"axis", "degrees"})
                 if "axis" not in rotate or "degrees" not in rotate:
                     raise SpecError(f"{_key_in(source, name + '.rotate')}: expected \"axis\" and \"degrees\"")
-                if not any(_vector(rotate["axis"], f"{name}.rotate.axis", source)):
-                    raise SpecError(f"{_key_in(source, name + '.rotate.axis')}: expected a non-zero axis")
+                if not usable_axis(_vector(rotate["axis"], f"{name}.rotate.axis", source)):
+                    raise SpecError(f"{_key_in(source, name + '.rotate.axis')}: expected an axis of length "
+                                    f"{MIN_AXIS_LENGTH:g} to {MAX_AXIS_LENGTH:g}")
                 _number(rotate["degrees"], f"{name}.rotate.degrees", source)
 
         self._check_lights(source)
@@ -178,8 +188,9 @@ class Spec:
                 rotate = _keys(change["rotate"], f"{name}.rotate", source, {"axis", "degrees"})
                 if "axis" not in rotate or "degrees" not in rotate:
                     raise SpecError(f"{_key_in(source, name + '.rotate')}: expected \"axis\" and \"degrees\"")
-                if not any(_vector(rotate["axis"], f"{name}.rotate.axis", source)):
-                    raise SpecError(f"{_key_in(source, name + '.rotate.axis')}: expected a non-zero axis")
+                if not usable_axis(_vector(rotate["axis"], f"{name}.rotate.axis", source)):
+                    raise SpecError(f"{_key_in(source, name + '.rotate.axis')}: expected an axis of length "
+                                    f"{MIN_AXIS_LENGTH:g} to {MAX_AXIS_LENGTH:g}")
                 _number(rotate["degrees"], f"{name}.rotate.degrees", source)
             if "scale" in change and _number(change["scale"], f"{name}.scale", source) < 0:
                 raise SpecError(f"{_key_in(source, name + '.scale')}: expected a factor >= 0 for the light's "
