@@ -240,14 +240,21 @@ def test_interrupt_stops_within_a_second(signum):
         async def watch():
             async with aiohttp.ClientSession() as session:
                 async with session.ws_connect(url + "ws", headers={"Origin": url.rstrip("/")}) as ws:
-                    header, _ = await _receive_frame(ws)
-                    await ws.send_json({"type": "ack", "frame": header["frame"]})
-                    await asyncio.sleep(0.3)  # a frame is being rendered
+                    async def keep_watching():  # a viewer streaming frames while the signal comes
+                        while True:
+                            header, _ = await _receive_frame(ws)
+                            await ws.send_json({"type": "ack", "frame": header["frame"]})
+
+                    viewer = asyncio.ensure_future(keep_watching())
+                    await asyncio.sleep(1.0)  # frames are being rendered and sent
                     start = time.perf_counter()
                     process.send_signal(signum)
                     while process.poll() is None and time.perf_counter() - start < 10:
                         await asyncio.sleep(0.02)
-                    return time.perf_counter() - start
+                    seconds = time.perf_counter() - start
+                    viewer.cancel()
+                    await asyncio.gather(viewer, return_exceptions=True)
+                    return seconds
 
         seconds = run(watch())
         assert process.poll() is not None, "still running 10 s after the signal"

@@ -13,6 +13,7 @@
 from __future__ import annotations
 
 import asyncio
+import logging
 import signal
 import socket
 from pathlib import Path
@@ -133,9 +134,12 @@ class LiveServer:
 
     def publish(self, data: bytes | None) -> None:
         """Sends a frame to the viewer (from the frame loop's thread); None: the loop failed."""
-        if self.loop is None:
+        if self.loop is None or self.signal is not None:
             return
-        self.loop.call_soon_threadsafe(self._send, data)
+        try:
+            self.loop.call_soon_threadsafe(self._send, data)
+        except RuntimeError:  # the event loop closed while this frame was made: the server is stopping
+            pass
 
     def _send(self, data: bytes | None) -> None:
         if data is None:
@@ -155,6 +159,8 @@ class LiveServer:
     async def serve(self, ready) -> None:
         """Listens until cancelled (or the frame loop fails); ``ready(url)`` once listening."""
         self.loop = asyncio.get_running_loop()
+        # a malformed request gets its 400 from aiohttp; its traceback would break the one-line log
+        logging.getLogger("aiohttp.server").setLevel(logging.CRITICAL)
         runner = web.AppRunner(self.app, handle_signals=False, access_log=None)
         await runner.setup()
         try:
