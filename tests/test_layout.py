@@ -1,9 +1,25 @@
-"""One concept, one place (issue 12): each metric and each piece of course access is
+"""One concept, one place: each metric and each piece of course access is
 defined once, tests use :mod:`validation` (never ``benchmarks`` in-process), and the
-image and scene packages do not import each other."""
+image and scene packages do not import each other.
+
+The import graph and the code's size and comments, checked on the source text:
+
+- no import cycle between the project's modules, imports inside functions
+  included (a function-level import hides a cycle, it does not remove it);
+- no module imports another module's underscore names (what is shared is
+  public, in the lower module);
+- no production file is over :data:`MAX_LINES` lines;
+- no code comment carries a date or an issue number (those belong to docs/
+  and commit messages).
+
+Each check is shown to fail on a planted example in a scratch tree.
+"""
 from __future__ import annotations
 
 import ast
+import io
+import re
+import tokenize
 from pathlib import Path
 
 import pytest
@@ -133,3 +149,145 @@ def test_the_layout_checks_can_fail(tmp_path):
     assert environment_reads(tmp_path) == {"COURSE_DATA"}
     assert imported_packages(tmp_path / "tests" / "test_x.py",
                              ast.parse((tmp_path / "tests" / "test_x.py").read_text())) == {"benchmarks"}
+
+
+# -- the import graph, file sizes and comments ----------------------------------------
+#: the packages of the import graph (tests are not imported by any of them)
+GRAPH_PACKAGES = ("core", "converters", "course", "mi_plugins", "imaging", "renderer", "validation",
+                  "benchmarks", "denoise", "notebooks", "scenes")
+MAX_LINES = 450
+DIARY = re.compile(r"20\d\d-\d\d-\d\d|\bissue \d+|\bissue #\d+", re.IGNORECASE)
+
+
+def python_files(root: Path, packages=GRAPH_PACKAGES) -> list[Path]:
+    files = [path for package in packages for path in sorted((root / package).rglob("*.py"))]
+    return files + sorted(root.glob("*.py"))
+
+
+def module_name(root: Path, path: Path) -> str:
+    parts = list(path.relative_to(root).with_suffix("").parts)
+    if parts[-1] == "__init__":
+        parts.pop()
+    return ".".join(parts)
+
+
+def imports(root: Path, path: Path, tree: ast.AST, modules: set[str]) -> list[tuple[str, list[str], int]]:
+    """``(module, names, line)`` for every import of a project module in ``path``,
+    at any depth; ``from pkg import sub`` names the submodule where it is one."""
+    name = module_name(root, path)
+    package = name if path.name == "__init__.py" else name.rpartition(".")[0]
+    found = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            found += [(alias.name, [], node.lineno) for alias in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = package.split(".")[:len(package.split(".")) - node.level + 1] if package else []
+                target = ".".join(base + ([node.module] if node.module else []))
+            else:
+                target = node.module or ""
+            names = [alias.name for alias in node.names]
+            submodules = [f"{target}.{n}" for n in names if f"{target}.{n}" in modules]
+            found += [(sub, [], node.lineno) for sub in submodules]
+            found.append((target, [n for n in names if f"{target}.{n}" not in modules], node.lineno))
+    return [(target, names, line) for target, names, line in found if target in modules]
+
+
+def import_graph(root: Path) -> tuple[dict[str, set[str]], list[str]]:
+    """The project's module graph and the cross-module underscore imports (``file:line: name``)."""
+    files = python_files(root)
+    modules = {module_name(root, path) for path in files}
+    graph, private = {}, []
+    for path in files:
+        name = module_name(root, path)
+        tree = ast.parse(path.read_text(), str(path))
+        graph[name] = set()
+        for target, names, line in imports(root, path, tree, modules):
+            if target != name:
+                graph[name].add(target)
+                private += [f"{path.relative_to(root).as_posix()}:{line}: {target}.{n}" for n in names
+                            if n.startswith("_") and not n.startswith("__")]
+    return graph, private
+
+
+def cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """The strongly connected components of more than one module (Tarjan)."""
+    index, low, stack, on_stack, found = {}, {}, [], set(), []
+
+    def visit(node):
+        index[node] = low[node] = len(index)
+        stack.append(node)
+        on_stack.add(node)
+        for nxt in sorted(graph.get(node, ())):
+            if nxt not in index:
+                visit(nxt)
+                low[node] = min(low[node], low[nxt])
+            elif nxt in on_stack:
+                low[node] = min(low[node], index[nxt])
+        if low[node] == index[node]:
+            component = []
+            while True:
+                member = stack.pop()
+                on_stack.discard(member)
+                component.append(member)
+                if member == node:
+                    break
+            if len(component) > 1:
+                found.append(sorted(component))
+
+    for node in sorted(graph):
+        if node not in index:
+            visit(node)
+    return found
+
+
+def long_files(root: Path) -> list[str]:
+    files = python_files(root, PRODUCTION) + [root / "render.py"]
+    return [f"{path.relative_to(root).as_posix()}: {n} lines" for path in files if path.exists()
+            and (n := len(path.read_text().splitlines())) > MAX_LINES]
+
+
+def diary_comments(root: Path) -> list[str]:
+    """Comments with a date or an issue number, in every Python file of the tree."""
+    found = []
+    for path in python_files(root, GRAPH_PACKAGES + ("tests",)):
+        tokens = tokenize.generate_tokens(io.StringIO(path.read_text()).readline)
+        found += [f"{path.relative_to(root).as_posix()}:{token.start[0]}: {token.string.strip()}"
+                  for token in tokens if token.type == tokenize.COMMENT and DIARY.search(token.string)]
+    return found
+
+
+def test_no_import_cycles():
+    graph, _ = import_graph(ROOT)
+    assert cycles(graph) == []
+
+
+def test_no_module_imports_another_modules_underscore_names():
+    _, private = import_graph(ROOT)
+    assert private == []
+
+
+def test_no_production_file_is_over_the_limit():
+    assert long_files(ROOT) == []
+
+
+def test_no_dates_or_issue_numbers_in_comments():
+    assert diary_comments(ROOT) == []
+
+
+def test_the_checks_find_planted_faults(tmp_path):
+    """A cycle through a function-level import, an underscore import, a long file and a dated comment."""
+    for package in GRAPH_PACKAGES + ("tests",):
+        (tmp_path / package).mkdir()
+        (tmp_path / package / "__init__.py").write_text("")
+    (tmp_path / "core" / "low.py").write_text("def helper():\n    from denoise import high\n    return high\n")
+    (tmp_path / "denoise" / "high.py").write_text("from core.low import helper\nfrom ._mid import _secret\n")
+    (tmp_path / "denoise" / "_mid.py").write_text("_secret = 1  # measured 2026-11-29\n")
+    (tmp_path / "renderer" / "big.py").write_text("x = 1\n" * (MAX_LINES + 1))
+    (tmp_path / "render.py").write_text("from renderer import big  # see issue 12\n")
+    graph, private = import_graph(tmp_path)
+    assert cycles(graph) == [["core.low", "denoise.high"]]
+    assert private == ["denoise/high.py:2: denoise._mid._secret"]
+    assert long_files(tmp_path) == [f"renderer/big.py: {MAX_LINES + 1} lines"]
+    assert diary_comments(tmp_path) == ["denoise/_mid.py:1: # measured 2026-11-29",
+                                        "render.py:1: # see issue 12"]
