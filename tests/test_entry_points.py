@@ -1,6 +1,6 @@
 """render.py from the outside: inputs checked before any work, one line and exit 2
 for every refusal, batches that report FILE:LINE and go on, the libLLVM probe,
---help and --png, and a fuzzer over argument lists and batch files (issue 14)."""
+--help and --png, and a fuzzer over argument lists and batch files."""
 from __future__ import annotations
 
 import os

@@ -1,5 +1,5 @@
 """Writing files (imaging.image_io.atomic_path): through links, long names,
-read-only targets and folders, and SIGTERM while writing (issue 14)."""
+read-only targets and folders, and SIGTERM while writing."""
 from __future__ import annotations
 
 import os

@@ -248,13 +248,20 @@ def long_files(root: Path) -> list[str]:
 
 
 def diary_comments(root: Path) -> list[str]:
-    """Comments with a date or an issue number, in every Python file of the tree."""
+    """Comments and docstrings with a date or an issue number, in every Python file of the tree."""
     found = []
     for path in python_files(root, GRAPH_PACKAGES + ("tests",)):
-        tokens = tokenize.generate_tokens(io.StringIO(path.read_text()).readline)
-        found += [f"{path.relative_to(root).as_posix()}:{token.start[0]}: {token.string.strip()}"
+        text, name = path.read_text(), path.relative_to(root).as_posix()
+        tokens = tokenize.generate_tokens(io.StringIO(text).readline)
+        found += [f"{name}:{token.start[0]}: {token.string.strip()}"
                   for token in tokens if token.type == tokenize.COMMENT and DIARY.search(token.string)]
-    return found
+        for node in ast.walk(ast.parse(text)):
+            if isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef)):
+                docstring = ast.get_docstring(node, clean=False)
+                if docstring and DIARY.search(docstring):
+                    line = node.body[0].lineno
+                    found.append(f"{name}:{line}: {DIARY.search(docstring).group()} (docstring)")
+    return sorted(found)
 
 
 def test_no_import_cycles():
@@ -282,12 +289,12 @@ def test_the_checks_find_planted_faults(tmp_path):
         (tmp_path / package / "__init__.py").write_text("")
     (tmp_path / "core" / "low.py").write_text("def helper():\n    from denoise import high\n    return high\n")
     (tmp_path / "denoise" / "high.py").write_text("from core.low import helper\nfrom ._mid import _secret\n")
-    (tmp_path / "denoise" / "_mid.py").write_text("_secret = 1  # measured 2026-11-29\n")
+    (tmp_path / "denoise" / "_mid.py").write_text('"""Chosen in issue 7."""\n_secret = 1  # measured 2026-11-29\n')
     (tmp_path / "renderer" / "big.py").write_text("x = 1\n" * (MAX_LINES + 1))
     (tmp_path / "render.py").write_text("from renderer import big  # see issue 12\n")
     graph, private = import_graph(tmp_path)
     assert cycles(graph) == [["core.low", "denoise.high"]]
     assert private == ["denoise/high.py:2: denoise._mid._secret"]
     assert long_files(tmp_path) == [f"renderer/big.py: {MAX_LINES + 1} lines"]
-    assert diary_comments(tmp_path) == ["denoise/_mid.py:1: # measured 2026-11-29",
-                                        "render.py:1: # see issue 12"]
+    assert diary_comments(tmp_path) == ["denoise/_mid.py:1: issue 7 (docstring)",
+                                        "denoise/_mid.py:2: # measured 2026-11-29", "render.py:1: # see issue 12"]

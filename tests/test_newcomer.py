@@ -1,4 +1,4 @@
-"""A newcomer's first hour (issue 11): the README's commands as typed in a fresh
+"""A newcomer's first hour: the README's commands as typed in a fresh
 shell, quiet set-up, scene headers, converter flags and outputs, progress lines."""
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Issue 14, the renderer's side: no silently wrong image, no crash after the
+"""The renderer's robustness: no silently wrong image, no crash after the
 work, no non-finite output, Ctrl-C that stops, many lights without a compile cliff.
 
 - Far lights and far objects: images equal the well-scaled equivalents within
