@@ -16,6 +16,7 @@ saves the page as that browser draws it.
 """
 from __future__ import annotations
 
+import os
 import statistics
 import subprocess
 import sys
@@ -109,14 +110,16 @@ def main(argv: list[str] | None = None) -> int:
     check_json(args.json)
     if not CHROMIUM.exists():
         raise UsageError(f"{CHROMIUM} missing: ./dev setup installs Debian's chromium")
+    load_at_start = round(os.getloadavg()[0], 2)
     process, url = start_server(args.scene, args.size, args.method, args.variant, not args.no_freeze)
     try:
         result = measure(url, args.seconds, args.screenshot)
     finally:
         process.terminate()
         process.wait(30)
-    result = dict(stamp(sys.argv if argv is None else ["python -m benchmarks.live", *argv]), **result,
-                  note="the machine is shared: other jobs ran at the same time")
+    command = ["python -m benchmarks.live", *(sys.argv[1:] if argv is None else argv)]
+    result = dict(stamp(command), **result, load_average_at_start=load_at_start,
+                  load_average_at_end=round(os.getloadavg()[0], 2))
     for key, value in result.items():
         print(f"{key}: {value}")
     if args.json:
