@@ -73,6 +73,17 @@ def usable_axis(axis: list[float]) -> bool:
     length = math.sqrt(sum(a * a for a in axis))
     return MIN_AXIS_LENGTH <= length <= MAX_AXIS_LENGTH
 
+
+def _check_rotation(value, name: str, source: str) -> None:
+    """``{"axis": [x, y, z], "degrees": d}`` with a usable axis (:func:`usable_axis`)."""
+    rotate = _keys(value, name, source, {"axis", "degrees"})
+    if "axis" not in rotate or "degrees" not in rotate:
+        raise SpecError(f"{_key_in(source, name)}: expected \"axis\" and \"degrees\"")
+    if not usable_axis(_vector(rotate["axis"], f"{name}.axis", source)):
+        raise SpecError(f"{_key_in(source, name + '.axis')}: expected an axis of length "
+                        f"{MIN_AXIS_LENGTH:g} to {MAX_AXIS_LENGTH:g}")
+    _number(rotate["degrees"], f"{name}.degrees", source)
+
 @dataclasses.dataclass(frozen=True)
 class Spec:
     scene: str
@@ -164,13 +175,7 @@ class Spec:
             if "translate" in move:
                 _vector(move["translate"], f"{name}.translate", source)
             if "rotate" in move:
-                rotate = _keys(move["rotate"], f"{name}.rotate", source, {"axis", "degrees"})
-                if "axis" not in rotate or "degrees" not in rotate:
-                    raise SpecError(f"{_key_in(source, name + '.rotate')}: expected \"axis\" and \"degrees\"")
-                if not usable_axis(_vector(rotate["axis"], f"{name}.rotate.axis", source)):
-                    raise SpecError(f"{_key_in(source, name + '.rotate.axis')}: expected an axis of length "
-                                    f"{MIN_AXIS_LENGTH:g} to {MAX_AXIS_LENGTH:g}")
-                _number(rotate["degrees"], f"{name}.rotate.degrees", source)
+                _check_rotation(move["rotate"], f"{name}.rotate", source)
 
         self._check_lights(source)
 
@@ -185,13 +190,7 @@ class Spec:
             if "translate" in change:
                 _vector(change["translate"], f"{name}.translate", source)
             if "rotate" in change:
-                rotate = _keys(change["rotate"], f"{name}.rotate", source, {"axis", "degrees"})
-                if "axis" not in rotate or "degrees" not in rotate:
-                    raise SpecError(f"{_key_in(source, name + '.rotate')}: expected \"axis\" and \"degrees\"")
-                if not usable_axis(_vector(rotate["axis"], f"{name}.rotate.axis", source)):
-                    raise SpecError(f"{_key_in(source, name + '.rotate.axis')}: expected an axis of length "
-                                    f"{MIN_AXIS_LENGTH:g} to {MAX_AXIS_LENGTH:g}")
-                _number(rotate["degrees"], f"{name}.rotate.degrees", source)
+                _check_rotation(change["rotate"], f"{name}.rotate", source)
             if "scale" in change and _number(change["scale"], f"{name}.scale", source) < 0:
                 raise SpecError(f"{_key_in(source, name + '.scale')}: expected a factor >= 0 for the light's "
                                 f"colour, found {change['scale']}")
