@@ -247,6 +247,13 @@ def _parser() -> argparse.ArgumentParser:
     return parser
 
 
+def check_switch_frame(frame: int, frames: int) -> None:
+    """A switch needs a frame before it and one after it, in every sequence."""
+    if not 1 <= frame <= frames - 1:
+        raise UsageError(f"--switch-frame must be from 1 to {frames - 1} (the sequences have {frames} frames), "
+                         f"got {frame}")
+
+
 def _main(argv: list[str] | None) -> int:
     args = _parser().parse_args(argv)
     specs = args.specs or TRAINING
@@ -260,11 +267,13 @@ def _main(argv: list[str] | None) -> int:
     if args.evaluate is not None:
         if not (args.evaluate / "beauty_0.exr").is_file():
             raise UsageError(f"{args.evaluate}: not an exported frame folder (no beauty_0.exr)")
+        check_switch_frame(args.switch_frame, len(frame_indices(args.evaluate)))
         set_variant("llvm_ad_rgb", quiet=True)
         print_evaluation(args.evaluate, args.switch_frame)
         return 0
 
     loaded = [(path, Spec.load(path)) for path in specs]  # all checked before any work
+    check_switch_frame(args.switch_frame, min(spec.frames for _, spec in loaded))
     set_variant("llvm_ad_rgb", quiet=True)
     from .asvgf import ASVGFParams  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
 

@@ -71,7 +71,9 @@ def test_fit_refuses_bad_arguments(tmp_path, capsys):
 
     for argv, message in ((["--steps", "0"], "--steps"), (["--rate", "-1"], "--rate"),
                           ([str(tmp_path / "none.json")], "none.json"),
-                          (["--evaluate", str(tmp_path)], "not an exported frame folder")):
+                          (["--evaluate", str(tmp_path)], "not an exported frame folder"),
+                          (["--switch-frame", "99"], "--switch-frame must be from 1 to 7"),
+                          (["--switch-frame", "0"], "--switch-frame must be from 1 to 7")):
         assert main(argv + ["--work", str(tmp_path), "--out", str(tmp_path / "p.json")]) == 2
         err = capsys.readouterr().err
         assert err.count("\n") == 1 and err.startswith("python -m denoise.fit: error:") and message in err
