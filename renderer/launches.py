@@ -32,7 +32,9 @@ SINGLE_LAUNCH_WORK = 1 << 22
 #: The first launch of a split render, in ray casts: short even on a slow,
 #: shared machine; later launches aim at LAUNCH_SECONDS each
 FIRST_LAUNCH_WORK = 1 << 20
-LAUNCH_SECONDS = 0.5
+#: short enough that a launch slowed several times by other jobs still ends well within the 2 s
+#: a signal may wait
+LAUNCH_SECONDS = 0.25
 #: Sample indices are 32-bit in the kernel
 MAX_SAMPLES = (1 << 32) - 1
 #: Pixels visited together (rays of neighbouring pixels stay coherent)

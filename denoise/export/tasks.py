@@ -63,6 +63,8 @@ def prepare_process(variant: str, threads: int | None) -> None:
 
     if mi.variant() != variant:
         set_variant(variant, quiet=True)
+    # Mitsuba's own warnings go to stdout; a render that Ctrl-C cancels says "winding down" there
+    mi.set_log_level(mi.LogLevel.Error)
     if threads and dr.thread_count() != threads:
         dr.set_thread_count(threads)
 
