@@ -8,6 +8,8 @@ name, so a message must say what was wrong and where (a file, a line, a flag).
 """
 from __future__ import annotations
 
+import errno
+import os
 from pathlib import Path
 
 
@@ -57,3 +59,21 @@ def describe(text: str | None) -> str:
     if len(text) > 40:
         text = text[:37] + "..."
     return repr(text)
+
+
+#: Errors that mean the data did not fit, and what the user is told
+NO_ROOM = {errno.ENOSPC: "no space left on device", errno.EDQUOT: "disk quota exceeded",
+           errno.EFBIG: "file too large (over the file-size limit)"}
+
+
+def write_failure(error: BaseException) -> str | None:
+    """Why a write failed, in a few words, for errors that are the disk's and
+    not a bug: an ``OSError`` with an errno, or a library's error (OpenEXR's
+    RuntimeError, FFmpeg's message) whose text holds a full disk's strerror."""
+    if isinstance(error, OSError) and error.errno is not None:
+        return NO_ROOM.get(error.errno) or (error.strerror or os.strerror(error.errno)).lower()
+    text = str(error).lower()
+    for code, words in NO_ROOM.items():
+        if os.strerror(code).lower() in text:
+            return words
+    return None

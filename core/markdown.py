@@ -18,7 +18,7 @@ import re
 import tempfile
 from pathlib import Path
 
-from core.errors import OutputError
+from core.errors import OutputError, write_failure
 
 #: A section name: letters, digits, ``-`` and ``_`` (it is spelt into the markers)
 NAME = re.compile(r"[A-Za-z0-9_-]+")
@@ -83,12 +83,18 @@ def write_text_atomically(path: str | Path, text: str) -> None:
         umask = os.umask(0)
         os.umask(umask)
         mode = 0o666 & ~umask
-    handle, tmp = tempfile.mkstemp(prefix=".", suffix=".tmp", dir=path.parent)
+    try:
+        handle, tmp = tempfile.mkstemp(prefix=".", suffix=".tmp", dir=path.parent)
+    except OSError as error:
+        raise OutputError(f"{path}: cannot write into {path.parent}: {write_failure(error)}") from None
     try:
         with os.fdopen(handle, "w", encoding="utf-8") as file:
             file.write(text)
         os.chmod(tmp, mode)
         os.replace(tmp, path)
-    except BaseException:
+    except BaseException as error:
         Path(tmp).unlink(missing_ok=True)
+        why = write_failure(error) if isinstance(error, OSError) else None
+        if why is not None:  # a full disk: name the page, not the temporary file
+            raise OutputError(f"{path}: {why}") from None
         raise

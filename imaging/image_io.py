@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
-from core.errors import OutputError, SceneError
+from core.errors import NO_ROOM, OutputError, SceneError, write_failure  # noqa: F401 (NO_ROOM re-exported)
 
 #: Longest file name (bytes) where the folder's file system does not say
 DEFAULT_NAME_MAX = 255
@@ -72,24 +72,6 @@ def output_target(path: str | Path) -> Path:
     if target.exists() and not target.is_file():  # a device or a pipe: replacing it would destroy it
         raise OutputError(f"{path}: is not a regular file (a device or a pipe?)")
     return target
-
-
-#: Errors that mean the data did not fit, and what the user is told
-NO_ROOM = {errno.ENOSPC: "no space left on device", errno.EDQUOT: "disk quota exceeded",
-           errno.EFBIG: "file too large (over the file-size limit)"}
-
-
-def write_failure(error: BaseException) -> str | None:
-    """Why a write failed, in a few words, for errors that are the disk's and
-    not a bug: an ``OSError`` with an errno, or a library's error (OpenEXR's
-    RuntimeError, FFmpeg's message) whose text holds a full disk's strerror."""
-    if isinstance(error, OSError) and error.errno is not None:
-        return NO_ROOM.get(error.errno) or (error.strerror or os.strerror(error.errno)).lower()
-    text = str(error).lower()
-    for code, words in NO_ROOM.items():
-        if os.strerror(code).lower() in text:
-            return words
-    return None
 
 
 @contextmanager

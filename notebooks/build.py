@@ -34,7 +34,7 @@ import nbformat
 from nbformat.v4 import new_code_cell, new_markdown_cell, new_notebook
 
 from core.entry import ArgumentParser
-from core.errors import OutputError
+from core.errors import OutputError, write_failure
 from imaging.image_io import atomic_path
 
 PROG = "python -m notebooks.build"
@@ -383,7 +383,7 @@ def write(notebook: nbformat.NotebookNode, path: Path, size: str) -> None:
         try:
             nbformat.write(notebook, tmp)
         except OSError as error:
-            raise OutputError(f"{path}: cannot write: {error.strerror or error}") from None
+            raise OutputError(f"{path}: cannot write: {write_failure(error)}") from None
 
 
 def stored_size(notebook: nbformat.NotebookNode) -> str | None:

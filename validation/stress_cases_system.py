@@ -74,6 +74,7 @@ def full_disk_case(name: str, prog: str, argv: Callable[[Path], list], previous:
     """``argv(disk)`` writes ``disk/previous`` (which exists) onto a full file system."""
     def run(folder: Path) -> list[str]:
         with full_disk(folder) as disk:
+            (disk.path / previous).parent.mkdir(parents=True, exist_ok=True)
             (disk.path / previous).write_bytes(OLD)
             disk.fill()
             code, _, stderr = run_command([str(a) for a in argv(disk.path)], cwd=folder, preexec=disk.limit)
@@ -170,6 +171,10 @@ def system_cases() -> list[SystemCase]:
         full_disk_case("full disk: benchmark --json", "python -m benchmarks.stress",
                        lambda disk: python("-m", "benchmarks.stress", "--only", "empty file", "--fuzz", 0,
                                            "--json", disk / "r.json"), "r.json"),
+        full_disk_case("full disk: python -m denoise.export", "python -m denoise.export",
+                       lambda disk: python("-m", "denoise.export", ROOT / "scenes" / "sequences" / "dolly_lamps.json",
+                                           disk / "seq", "--frames", 1, "--size", 16, 9, "--reference-spp", 4,
+                                           "--local"), "seq/dataset.json"),
         SystemCase("converter output through a symbolic link loads", _linked_xml),
         SystemCase("clean logs: stderr empty on success", _clean_logs),
     ]

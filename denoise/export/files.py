@@ -16,7 +16,7 @@ from collections.abc import Callable, Iterator
 from contextlib import ExitStack, contextmanager
 from pathlib import Path
 
-from core.errors import OutputError
+from core.errors import OutputError, write_failure
 
 #: ends the name of a file being written (``.beauty_0.exr.partial``)
 STAGING = ".partial"
@@ -51,8 +51,11 @@ def publish(path: Path, write: Callable[[Path], None]) -> None:
         _fsync(path.parent, os.O_RDONLY | os.O_DIRECTORY)
     except BaseException as error:
         staging.unlink(missing_ok=True)
-        if isinstance(error, OSError):
-            raise OutputError(f"{path}: cannot write: {error.strerror or error}") from None
+        if isinstance(error, OutputError):  # the writer's own, naming the staging file: name the user's
+            raise OutputError(str(error).replace(str(staging), str(path))) from None
+        why = write_failure(error) if isinstance(error, Exception) else None
+        if why is not None:
+            raise OutputError(f"{path}: cannot write: {why}") from None
         raise
 
 

@@ -15,6 +15,7 @@ ends with the bytes of an uninterrupted run.
 """
 from __future__ import annotations
 
+import io
 import json
 import re
 import shutil
@@ -190,8 +191,10 @@ def plan(sequence: Sequence, threads: int | None = None) -> list[Task]:
 def save_batch(path: Path, image: np.ndarray) -> None:
     """Writes one reference batch's mean (float32 .npy, crash-safely)."""
     def write(staging: Path) -> None:
-        with open(staging, "wb") as file:
-            np.save(file, np.ascontiguousarray(image, np.float32))
+        # through memory: np.save onto a full disk reports a short write without its errno
+        data = io.BytesIO()
+        np.save(data, np.ascontiguousarray(image, np.float32))
+        staging.write_bytes(data.getvalue())
 
     publish(path, write)
 
