@@ -12,7 +12,9 @@
   ``atomic_path`` on the way out removes its temporary file. An error whose
   chain (``__cause__`` / ``__context__``) holds such an interruption counts
   as one: native extensions (Dr.Jit's start-up) wrap it in an ImportError or
-  SystemError.
+  SystemError. So does any error after a stop signal came: some native code
+  (NumPy's import of ``datetime``, a plugin constructor called from C++)
+  raises its own error without the interruption in its chain.
 - :func:`native_start_up` keeps a native library's own start-up notices
   (Dr.Jit's "could not use ~/.drjit as the kernel cache directory" where
   HOME is unusable) off stderr, unless the start-up fails;
@@ -47,8 +49,21 @@ class Interrupted(BaseException):
         self.signum = signum
 
 
-def _raise_interrupted(signum, frame):
-    raise Interrupted(signum)
+class SignalRecord:
+    """The stop signals delivered while :func:`run`'s body runs, and the handler that
+    records each before it raises: native code that calls back into Python (a
+    C extension's import, a plugin constructor called from C++) may replace the
+    raised exception with one of its own that does not chain it, so that
+    :func:`run` goes by the record, not by the exception alone."""
+
+    def __init__(self):
+        self.received: list[int] = []
+
+    def handler(self, signum, frame):
+        self.received.append(signum)
+        if signum == signal.SIGINT:
+            raise KeyboardInterrupt
+        raise Interrupted(signum)
 
 
 @contextmanager
@@ -154,8 +169,8 @@ def one_line(error: BaseException) -> str:
 
 def run(prog: str, body: Callable[[], int | None]) -> int:
     """Runs ``body`` under the error contract; returns the exit code."""
-    handlers = {signal.SIGINT: signal.default_int_handler, signal.SIGTERM: _raise_interrupted,
-                signal.SIGHUP: _raise_interrupted}
+    record = SignalRecord()
+    handlers = dict.fromkeys((signal.SIGINT, signal.SIGTERM, signal.SIGHUP), record.handler)
     try:
         previous = {signum: signal.signal(signum, handler) for signum, handler in handlers.items()}
     except ValueError:  # not the main thread (e.g. under a test runner's worker)
@@ -164,6 +179,8 @@ def run(prog: str, body: Callable[[], int | None]) -> int:
         return int(body() or 0)
     except BaseException as error:
         signum = interruption(error)
+        if signum is None and record.received:  # whatever native code made of the handler's exception
+            signum = record.received[0]
         if signum is not None:
             print(f"{prog}: {INTERRUPTED}", file=sys.stderr)
             return 128 + int(signum)

@@ -69,3 +69,93 @@ def test_a_failure_is_exactly_its_error_line(tmp_path):
     code, log = run_logged(tmp_path, python(RENDER, "-input", "missing.txt", "-size", 8, 6, "-output", "a.png"))
     assert code == 2 and log.splitlines() == ["render.py: error: scene file missing.txt: no such file"], log
     assert "\r" not in log
+
+
+# -- the denoiser's commands, on a tiny exported sequence ------------------------------------
+TINY = {"scene": "lamps", "frames": 2, "size": [32, 18], "spp": 1, "reference_spp": 4, "bounces": 1}
+SEQUENCE_COMMANDS = {
+    "python -m denoise.export": ["-m", "denoise.export", "{spec}", "seq2", "--local"],
+    "python -m denoise.export, Dask workers": ["-m", "denoise.export", "{spec}", "seq3", "--workers", 1],
+    "python -m denoise": ["-m", "denoise", "{seq}", "den", "--png", "--video", "v.mp4", "--reference",
+                          "{seq}_reference"],
+    "python -m denoise --method svgf": ["-m", "denoise", "{seq}", "den", "--method", "svgf"],
+    "python -m denoise.score": ["-m", "denoise.score", "{den}", "--reference", "{seq}_reference", "--frames", "{seq}",
+                                "--compare", "svgf", "raw", "--json", "s.json", "--plot", "s.png"],
+    "python -m course.score": ["-m", "course.score", "{png}", "--reference", "{png}", "--report", "r.md"],
+    "python -m denoise.fit": ["-m", "denoise.fit", "{spec}", "--work", "fit", "--steps", 2, "--switch-frame", 1,
+                              "--out", "p.json"],
+    "python -m denoise.methods": ["-m", "denoise.methods"],
+}
+
+
+@pytest.fixture(scope="module")
+def sequence(tmp_path_factory):
+    """Paths the commands above name: a spec, its exported sequence, results, PNG images."""
+    import json
+
+    import numpy as np
+
+    from imaging.image_io import write_image
+
+    folder = tmp_path_factory.mktemp("sequence")
+    (folder / "seq.json").write_text(json.dumps(TINY))
+    for argv in (["-m", "denoise.export", folder / "seq.json", folder / "seq", "--local"],
+                 ["-m", "denoise", folder / "seq", folder / "den"]):
+        done = subprocess.run(python(*argv), cwd=folder, capture_output=True, text=True, timeout=300)
+        assert done.returncode == 0, done.stderr
+    (folder / "png").mkdir()
+    write_image(folder / "png" / "a01.png", np.random.default_rng(1).integers(0, 256, (20, 30, 3), np.uint8))
+    return {"spec": folder / "seq.json", "seq": folder / "seq", "den": folder / "den", "png": folder / "png"}
+
+
+@pytest.mark.parametrize("name", SEQUENCE_COMMANDS)
+def test_the_denoisers_commands_keep_stderr_empty_on_success(tmp_path, name, sequence):
+    argv = [str(a).format(**sequence) for a in SEQUENCE_COMMANDS[name]]
+    code, log = run_logged(tmp_path, python(*argv))
+    assert code == 0 and log == "", log
+
+
+def test_the_live_server_logs_nothing_but_its_stop_line(tmp_path):
+    """Serving a viewer frames, then SIGTERM: stderr holds the one interrupted line, nothing before it."""
+    import asyncio
+    import signal
+    import time
+
+    from renderer.variants import find_libllvm
+
+    if find_libllvm() is None:
+        pytest.skip("no usable libLLVM: the live page needs a JIT variant")
+    log = tmp_path / "stderr.log"
+    with open(log, "wb") as err:
+        process = subprocess.Popen(python("-m", "denoise.live", "showcase", "--size", 64, 36, "--port", 0),
+                                   stdout=subprocess.PIPE, stderr=err, text=True, cwd=tmp_path,
+                                   env={**os.environ, "PYTHONPATH": str(RENDER.parent)})
+        try:
+            url = process.stdout.readline().split("open ", 1)[1].split()[0]
+
+            async def watch(frames: int) -> None:
+                import aiohttp
+
+                async with aiohttp.ClientSession() as session:
+                    async with session.ws_connect(url + "ws", headers={"Origin": url.rstrip("/")}) as ws:
+                        while frames:
+                            message = await asyncio.wait_for(ws.receive(), 240)
+                            if message.type == aiohttp.WSMsgType.BINARY:
+                                frames -= 1
+                                await ws.send_json({"type": "ack", "frame": 10 ** 6})
+                        await ws.send_json({"type": "method", "name": "svgf"})
+                        await ws.send_json({"type": "pause", "paused": True})
+                        await asyncio.sleep(0.5)
+
+            asyncio.run(watch(3))
+            assert log.read_text() == ""
+            process.send_signal(signal.SIGTERM)
+            start = time.perf_counter()
+            assert process.wait(10) == 143
+            assert time.perf_counter() - start < 2
+        finally:
+            if process.poll() is None:
+                process.kill()
+                process.wait()
+    assert log.read_text().splitlines() == [
+        "python -m denoise.live: interrupted; finished files are complete, unfinished ones were not written"]

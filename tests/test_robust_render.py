@@ -396,6 +396,46 @@ def test_a_signal_in_any_phase_of_start_up_keeps_the_contract(tmp_path, signum):
     print(signal.Signals(signum).name, outcomes)
 
 
+def test_an_interruption_that_native_code_replaced_is_an_interrupted_exit(capsys):
+    """NumPy's C extension, imported while SIGINT comes, clears the handler's
+    KeyboardInterrupt and raises an ImportError of its own, chaining nothing
+    (a plugin constructor called from C++ does the same): the exit is still 130."""
+    from core.entry import run
+
+    def replaced():
+        lost = False
+        try:
+            signal.raise_signal(signal.SIGINT)
+        except BaseException:  # noqa: BLE001  as PyErr_Clear in C
+            lost = True
+        if lost:
+            raise ImportError('PyCapsule_Import could not import module "datetime"')
+
+    assert run("render.py", replaced) == 130
+    assert capsys.readouterr().err.strip().splitlines() == [
+        "render.py: interrupted; finished files are complete, unfinished ones were not written"]
+
+
+def test_ctrl_c_in_a_plugin_constructor_during_load_dict_is_an_interrupted_exit(variant_scalar_rgb, capsys):
+    """SIGINT while ``mi.load_dict`` runs a Python plugin's constructor: Mitsuba's
+    factory turns the KeyboardInterrupt into a RuntimeError holding its traceback
+    as text (no cause, no context); the exit is 130 with one line, not a traceback."""
+    import mitsuba as mi
+
+    from core.entry import run
+
+    class StoppedBSDF(mi.BSDF):
+        def __init__(self, props):
+            super().__init__(props)
+            signal.raise_signal(signal.SIGINT)  # Ctrl-C arriving while the plugin is built
+
+    mi.register_bsdf("test_stopped_bsdf", lambda props: StoppedBSDF(props))
+    scene = {"type": "scene", "ball": {"type": "sphere", "bsdf": {"type": "test_stopped_bsdf"}}}
+    assert run("render.py", lambda: mi.load_dict(scene)) == 130
+    assert capsys.readouterr().err.strip().splitlines() == [
+        "render.py: interrupted; finished files are complete, unfinished ones were not written"]
+
+
 def test_an_interruption_wrapped_by_native_code_is_an_interrupted_exit(capsys):
     """Dr.Jit's start-up turns the handler's exception into an ImportError, and
     CPython then into a SystemError: the chain still holds the interruption."""
