@@ -167,8 +167,9 @@ def one_line(error: BaseException) -> str:
     return " ".join(text.split())
 
 
-def run(prog: str, body: Callable[[], int | None]) -> int:
-    """Runs ``body`` under the error contract; returns the exit code."""
+def run(prog: str, body: Callable[[], int | None], interrupted: str = INTERRUPTED) -> int:
+    """Runs ``body`` under the error contract; returns the exit code. ``interrupted``:
+    the line after ``PROG: `` when a signal stops it (a command that writes no files says so)."""
     record = SignalRecord()
     handlers = dict.fromkeys((signal.SIGINT, signal.SIGTERM, signal.SIGHUP), record.handler)
     try:
@@ -182,7 +183,7 @@ def run(prog: str, body: Callable[[], int | None]) -> int:
         if signum is None and record.received:  # whatever native code made of the handler's exception
             signum = record.received[0]
         if signum is not None:
-            print(f"{prog}: {INTERRUPTED}", file=sys.stderr)
+            print(f"{prog}: {interrupted}", file=sys.stderr)
             return 128 + int(signum)
         if isinstance(error, ToolkitError):
             print(f"{prog}: error: {one_line(error)}", file=sys.stderr)

@@ -78,11 +78,15 @@ def resolve_scene(name: str, data: Path | None) -> Path:
     where = ", ".join(str(f) for f in folders)
     if not data:
         hint = f" (set --data to the course's data folder, or {ENVIRONMENT} to the course folder)"
-    elif not data.is_dir():
-        chosen = f"${ENVIRONMENT}={os.environ[ENVIRONMENT]}" if os.environ.get(ENVIRONMENT) else "--data"
-        hint = f" ({data} does not exist; {chosen} chose it)"
     else:
-        hint = ""
+        chosen = f"${ENVIRONMENT}={os.environ[ENVIRONMENT]}" if os.environ.get(ENVIRONMENT) else "--data"
+        if not data.is_dir():
+            hint = f" ({data} {'is a file, not a folder' if data.exists() else 'does not exist'}; {chosen} chose it)"
+        elif not any(data.glob("*.txt")):
+            hint = (f" ({data} holds no scene files (*.txt); {chosen} chose it, and should be the course's "
+                    "data folder)")
+        else:
+            hint = ""
     raise UsageError(f"no scene {name!r} in {where}{hint}")
 
 

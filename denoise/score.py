@@ -83,16 +83,23 @@ def check_pattern(pattern: str) -> str:
 
 
 def read_rgb(path: Path) -> np.ndarray:
-    """An EXR's R, G, B as float32 (H, W, 3); a damaged file is one line naming it."""
+    """An EXR's R, G, B as float32 (H, W, 3); a damaged file, or one with NaN
+    or infinite values (which no figure can score), is one line naming it."""
     if not path.is_file():
         raise FrameError(f"{path}: missing")
     try:
-        return read_exr_rgb(path)
+        image = read_exr_rgb(path)
     except KeyError as error:
         raise FrameError(f"{path}: no {error.args[0]} channel (expected R, G, B)") from None
     except Exception as error:  # OpenEXR reports damage as RuntimeError/OSError without the name
         raise FrameError(f"{path}: not a readable EXR ({' '.join(str(error).split()) or type(error).__name__})") \
             from None
+    bad = ~np.isfinite(image)
+    if bad.any():
+        nan, inf = int(np.isnan(image).any(-1).sum()), int((bad & ~np.isnan(image)).any(-1).sum())
+        raise FrameError(f"{path}: {nan} pixels NaN and {inf} infinite of {image.shape[0] * image.shape[1]} "
+                         "(relMSE and FLIP need finite values)")
+    return image
 
 
 def reference_indices(reference: Path) -> list[int]:
@@ -102,6 +109,15 @@ def reference_indices(reference: Path) -> list[int]:
     if not indices:
         raise FrameError(f"--reference {reference}: no beauty_<i>.exr frames")
     return indices
+
+
+def check_consecutive(reference: Path, indices: list[int]) -> None:
+    """The temporal figures compare each frame with the one before: no frame may be missing between."""
+    gaps = [i for i in range(indices[0], indices[-1]) if i not in set(indices)]
+    if gaps:
+        raise FrameError(f"--reference {reference}: frames {indices[0]}..{indices[-1]} without "
+                         f"beauty_{gaps[0]}.exr{f' (and {len(gaps) - 1} more)' if len(gaps) > 1 else ''}; "
+                         "the temporal figures (--frames) need consecutive frames")
 
 
 def result_paths(results: Path, pattern: str, indices: list[int]) -> list[Path]:
@@ -142,9 +158,15 @@ def read_frames(folder: Path, indices: list[int], truth: list[np.ndarray]):
 
 
 def check_methods(names: list[str]) -> None:
+    twice = sorted({name for name in names if names.count(name) > 1})
+    if twice:
+        raise UsageError(f"--compare: {', '.join(twice)} named twice (each method is scored once)")
     for name in names:
         if name != RAW:
-            from_name(name)
+            try:
+                from_name(name)
+            except UsageError as error:
+                raise UsageError(f"--compare: {error}, or {RAW} (the noisy input)") from None
 
 
 def run_method(name: str, frames) -> list[np.ndarray]:
@@ -174,6 +196,8 @@ def score_sequence(results: Path, reference: Path, frames_folder: Path | None = 
         raise UsageError("--compare runs our methods on the frames: give --frames FRAME_DIR")
     check_methods(list(compare))
     indices = reference_indices(reference)
+    if frames_folder is not None:
+        check_consecutive(reference, indices)
     paths = result_paths(results, pattern, indices)
     truth = [read_rgb(reference / f"beauty_{i}.exr") for i in indices]
     images = read_sized(paths, truth, "reference")

@@ -158,4 +158,4 @@ def test_the_live_server_logs_nothing_but_its_stop_line(tmp_path):
                 process.kill()
                 process.wait()
     assert log.read_text().splitlines() == [
-        "python -m denoise.live: interrupted; finished files are complete, unfinished ones were not written"]
+        "python -m denoise.live: stopped (the live page writes no files)"]

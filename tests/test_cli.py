@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -79,6 +80,20 @@ def test_usage_errors(tmp_path):
     assert result.returncode == 2 and "needs at least one of -output" in result.stderr
     result = run("no_such_scene", "--data", str(tmp_path))
     assert result.returncode == 2 and "no scene 'no_such_scene'" in result.stderr
+
+
+def test_a_data_folder_that_cannot_hold_the_scene_says_why(tmp_path):
+    """--data missing, a file, or a folder without scene files: the message says which."""
+    from core.errors import UsageError
+    from course import resolve_scene
+
+    (tmp_path / "empty").mkdir()
+    (tmp_path / "file.txt").write_text("x")
+    for data, why in ((tmp_path / "missing", "missing does not exist; --data chose it"),
+                      (tmp_path / "file.txt", "file.txt is a file, not a folder; --data chose it"),
+                      (tmp_path / "empty", "empty holds no scene files (*.txt); --data chose it")):
+        with pytest.raises(UsageError, match=re.escape(why)):
+            resolve_scene("no_such_scene", data)
 
 
 @pytest.mark.parametrize("flags, message", [

@@ -16,7 +16,7 @@ import pytest
 
 from denoise.frames import FrameData, write_frame
 from denoise.score import main
-from imaging.image_io import write_exr
+from imaging.image_io import read_exr_rgb, write_exr
 from validation.metrics import relmse
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -151,7 +151,11 @@ def test_a_pattern_names_the_results(sequence, capsys):
     ("no channels", r"results/result_0\.exr: no R channel \(expected R, G, B\)"),
     ("pattern", r"--pattern 'result\.exr': a file name with exactly one \{i\}"),
     ("compare without frames", r"--compare runs our methods on the frames: give --frames FRAME_DIR"),
-    ("unknown method", r"unknown method 'best'"),
+    ("unknown method", r"--compare: unknown method 'best'; known: bilateral, atrous, svgf, .*, or raw \("),
+    ("method twice", r"--compare: svgf named twice"),
+    ("NaN in a result", r"results/result_1\.exr: 2 pixels NaN and 0 infinite of 192 \("),
+    ("inf in the truth", r"reference/beauty_2\.exr: 0 pixels NaN and 1 infinite of 192 \("),
+    ("a gap in the frame numbers", r"--reference .*reference: frames 0\.\.2 without beauty_1\.exr; the temporal"),
     ("plot", r"--plot writes PNG: name it \.png, got .*p\.jpg"),
 ])
 def test_bad_inputs_are_one_line_and_exit_2(sequence, tmp_path, capsys, case, message):
@@ -181,6 +185,19 @@ def test_bad_inputs_are_one_line_and_exit_2(sequence, tmp_path, capsys, case, me
         arguments += ["--compare", "svgf"]
     elif case == "unknown method":
         arguments += ["--frames", frames, "--compare", "best"]
+    elif case == "method twice":
+        arguments += ["--frames", frames, "--compare", "svgf", "raw", "svgf"]
+    elif case == "NaN in a result":
+        image = images[1].copy()
+        image[0, :2, 1] = np.nan
+        write_exr(results / "result_1.exr", {"": image})
+    elif case == "inf in the truth":
+        image = read_exr_rgb(reference / "beauty_2.exr")
+        image[3, 4] = np.inf
+        write_exr(reference / "beauty_2.exr", {"": image})
+    elif case == "a gap in the frame numbers":  # frame 2 would be scored against frame 0 as its previous
+        (reference / "beauty_1.exr").unlink()
+        arguments += ["--frames", frames]
     elif case == "plot":
         arguments += ["--plot", tmp_path / "p.jpg"]
     status, out, err = score(capsys, *arguments)

@@ -115,5 +115,16 @@ def test_lights_the_scene_lacks_are_refused_before_anything_is_written(tmp_path,
     spec.write_text(json.dumps(dict(TINY, scene=scene, objects={}, lights=lights)))
     assert main([str(spec), str(tmp_path / "out"), "--local"]) == 2
     err = capsys.readouterr().err
-    assert err.count("\n") == 1 and err.startswith("python -m denoise.export: error: spec: ") and message in err, err
+    # the spec named by its file, as every other spec error names it
+    assert err.count("\n") == 1 and err.startswith(f"python -m denoise.export: error: {spec}: ") and message in err, err
     assert not (tmp_path / "out").exists()
+
+
+def test_a_scene_the_spec_names_wrongly_is_refused_naming_the_spec(tmp_path, capsys):
+    from denoise.export import main
+
+    spec = tmp_path / "spec.json"
+    spec.write_text(json.dumps(dict(TINY, scene="no_such_scene")))
+    assert main([str(spec), str(tmp_path / "out"), "--local"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith(f"python -m denoise.export: error: {spec}: scene: no scene "), err

@@ -6,6 +6,7 @@ from __future__ import annotations
 import asyncio
 import json
 import os
+import re
 import signal
 import socket
 import subprocess
@@ -64,6 +65,12 @@ def test_good_messages_pass(message):
 def test_bad_messages_are_refused(text):
     with pytest.raises(MessageError):
         parse_message(text, "svgf")
+
+
+def test_an_unknown_method_is_refused_with_the_known_ones():
+    known = re.escape(", ".join(METHOD_NAMES))
+    with pytest.raises(MessageError, match=f"unknown method 'rm -rf'; known: {known}$"):
+        parse_message(BAD["unknown method"], "svgf")
 
 
 def test_binary_message_is_refused():

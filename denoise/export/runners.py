@@ -6,7 +6,7 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-from core.errors import SpecError
+from core.errors import SpecError, UsageError
 from course import data_dir, resolve_scene
 
 from .cluster import cluster_description, dask_client, run_futures
@@ -46,13 +46,17 @@ def sequences_for(specs: list[tuple[str, Spec]], out: Path, data: Path | None = 
         raise SpecError(f"two specs named {', '.join(twice)} would share one folder; rename one")
     result = []
     for name, spec in specs:
-        spec.check(name)
+        where = spec.source or name  # the spec's file where it came from one
+        spec.check(where)
         width, height = spec.size
         if width * height * min(batch_spp, spec.reference_spp // 2) > MAX_SAMPLES_PER_RENDER:
-            raise SpecError(f"{name}: {width}x{height} at {batch_spp} spp per batch is more than "
+            raise SpecError(f"{where}: {width}x{height} at {batch_spp} spp per batch is more than "
                             f"{MAX_SAMPLES_PER_RENDER} samples in one render; lower --batch-spp")
-        path = resolve_scene(spec.scene, data_dir(data)).resolve()
-        spec.check_scene(course_scene(str(path)), name)
+        try:
+            path = resolve_scene(spec.scene, data_dir(data)).resolve()
+        except UsageError as error:
+            raise SpecError(f"{where}: scene: {error}") from None
+        spec.check_scene(course_scene(str(path)), where)
         target = out if len(specs) == 1 else out / name
         result.append(Sequence(name, spec, str(path), str(target), batch_spp, whitted, variant or mi.variant()))
     check_distinct_folders(result)

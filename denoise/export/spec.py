@@ -98,6 +98,8 @@ class Spec:
     camera: dict = dataclasses.field(default_factory=dict)
     objects: dict = dataclasses.field(default_factory=dict)
     lights: dict = dataclasses.field(default_factory=dict)
+    #: the file :meth:`load` read (not a field: no key of the JSON); messages name it
+    source = None
 
     @staticmethod
     def load(path: Path, **overrides) -> Spec:
@@ -110,7 +112,9 @@ class Spec:
         if not isinstance(data, dict):
             raise SpecError(f"{path}: expected a JSON object, found {type(data).__name__}")
         data.update({k: v for k, v in overrides.items() if v is not None})
-        return Spec.from_dict(data, str(path))
+        spec = Spec.from_dict(data, str(path))
+        object.__setattr__(spec, "source", str(path))  # frozen; not a field
+        return spec
 
     @staticmethod
     def from_dict(data: dict, source: str = "spec") -> Spec:

@@ -24,6 +24,8 @@ DESCRIPTION = ("watch a scene rendered at 1 spp and denoised, live, in a browser
                "Alt+drag to move the first point light")
 DEFAULT_SIZE = (320, 180)
 MAX_SIDE = 4096
+#: what a signal's stop prints after ``python -m denoise.live: `` (the page writes no files)
+STOPPED = "stopped (the live page writes no files)"
 #: a viewer that stops the loop sees the error; the join is bounded so Ctrl-C stays quick
 JOIN_S = 1.0
 
@@ -85,7 +87,7 @@ def _main(argv: list[str] | None) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    code = run("python -m denoise.live", lambda: _main(argv))
+    code = run("python -m denoise.live", lambda: _main(argv), interrupted=STOPPED)
     if code > 128:  # stopped by a signal: the server writes no files, so a frame in flight and
         sys.stdout.flush()  # Dr.Jit's teardown would only delay the exit
         sys.stderr.flush()

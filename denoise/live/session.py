@@ -76,7 +76,8 @@ def parse_message(text: str | bytes, method: str) -> dict:
                 raise MessageError(f"{kind}.{key}: expected true or false, got {value!r}")
         elif rule == "method":
             if not isinstance(value, str) or value not in METHOD_NAMES:
-                raise MessageError(f"{kind}.{key}: unknown method {str(value)[:40]!r}")
+                raise MessageError(f"{kind}.{key}: unknown method {str(value)[:40]!r}; "
+                                   f"known: {', '.join(METHOD_NAMES)}")
         elif rule == "slider":
             names = [s.name for s in SLIDERS[method]]
             if not isinstance(value, str) or value not in names:

@@ -84,7 +84,8 @@ def resolve(name: str) -> tuple[type[DenoisingMethod], dict]:
     found = [p for p in parts if p in names]
     unknown = set(parts) - set(names) - {"temporal", "demod", "outliers"}
     if len(found) != 1 or unknown:
-        raise UsageError(f"unknown method {name!r}")
+        raise UsageError(f"unknown method {name!r}; known: {', '.join(names)} (also with demod+ or outliers+ "
+                         "before and +temporal after, e.g. demod+atrous+temporal)")
     cls, props = names[found[0]]
     return cls, dict(props, temporal="temporal" in parts or cls.temporal_by_nature, demodulate="demod" in parts,
                      outliers=OutlierParams().k if "outliers" in parts else None)
