@@ -8,8 +8,13 @@
   committed once; a frame only copies into the shared buffers and executes
   (:meth:`OIDN.execute` is the part worth timing).
 
-Inputs must be finite (:meth:`denoise.pipeline.Denoiser.usable_frame` makes
-them so); negative radiance is clamped to 0 here, as HDR mode requires.
+Negative radiance is clamped to 0 here, as HDR mode requires, and NaN or
+infinite values of any input are set to 0 (as
+:meth:`denoise.methods.base.DenoisingMethod.usable_frame` does before the
+filters): OIDN passes an infinite colour through to its output. An image
+narrower or lower than :data:`MIN_SIDE` pixels is denoised edge-padded to
+that size and cropped back: OIDN's network darkens a constant 1x1 image to
+0.18 (2x2: 0.74, 16x16: 1.00).
 """
 from __future__ import annotations
 
@@ -20,6 +25,8 @@ import pyoidn
 
 from core.errors import FrameError, UsageError
 
+#: images smaller than this on a side are denoised edge-padded to it
+MIN_SIDE = 16
 #: OIDN 2's quality modes by the names the command line uses
 QUALITIES = {"fast": pyoidn.OIDN_QUALITY_FAST, "balanced": pyoidn.OIDN_QUALITY_BALANCED,
              "high": pyoidn.OIDN_QUALITY_HIGH}
@@ -66,6 +73,7 @@ class OIDN:
         self.filter: pyoidn.Filter | None = None
         self.key = None
         self.buffers: dict[str, np.ndarray] = {}
+        self.size = (0, 0)  # the last input's height and width (the buffers may be padded beyond it)
 
     def check(self, operation: str) -> None:
         """Raises the device's pending error, if any (OIDN reports errors there)."""
@@ -117,19 +125,30 @@ class OIDN:
         for name, image in (("albedo", albedo), ("normal", normal)):
             if image is not None and image.shape != color.shape:
                 raise FrameError(f"OIDN: the {name} image has shape {image.shape}, the colour {color.shape}")
-        self.prepare(color.shape[0], color.shape[1], albedo is not None, normal is not None)
-        np.maximum(color, 0.0, out=self.buffers["color"])
+        height, width = color.shape[:2]
+        self.size = (height, width)
+        self.prepare(max(height, MIN_SIDE), max(width, MIN_SIDE), albedo is not None, normal is not None)
+
+        rows, columns = self.buffers["color"].shape[0] - height, self.buffers["color"].shape[1] - width
+
+        def padded(image: np.ndarray) -> np.ndarray:
+            if not np.isfinite(image).all():
+                image = np.where(np.isfinite(image), image, 0.0)
+            return np.pad(image, ((0, rows), (0, columns), (0, 0)), mode="edge") if rows or columns else image
+
+        np.maximum(padded(color), 0.0, out=self.buffers["color"])
         if albedo is not None and self.key[2]:
-            np.clip(albedo, 0.0, 1.0, out=self.buffers["albedo"])
+            np.clip(padded(albedo), 0.0, 1.0, out=self.buffers["albedo"])
         if normal is not None and self.key[3]:
-            np.copyto(self.buffers["normal"], normal)
+            np.copyto(self.buffers["normal"], padded(normal))
 
     def execute(self) -> None:
         self.filter.execute()
         self.check("executing the filter")
 
     def output(self) -> np.ndarray:
-        return self.buffers["output"].copy()
+        height, width = self.size
+        return self.buffers["output"][:height, :width].copy()
 
     def __call__(self, color: np.ndarray, albedo: np.ndarray | None = None,
                  normal: np.ndarray | None = None) -> np.ndarray:

@@ -16,6 +16,7 @@ from __future__ import annotations
 from imaging.image_io import CUBE_FACES
 from validation.stress_cases_inputs import all_input_cases
 from validation.stress_cases_scale import scale_cases
+from validation.stress_cases_surfaces import surface_cases
 from validation.stress_cases_system import system_cases
 from validation.stress_scene import DEFAULTS, Case, material, scene
 
@@ -173,4 +174,4 @@ def error_cases() -> list[Case]:
 
 
 def all_cases() -> list[Case]:
-    return render_cases() + error_cases() + scale_cases() + all_input_cases() + system_cases()
+    return render_cases() + error_cases() + scale_cases() + all_input_cases() + system_cases() + surface_cases()
