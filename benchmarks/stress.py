@@ -6,7 +6,10 @@ Runs every named case of :mod:`validation.stress_cases` (the renderer) and
 :mod:`validation.stress_denoise` (the denoiser), each stating its expected
 behaviour, and the fuzzers of :mod:`validation.stress` (hypothesis: mutated
 scenes, token soup, raw bytes as scene and as OBJ files, and ``render.py``'s
-command line). Only :class:`SceneError`, with ``file:line:col``, may come out.
+command line) and :mod:`validation.stress_fuzz_commands` (the command lines of
+the denoiser's commands and the scores). Only :class:`SceneError`, with
+``file:line:col``, may come out of the scene fuzzers; a command ends in its
+exit code or one error line.
 Prints and writes ``{"cases": N, "passed": N, "fuzz_inputs": M}`` (with
 ``--json``, every case's result too); exits non-zero on any failure.
 """
@@ -28,6 +31,7 @@ from renderer.variants import set_variant
 from validation.stress import fuzz, fuzz_cli, run_case
 from validation.stress_cases import all_cases
 from validation.stress_denoise import denoise_cases
+from validation.stress_fuzz_commands import fuzz_commands
 
 
 def run(fuzz_examples: int, quick: bool, only: list[str] | None = None) -> dict:
@@ -51,6 +55,7 @@ def run(fuzz_examples: int, quick: bool, only: list[str] | None = None) -> dict:
         if fuzz_examples:
             fuzz_inputs = fuzz(fuzz_examples)
             fuzz_inputs += fuzz_cli(max(10, fuzz_examples // 35))
+            fuzz_inputs += fuzz_commands(max(5, fuzz_examples // 70))
     except Exception as error:  # the first escaping input, as hypothesis reports it
         fuzz_failure = f"{type(error).__name__}: {error}"
     return {"cases": len(results), "passed": sum(r["passed"] for r in results), "fuzz_inputs": fuzz_inputs,

@@ -6,6 +6,7 @@ import pytest
 from validation.stress import fuzz, run_case
 from validation.stress_cases import all_cases
 from validation.stress_denoise import denoise_cases
+from validation.stress_fuzz_commands import contract_problems, fuzz_commands
 
 CASES = [c for c in all_cases() if c.fast]
 DENOISE_CASES = [c for c in denoise_cases() if c.fast]
@@ -39,3 +40,18 @@ def test_a_case_can_fail(variant_llvm_ad_rgb):
 
     assert not run_case(Case("not an error", scene(), "error", expect="anything"))[0]
     assert not run_case(Case("wrong equivalent", scene(), "render", match=scene(angle="60")))[0]
+
+
+def test_the_commands_fuzzer_keeps_the_contract(variant_llvm_ad_rgb):
+    """Every draw of every denoiser command and score: its exit code, or one error line."""
+    assert fuzz_commands(examples=12) >= 7 * 12
+
+
+def test_the_commands_contract_bites():
+    """A traceback, two lines, another program's line or exit 1 are each a problem."""
+    prog = "python -m denoise.score"
+    assert contract_problems(prog, 2, f"{prog}: error: x\n") == []
+    assert contract_problems(prog, 0, "") == []
+    for code, err in ((2, f"{prog}: error: x\n{prog}: error: y\n"), (2, "render.py: error: x\n"), (1, ""),
+                      (0, "Traceback (most recent call last):\n")):
+        assert contract_problems(prog, code, err), (code, err)
