@@ -21,6 +21,8 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
+import re
 import string
 import sys
 from dataclasses import dataclass
@@ -45,6 +47,8 @@ from .pipeline import check_folder
 
 PROG = "python -m denoise.score"
 DEFAULT_PATTERN = "result_{i}.exr"
+#: the longest file name most file systems take
+NAME_BYTES = 255
 #: the noisy input, scored as a method
 RAW = "raw"
 
@@ -75,6 +79,9 @@ def check_pattern(pattern: str) -> str:
     if fields != ["i"] or "/" in pattern:
         raise UsageError(f"--pattern {pattern!r}: a file name with exactly one {{i}} for the frame index, "
                          f"e.g. {DEFAULT_PATTERN!r}")
+    specs = [spec for _, name, spec, _ in string.Formatter().parse(pattern) if name is not None]
+    if any(re.search(r"\d{4,}", spec or "") for spec in specs):  # formatting it would fill the memory first
+        raise UsageError(f"--pattern {pattern!r}: a width beyond what a file name holds ({NAME_BYTES} bytes)")
     try:
         pattern.format(i=0)
     except (ValueError, TypeError) as error:  # a format spec an integer does not take, e.g. {i:q}
@@ -124,7 +131,18 @@ def result_paths(results: Path, pattern: str, indices: list[int]) -> list[Path]:
     """The result file of every frame, each checked to exist."""
     if not results.is_dir():
         raise FrameError(f"{results}: not a folder")
-    paths = [results / pattern.format(i=i) for i in indices]
+    names = [pattern.format(i=i) for i in indices]
+    long = [name for name in names if len(os.fsencode(name)) > NAME_BYTES]
+    if long:
+        raise UsageError(f"--pattern {pattern!r}: names frame {indices[names.index(long[0])]} "
+                         f"{long[0][:40]}... ({len(os.fsencode(long[0]))} bytes; a file name holds {NAME_BYTES})")
+    first = {}
+    for index, name in zip(indices, names):
+        if name in first:
+            raise UsageError(f"--pattern {pattern!r}: frames {first[name]} and {index} would both be read from "
+                             f"{name}")
+        first[name] = index
+    paths = [results / name for name in names]
     missing = [p for p in paths if not p.is_file()]
     if missing:
         more = f" (and {len(missing) - 1} more of the reference's {len(paths)} frames)" if len(missing) > 1 else ""

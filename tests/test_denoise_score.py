@@ -218,3 +218,23 @@ def test_json_must_be_named_json(capsys, tmp_path):
     frame.write_bytes(b"exr")
     status, _, err = score(capsys, tmp_path, "--reference", tmp_path, "--json", frame)
     assert status == 2 and "--json writes JSON: name it .json" in err and frame.read_bytes() == b"exr"
+
+
+@pytest.mark.parametrize("pattern, message", [
+    ("{i:>99999999999}.exr", "a width beyond what a file name holds (255 bytes)"),  # was 'out of memory'
+    ("{i:=^300}.exr", "names frame 15 =====")])
+def test_a_pattern_beyond_a_file_name_is_one_line(capsys, tmp_path, pattern, message):
+    for i in (15, 25):
+        write_exr(tmp_path / f"beauty_{i}.exr", {"": np.ones((2, 2, 3), np.float32)})
+    status, _, err = score(capsys, tmp_path, "--reference", tmp_path, "--pattern", pattern)
+    assert status == 2 and err.count("\n") == 1 and message in err, err
+
+
+def test_two_frames_read_from_one_file_are_refused(capsys, tmp_path):
+    """``{i:.0e}`` names frames 15 and 25 both ``2e+01.exr``: one result would be scored twice."""
+    for i in (15, 25):
+        write_exr(tmp_path / f"beauty_{i}.exr", {"": np.ones((2, 2, 3), np.float32)})
+        write_exr(tmp_path / f"{i:.0e}.exr", {"": np.ones((2, 2, 3), np.float32)})
+    status, _, err = score(capsys, tmp_path, "--reference", tmp_path, "--pattern", "{i:.0e}.exr")
+    assert status == 2 and err.count("\n") == 1, err
+    assert "frames 15 and 25 would both be read from 2e+01.exr" in err, err
