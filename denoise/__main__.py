@@ -65,6 +65,16 @@ def declared_options() -> dict[str, tuple[Option, list[tuple[str, object]]]]:
     return declared
 
 
+def check_options_apply(method: str, given: dict) -> None:
+    """Refuses an option ``method`` does not read (e.g. ``--oidn-quality`` for
+    atrous), which would otherwise change nothing, silently."""
+    own = {option.key for option in METHODS[method].all_options()}
+    for flag, (option, users) in declared_options().items():
+        if option.key in given and option.key not in own:
+            raise UsageError(f"{flag} is an option of {', '.join(name for name, _ in users)}, not of {method} "
+                             f"(add --method {users[0][0]}, or leave {flag} out)")
+
+
 def add_method_options(parser: argparse.ArgumentParser) -> set[str]:
     """Adds every method's options (no argparse defaults: a method fills its own);
     returns their keys."""
@@ -116,7 +126,9 @@ def _main(argv: list[str] | None) -> int:
     parser, keys = _parser()
     args = parser.parse_args(argv)
     # every parameter checked before any work
-    method = configured(args.method, {k: v for k, v in vars(args).items() if k in keys})
+    given = {k: v for k, v in vars(args).items() if k in keys}
+    method = configured(args.method, given)
+    check_options_apply(args.method, given)
     if args.fps < 1 or args.fps > 240:
         raise UsageError(f"--fps must be from 1 to 240, got {args.fps}")
     if args.reference is not None and args.video is None:

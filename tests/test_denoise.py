@@ -450,7 +450,7 @@ def test_denoise_rejects_bad_frames(variant_llvm_ad_rgb, tmp_path, capsys, damag
     folder = tmp_path / "frames"
     _small_folder(folder)
     damage(folder)
-    assert main([str(folder), str(tmp_path / "out"), "--radius", "1"]) == 2
+    assert main([str(folder), str(tmp_path / "out"), "--method", "bilateral", "--radius", "1"]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and message in err, err
 
@@ -481,9 +481,24 @@ def test_denoise_shows_progress_only_on_a_terminal(variant_llvm_ad_rgb, tmp_path
     folder = tmp_path / "frames"
     _small_folder(folder, count=3)
     monkeypatch.setattr(pipeline, "PROGRESS_DELAY_S", 0.0)
-    assert main([str(folder), str(tmp_path / "out"), "--radius", "1"]) == 0
+    assert main([str(folder), str(tmp_path / "out"), "--method", "bilateral", "--radius", "1"]) == 0
     captured = capsys.readouterr()
     assert captured.err == "" and "3 frames ->" in captured.out
     finished = subprocess.run([sys.executable, "-m", "denoise", str(folder), str(tmp_path / "command"),
-                               "--radius", "1"], cwd=ROOT, capture_output=True, text=True, timeout=300)
+                               "--method", "bilateral", "--radius", "1"], cwd=ROOT, capture_output=True, text=True,
+                              timeout=300)
     assert finished.returncode == 0 and finished.stderr == "", finished.stderr
+
+
+@pytest.mark.parametrize("flags, message", [
+    (["--method", "atrous", "--oidn-quality", "fast"], "--oidn-quality is an option of oidn, oidn-guided, not "
+     "of atrous"),
+    (["--radius", "3"], "--radius is an option of bilateral, not of atrous"),
+])
+def test_an_option_the_method_does_not_read_is_refused(tmp_path, capsys, flags, message):
+    """It would change nothing: a user who asked for OIDN's fast mode with atrous got atrous, silently."""
+    from denoise.__main__ import main
+
+    assert main([str(tmp_path / "none"), str(tmp_path / "out")] + flags) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("python -m denoise: error: ") and message in err, err
