@@ -68,7 +68,7 @@ def output_target(path: str | Path) -> Path:
     path = Path(path)
     target = Path(os.path.realpath(path)) if path.is_symlink() else path
     if target.is_dir():
-        raise OutputError(f"{path}: is a folder, not an image file")
+        raise OutputError(f"{path}: is a folder, not a file")
     if target.exists() and not target.is_file():  # a device or a pipe: replacing it would destroy it
         raise OutputError(f"{path}: is not a regular file (a device or a pipe?)")
     return target

@@ -166,3 +166,12 @@ def test_each_shared_writer_on_a_full_disk(writer, capsys):
         assert temporary_files(disk.path) == []
     err = capsys.readouterr().err
     assert one_error_line(2, err, "prog", f"{disk.path / name}: no space left on device") == [], err
+
+
+def test_a_folder_where_a_json_file_goes_is_not_called_an_image(tmp_path, capsys):
+    """The shared writer names what is in the way: a folder, not 'an image file' (a JSON here)."""
+    from benchmarks import write_json  # noqa: PLC0415  only this writer's check needs it
+
+    (tmp_path / "r.json").mkdir()
+    assert run("prog", lambda: write_json(tmp_path / "r.json", {})) == 2
+    assert capsys.readouterr().err == f"prog: error: {tmp_path / 'r.json'}: is a folder, not a file\n"
