@@ -14,6 +14,7 @@ import functools
 import os
 import struct
 import subprocess
+import warnings
 import zlib
 from collections.abc import Iterator, Mapping
 from concurrent.futures import ThreadPoolExecutor
@@ -176,9 +177,14 @@ def write_video(path: str | Path, frames: list[np.ndarray], fps: int = 2) -> Non
 
 
 def read_png(path: str | Path) -> np.ndarray:
-    """Reads a PNG as uint8 RGB (H, W, 3)."""
-    with Image.open(path) as image:
-        return np.asarray(image.convert("RGB"))
+    """Reads a PNG as uint8 RGB (H, W, 3). Pillow's warning about images of more
+    than 89 million pixels stays off stderr (the size goes into the caller's
+    error, e.g. a score's "10000x10000 pixels, but the reference has 800x800");
+    beyond twice that Pillow refuses it, a :data:`IMAGE_DECODE_ERRORS` error."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", Image.DecompressionBombWarning)
+        with Image.open(path) as image:
+            return np.asarray(image.convert("RGB"))
 
 
 #: What Pillow raises on damaged, truncated or hostile image files: OSError

@@ -184,6 +184,8 @@ def course_score_odd_folders(folder: Path) -> list[str]:
         (folder / name).mkdir()
     write_image(folder / "ref" / "a01.png", rng.integers(0, 256, (20, 30, 3), np.uint8))
     write_image(folder / "small" / "a01.png", rng.integers(0, 256, (10, 30, 3), np.uint8))
+    (folder / "huge").mkdir()  # past the 89 million pixels where Pillow warns on stderr
+    write_image(folder / "huge" / "a01.png", np.zeros((9500, 9500, 3), np.uint8))
     (folder / "damaged").mkdir()
     (folder / "damaged" / "a01.png").write_bytes(b"\x89PNG\r\n\x1a\n broken")
     (folder / "empty").mkdir()
@@ -194,6 +196,7 @@ def course_score_odd_folders(folder: Path) -> list[str]:
         "reference missing": ([folder / "mine", "--reference", folder / "none"], "not a folder"),
         "reference empty": ([folder / "mine", "--reference", folder / "empty"], "no PNG images"),
         "an image of another size": ([folder / "small", "--reference", folder / "ref"], "10 pixels"),
+        "an image of 90 million pixels": ([folder / "huge", "--reference", folder / "ref"], "9500x9500 pixels"),
         "a damaged image": ([folder / "damaged", "--reference", folder / "ref"], "not a readable PNG"),
         "report not Markdown": ([folder / "mine", "--reference", folder / "ref", "--report", folder / "r.png"],
                                 "--report writes Markdown"),
