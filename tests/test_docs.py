@@ -421,7 +421,7 @@ def test_a_failed_write_leaves_the_old_page(tmp_path, monkeypatch):
         raise OSError(28, "No space left on device")
 
     monkeypatch.setattr(markdown.os, "replace", full_disk)
-    with pytest.raises(OSError):
+    with pytest.raises(markdown.OutputError, match=f"{page}: no space left on device$"):  # one line naming the page
         markdown.replace_section(page, "a", "new")
     assert page.read_text() == "<!-- a:start -->\nold\n<!-- a:end -->\n"
     assert [p.name for p in tmp_path.iterdir()] == ["page.md"]
