@@ -25,6 +25,11 @@ Per frame, on the (demodulated) colour ``c``, after our back projection
 6. **À-Trous levels** of SVGF on ``s`` (variance-guided luminance weight,
    normal weight ``max(0, n·n')^sigma_normal``, plane weight); level
    ``feedback_level``'s output is the next frame's slow history.
+7. **Wider where the history is short.** ``wide_levels`` more levels follow;
+   the output is ``lerp(wide, c_L, clip((n - 1) / wide_frames, 0, 1))`` with
+   ``c_L`` the last regular level's: a pixel just disoccluded or reset by the
+   anti-lag has one sample, and a footprint that averages more of its
+   surface, while one with a long history keeps its detail.
 
 Every continuous parameter reaches the kernels through :class:`FilterValues`:
 Python floats when denoising (constants in the kernels), or Dr.Jit Floats with
@@ -62,6 +67,7 @@ CONTINUOUS = {
     "fast_clip": (2.0, 0.0, 100.0),
     "antilag_gain": (2.0, 0.0, 1e3),
     "antilag_threshold": (0.25, 0.0, 10.0),
+    "wide_frames": (16.0, 1.0, 256.0),
 }
 
 
@@ -102,6 +108,8 @@ class ASVGFParams:
     - ``clip_width``: the slow history clipped to the fast box's mean ± this σ
     - ``fast_clip``: the fast history clipped to the current box's mean ± this σ
     - ``antilag_gain``, ``antilag_threshold``: ``λ = clip(gain (δ - threshold), 0, 1)``
+    - ``wide_frames``: up to this history length the wide levels' output is blended in
+    - ``wide_levels``: À-Trous levels after the regular ones, for short histories (0: none)
     - ``box_radius``: the current frame's box (statistics, gradient), (2r+1)²
     - ``clip_radius``: the fast history's box for the slow clip, (2r+1)²
     - ``variance_frames``: below this history length the variance is spatial
@@ -118,11 +126,13 @@ class ASVGFParams:
     fast_clip: float = _default("fast_clip")
     antilag_gain: float = _default("antilag_gain")
     antilag_threshold: float = _default("antilag_threshold")
+    wide_frames: float = _default("wide_frames")
     box_radius: int = 3
     clip_radius: int = 1
     variance_frames: int = 4
     spatial_radius: int = 3
     feedback_level: int = 0
+    wide_levels: int = 1
 
     def __post_init__(self):
         for name, (_, low, high) in CONTINUOUS.items():
@@ -130,7 +140,8 @@ class ASVGFParams:
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not (low <= value <= high):
                 raise UsageError(f"asvgf: {name} must be a number from {low:g} to {high:g}, got {value!r}")
         whole = {"levels": (1, 12), "box_radius": (1, 16), "clip_radius": (1, 16), "variance_frames": (1, 64),
-                 "spatial_radius": (1, 16), "feedback_level": (0, (self.levels or 12) - 1)}
+                 "spatial_radius": (1, 16), "feedback_level": (0, (self.levels or 12) - 1),
+                 "wide_levels": (0, 4)}
         for name, (low, high) in whole.items():
             value = getattr(self, name)
             if name == "levels" and value is None:
@@ -163,6 +174,7 @@ class FilterValues:
     fast_clip: object
     antilag_gain: object
     antilag_threshold: object
+    wide_frames: object
 
     @staticmethod
     def of(p: ASVGFParams) -> FilterValues:
@@ -232,9 +244,10 @@ def temporal_gradient(current_mean_y: mi.Float, history_mean_y: mi.Float, v: Fil
 
 
 def temporal_accumulation(frame: FrameArrays, history: ASVGFHistory | None, index: mi.UInt32 | None,
-                          valid: mi.Bool | None, p: ASVGFParams, v: FilterValues
+                          valid: mi.Bool | None, p: ASVGFParams, v: FilterValues, gradient: mi.Float | None = None
                           ) -> tuple[mi.Vector3f, mi.Vector3f, mi.Vector2f, mi.Float]:
-    """Steps 1-5 but the variance: (fast, slow, moments, length) of this frame."""
+    """Steps 1-5 but the variance: (fast, slow, moments, length) of this frame;
+    ``gradient``, where given, is λ per pixel instead of step 1's estimate."""
     c = frame.color
     lum = luminance(c)
     moments = mi.Vector2f(lum, lum * lum)
@@ -247,8 +260,11 @@ def temporal_accumulation(frame: FrameArrays, history: ASVGFHistory | None, inde
     previous_length = dr.gather(mi.Float, history.length, index, valid)
     valid = valid & dr.all(dr.isfinite(fast)) & dr.all(dr.isfinite(slow))
     fast = dr.select(valid, fast, c)
-    mean_f, _ = box_statistics(frame, to_ycocg(fast), p.box_radius)
-    lam = temporal_gradient(mean_c.x, mean_f.x, v)
+    if gradient is None:
+        mean_f, _ = box_statistics(frame, to_ycocg(fast), p.box_radius)
+        lam = temporal_gradient(mean_c.x, mean_f.x, v)
+    else:
+        lam = gradient
     length = dr.select(valid, dr.minimum(1.0 + previous_length * (1.0 - lam), v.slow_frames), 1.0)
     alpha = 1.0 / length
     fast = dr.lerp(clip_ycocg(to_ycocg(fast), mean_c, sigma_c, v.fast_clip), c,
@@ -325,13 +341,16 @@ def atrous_level(frame: FrameArrays, color: mi.Vector3f, var: mi.Float, step: in
 
 
 def asvgf(frame: FrameArrays, p: ASVGFParams, history: ASVGFHistory | None = None, index: mi.UInt32 | None = None,
-          valid: mi.Bool | None = None, values: FilterValues | None = None) -> tuple[mi.TensorXf, ASVGFHistory]:
+          valid: mi.Bool | None = None, values: FilterValues | None = None, gradient: mi.Float | None = None
+          ) -> tuple[mi.TensorXf, ASVGFHistory]:
     """One frame on ``frame.color``; ``index``/``valid`` are the back
     projection onto the frame that ``history`` belongs to. ``values``
-    overrides ``p``'s continuous parameters (Dr.Jit Floats to differentiate).
+    overrides ``p``'s continuous parameters (Dr.Jit Floats to differentiate);
+    ``gradient`` gives λ per pixel (from gradient samples, or from the ground
+    truth in :mod:`benchmarks.asvgf_bounds`) instead of step 1's estimate.
     Returns (the filtered colour, the history for the next frame)."""
     v = FilterValues.of(p) if values is None else values.widened(dr.width(frame.color))
-    fast, slow, moments, length = temporal_accumulation(frame, history, index, valid, p, v)
+    fast, slow, moments, length = temporal_accumulation(frame, history, index, valid, p, v, gradient)
     dr.eval(fast, slow, moments, length)
     var = variance(frame, moments, length, p, v)
     color, feedback = slow, slow
@@ -341,4 +360,10 @@ def asvgf(frame: FrameArrays, p: ASVGFParams, history: ASVGFHistory | None = Non
         dr.eval(color, var)
         if level == min(p.feedback_level, levels - 1):
             feedback = color
+    if p.wide_levels:
+        wide = color
+        for level in range(levels, levels + p.wide_levels):
+            wide, var = atrous_level(frame, wide, var, 1 << level, v)
+            dr.eval(wide, var)
+        color = dr.lerp(wide, color, dr.clip((length - 1.0) / v.wide_frames, 0.0, 1.0))
     return frame.tensor(color), ASVGFHistory(fast, feedback, moments, length)

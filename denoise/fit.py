@@ -225,7 +225,8 @@ def print_evaluation(folder: Path, switch: int) -> None:
         for name, (dimmed, undimmed) in evaluate(folder, at).items():
             rows = [("", dimmed)] if at is None else [(" (as dimmed)", dimmed), (" (/0.2)", undimmed)]
             for suffix, values in rows:
-                tail = (f"  mean>=4 {sum(values[4:]) / max(len(values) - 4, 1):.4f}  last {values[-1]:.4f}"
+                mean = f"  mean>=4 {sum(values[4:]) / (len(values) - 4):.4f}" if len(values) > 4 else ""
+                tail = (f"{mean}  last {values[-1]:.4f}"
                         + (f"  response {response(values, at)}" if at is not None else ""))
                 print(f"  {name + suffix:28s} " + " ".join(f"{v:.4f}" for v in values) + tail)
 
@@ -264,10 +265,18 @@ def _main(argv: list[str] | None) -> int:
     if not (0.0 < args.rate <= 10.0):
         raise UsageError(f"--rate must be in (0, 10], got {args.rate}")
 
+    if args.out.suffix.lower() != ".json":
+        raise UsageError(f"--out {args.out}: the parameter file is JSON; give a name ending in .json")
     if args.evaluate is not None:
         if not (args.evaluate / "beauty_0.exr").is_file():
             raise UsageError(f"{args.evaluate}: not an exported frame folder (no beauty_0.exr)")
-        check_switch_frame(args.switch_frame, len(frame_indices(args.evaluate)))
+        indices = frame_indices(args.evaluate)
+        truth = reference_folder(args.evaluate)
+        missing = [i for i in indices if not (truth / f"beauty_{i}.exr").is_file()]
+        if missing:
+            raise UsageError(f"{args.evaluate}: no ground truth for frame {missing[0]} "
+                             f"(no {truth / f'beauty_{missing[0]}.exr'}; python -m denoise.export renders it)")
+        check_switch_frame(args.switch_frame, len(indices))
         set_variant("llvm_ad_rgb", quiet=True)
         print_evaluation(args.evaluate, args.switch_frame)
         return 0

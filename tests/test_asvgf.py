@@ -126,7 +126,11 @@ def np_asvgf(c, n, x, p, history=None, index=None, valid=None):
         color, var = np_level(color, var, n, x, 1 << level, p)
         if level == p.feedback_level:
             feedback = color
-    return color, (fast, feedback, moments, length[..., None])
+    wide = color
+    for level in range(p.levels, p.levels + p.wide_levels):
+        wide, var = np_level(wide, var, n, x, 1 << level, p)
+    blend = np.clip((length - 1) / p.wide_frames, 0, 1)[..., None]
+    return wide + (color - wide) * blend, (fast, feedback, moments, length[..., None])
 
 
 # -- synthetic frames ---------------------------------------------------------------
@@ -284,3 +288,29 @@ def test_the_method_passes_its_options_to_the_filter(variant_vectorised_rgb):
     assert method.temporal and method.demodulate
     with pytest.raises(UsageError, match="--clip-width"):
         make("asvgf", clip_width=-1.0)
+
+
+@pytest.mark.parametrize("forget", [True, False])
+def test_a_given_gradient_replaces_the_estimate(variant_vectorised_rgb, forget):
+    """λ = 1 everywhere forgets the history (length 1, the slow history is the
+    frame); λ = 0 keeps all of it (length grows by one wherever valid), whatever
+    the frame and history look like."""
+    import mitsuba as mi
+
+    from denoise.asvgf import FilterValues, temporal_accumulation
+
+    p = params()
+    c, n, x = synthetic(1)
+    history, index, valid = random_history(2)
+    gradient = mi.Float(np.full(H * W, 1.0 if forget else 0.0, np.float32))
+    fast, slow, _, length = temporal_accumulation(frame_of(c, n, x), dr_history(history),
+                                                  mi.UInt32(index.astype(np.uint32)), mi.Bool(valid), p,
+                                                  FilterValues.of(p), gradient)
+    length = arrays(length, 1)
+    if forget:
+        assert np.allclose(length, 1.0)
+        assert close(arrays(slow, 3), c) < 1e-6
+    else:
+        previous = history[3].reshape(-1)[index].reshape(H, W)
+        expected = np.where(valid.reshape(H, W), np.minimum(previous + 1, p.slow_frames), 1.0)
+        assert np.allclose(length, expected, atol=1e-5)

@@ -10,9 +10,10 @@ from test_denoise import tensors
 
 #: the parameters checked, each where its gradient is not 0 on these frames (fast_frames below the
 #: history length of frame 2, so its cap is active; the anti-lag's λ = gain·δ inside (0, 1), away
-#: from its clip's kinks, which a finite difference straddles). AD and differences agree within 0.2 %.
+#: from its clip's kinks, which a finite difference straddles; wide_frames above the longest history,
+#: so the wide levels are blended in everywhere). AD and differences agree within 0.2 %.
 BASE = {"sigma_luminance": 4.0, "sigma_plane": 0.3, "fast_frames": 1.5, "clip_width": 0.8, "fast_clip": 1.5,
-        "antilag_gain": 0.8, "antilag_threshold": 0.0}
+        "antilag_gain": 0.8, "antilag_threshold": 0.0, "wide_frames": 4.0}
 
 
 def sequence():
@@ -78,6 +79,14 @@ def test_fit_refuses_bad_arguments(tmp_path, capsys):
         err = capsys.readouterr().err
         assert err.count("\n") == 1 and err.startswith("python -m denoise.fit: error:") and message in err
     assert not (tmp_path / "p.json").exists()
+    (tmp_path / "seq").mkdir()
+    (tmp_path / "seq" / "beauty_0.exr").write_bytes(b"")  # only looked for: refused before it is read
+    for argv, message in ((["--out", str(tmp_path / "p.txt")], "ending in .json"),
+                          (["--evaluate", str(tmp_path / "seq")], "no ground truth for frame 0")):
+        assert main(argv + ["--work", str(tmp_path)]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and message in err, err
+    assert not (tmp_path / "p.txt").exists()
 
 
 def test_diverging_step_is_refused(variant_vectorised_rgb):

@@ -136,9 +136,15 @@ def _notebook(path):
     write(nbformat.v4.new_notebook(cells=[nbformat.v4.new_markdown_cell("x" * 20000)]), path, "quick")
 
 
-def _json(path):
-    from benchmarks import write_json  # noqa: PLC0415  only this writer's check needs it
+def write_json(path, data):
+    """What benchmarks.write_json does (tests run benchmarks only by their commands)."""
+    from imaging.image_io import atomic_path  # noqa: PLC0415  only this writer's check needs it
 
+    with atomic_path(path, ".json") as tmp:
+        tmp.write_text(json.dumps(data, indent=2) + "\n")
+
+
+def _json(path):
     write_json(path, {"numbers": list(range(5000))})
 
 
@@ -149,8 +155,8 @@ def _section(path):
 
 
 #: The writers every benchmark's --json and --docs and notebooks.build call, by the file they write
-WRITERS = {"benchmarks.write_json": ("r.json", _json), "core.markdown.replace_section": ("page.md", _section),
-           "notebooks.build.write": ("n.ipynb", _notebook)}
+WRITERS = {"atomic_path (benchmarks.write_json)": ("r.json", _json),
+           "core.markdown.replace_section": ("page.md", _section), "notebooks.build.write": ("n.ipynb", _notebook)}
 
 
 @pytest.mark.parametrize("writer", WRITERS)
@@ -170,8 +176,6 @@ def test_each_shared_writer_on_a_full_disk(writer, capsys):
 
 def test_a_folder_where_a_json_file_goes_is_not_called_an_image(tmp_path, capsys):
     """The shared writer names what is in the way: a folder, not 'an image file' (a JSON here)."""
-    from benchmarks import write_json  # noqa: PLC0415  only this writer's check needs it
-
     (tmp_path / "r.json").mkdir()
     assert run("prog", lambda: write_json(tmp_path / "r.json", {})) == 2
     assert capsys.readouterr().err == f"prog: error: {tmp_path / 'r.json'}: is a folder, not a file\n"
