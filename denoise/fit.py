@@ -35,6 +35,8 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import multiprocessing
+import signal
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -47,10 +49,11 @@ from dataclasses import replace
 
 import numpy as np
 
-from core.entry import ArgumentParser, run
+from core.entry import ArgumentParser, hold_signals, run
 from core.errors import UsageError  # noqa: E402
 from core.numbers import ascii_float, ascii_int
 from imaging.image_io import atomic_path, read_exr_rgb
+from renderer.bands import GROUP_SIGNALS
 from renderer.variants import set_variant
 from validation.metrics import relmse
 
@@ -284,29 +287,79 @@ def _main(argv: list[str] | None) -> int:
     loaded = [(path, Spec.load(path)) for path in specs]  # all checked before any work
     check_switch_frame(args.switch_frame, min(spec.frames for _, spec in loaded))
     set_variant("llvm_ad_rgb", quiet=True)
+
+    targets = []
+    for path, spec in loaded:
+        targets.append(args.work / path.stem)
+        export(spec, targets[-1])
+    best, hand_set_loss = fit_interruptibly(targets, args.switch_frame, args.steps, args.rate, args.quiet)
+    write_parameters(args.out, best[1], best[0], hand_set_loss, specs)
+    if not args.quiet:
+        print(f"lowest loss {best[0]:.6f} (hand-set {hand_set_loss:.6f}); parameters written to {args.out}")
+    return 0
+
+
+def fit_steps(targets: list[Path], switch_frame: int, steps: int, rate: float, quiet: bool):
+    """The gradient steps on the exported ``targets``; returns ((lowest loss, its values), the hand-set loss)."""
     from .asvgf import ASVGFParams  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
 
     sequences = []
-    for path, spec in loaded:
-        target = args.work / path.stem
-        export(spec, target)
+    for target in targets:
         sequences.append(prepare(target))
-        sequences.append(prepare(target, scale_from=args.switch_frame))
-    params = ASVGFParams.hand_set()
-    fit = Fit(params, args.rate)
+        sequences.append(prepare(target, scale_from=switch_frame))
+    fit = Fit(ASVGFParams.hand_set(), rate)
     best, hand_set_loss = None, None
-    for step in range(args.steps):
+    for step in range(steps):
         values = fit.current()
         loss = fit.step(sequences)
         hand_set_loss = loss if hand_set_loss is None else hand_set_loss
         if best is None or loss < best[0]:
             best = (loss, values)
-        if not args.quiet:
+        if not quiet:
             print(f"step {step}: loss {loss:.6f}  " + " ".join(f"{k} {v:.4g}" for k, v in values.items()), flush=True)
-    write_parameters(args.out, best[1], best[0], hand_set_loss, specs)
-    if not args.quiet:
-        print(f"lowest loss {best[0]:.6f} (hand-set {hand_set_loss:.6f}); parameters written to {args.out}")
-    return 0
+    return best, hand_set_loss
+
+
+def fit_worker(connection, *arguments) -> None:
+    """:func:`fit_steps` in a worker process, started with GROUP_SIGNALS blocked
+    (the parent stops it); sends ("done", the result) or ("error", its line)."""
+    set_variant("llvm_ad_rgb", quiet=True)
+    try:
+        connection.send(("done", fit_steps(*arguments)))
+    except UsageError as error:
+        connection.send(("error", str(error)))
+
+
+def fit_interruptibly(targets: list[Path], switch_frame: int, steps: int, rate: float, quiet: bool):
+    """:func:`fit_steps` in a worker process that this one waits for: a step is
+    one native backward pass of up to minutes, which no signal interrupts, so
+    Ctrl-C and SIGTERM reach this process instead, which ends the worker."""
+    context = multiprocessing.get_context("spawn")  # no fork after Dr.Jit started its threads
+    receiver, sender = context.Pipe(duplex=False)
+    worker = context.Process(target=fit_worker, args=(sender, targets, switch_frame, steps, rate, quiet), daemon=True)
+    message = None
+    try:
+        with hold_signals():  # a signal waits until the worker exists, then ends it below
+            signal.pthread_sigmask(signal.SIG_BLOCK, GROUP_SIGNALS)  # what a terminal sends the group
+            try:
+                worker.start()
+            finally:
+                signal.pthread_sigmask(signal.SIG_UNBLOCK, GROUP_SIGNALS)
+        sender.close()
+        while worker.is_alive() and not receiver.poll(0.1):
+            pass
+        if receiver.poll():
+            message = receiver.recv()
+    finally:
+        if message is None and worker.is_alive():
+            worker.kill()
+        if worker.pid is not None:
+            worker.join()
+    if message is None:
+        raise UsageError(f"the fit's worker process stopped without a result (exit code {worker.exitcode})")
+    if message[0] == "error":
+        raise UsageError(message[1])
+    return message[1]
 
 
 def main(argv: list[str] | None = None) -> int:

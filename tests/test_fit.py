@@ -2,12 +2,22 @@
 from __future__ import annotations
 
 import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
 
 import numpy as np
 import pytest
 from test_asvgf import H, W, synthetic
 from test_denoise import tensors
 
+ROOT = Path(__file__).resolve().parent.parent
+#: a sequence that exports in seconds
+TINY = {"scene": "lamps", "frames": 3, "size": [32, 18], "spp": 1, "reference_spp": 8, "bounces": 1,
+        "camera": {"dolly": 0.5}}
 #: the parameters checked, each where its gradient is not 0 on these frames (fast_frames below the
 #: history length of frame 2, so its cap is active; the anti-lag's λ = gain·δ inside (0, 1), away
 #: from its clip's kinks, which a finite difference straddles; wide_frames above the longest history,
@@ -108,3 +118,39 @@ def test_parameter_file_round_trip(variant_vectorised_rgb, tmp_path):
     write_parameters(path, {"clip_width": 1.25, "sigma_plane": 0.2}, 0.1, 0.2, ["a.json"])
     assert load_parameter_file(path) == {"clip_width": 1.25, "sigma_plane": 0.2}
     assert json.loads(path.read_text())["hand_set_loss"] == 0.2
+
+
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+def test_a_signal_during_the_fit_stops_it_within_two_seconds(tmp_path, signum):
+    """A gradient step is one native call of up to minutes (its first one
+    compiles the kernels): the steps run in a worker process, which the
+    command ends on Ctrl-C or SIGTERM; one line, no parameter file, no process left."""
+    psutil = pytest.importorskip("psutil")
+    spec = tmp_path / "seq.json"
+    spec.write_text(json.dumps(TINY))
+    out = tmp_path / "p.json"
+    # its own session: the SIGINT to the group is what a terminal's Ctrl-C sends
+    fit = subprocess.Popen([sys.executable, "-m", "denoise.fit", str(spec), "--work", str(tmp_path / "fit"),
+                            "--steps", "1000", "--switch-frame", "1", "--out", str(out)], cwd=ROOT,
+                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    try:
+        deadline = time.monotonic() + 300
+        while not any("denoise" in " ".join(c.cmdline()) or "multiprocessing" in " ".join(c.cmdline())
+                      for c in psutil.Process(fit.pid).children()):
+            assert fit.poll() is None and time.monotonic() < deadline, fit.communicate()
+            time.sleep(0.05)
+        time.sleep(4.0)  # the worker imports, prepares the frames and compiles its first step
+        children = psutil.Process(fit.pid).children(recursive=True)
+        start = time.monotonic()
+        os.killpg(fit.pid, signum)
+        _, err = fit.communicate(timeout=120)
+        elapsed = time.monotonic() - start
+    finally:
+        if fit.poll() is None:
+            os.killpg(fit.pid, signal.SIGKILL)
+    assert fit.returncode == 128 + signum, err
+    assert elapsed < 2.0, elapsed
+    assert err.count("\n") == 1 and err.startswith("python -m denoise.fit: interrupted"), err
+    assert not out.exists()
+    _, alive = psutil.wait_procs(children, timeout=10)
+    assert not alive, alive
