@@ -6,7 +6,10 @@ on ``import numpy``. Each entry point calls :func:`use_project_python` first:
 when the project's packages are not importable here but ``./.venv`` (made by
 ``./dev setup``) exists, the process replaces itself with the same command
 run by ``./.venv/bin/python``; when there is no ``./.venv`` either, it prints
-one line saying to run ``./dev setup`` and exits 2.
+one line saying to run ``./dev setup`` and exits 2. It first installs
+:func:`core.start_up.exit_on_signals`: a Ctrl-C during the imports that
+follow (Dr.Jit's native start-up among them) then stops the command with one
+line, until ``core.entry.run`` takes over.
 
 Standard library only: it runs before anything else is importable.
 """
@@ -16,6 +19,8 @@ import importlib.util
 import os
 import sys
 from pathlib import Path
+
+from core.start_up import exit_on_signals
 
 ROOT = Path(__file__).resolve().parent.parent
 VENV = ROOT / ".venv"
@@ -38,6 +43,7 @@ def use_project_python(prog: str, module: str | None = None) -> None:
     ``module`` is the ``-m`` name (``"converters"``); ``None`` re-runs the
     script ``sys.argv[0]``. Arguments, working folder and environment stay.
     """
+    exit_on_signals(prog)
     missing = missing_packages()
     if not missing:
         return

@@ -118,3 +118,23 @@ def test_the_denoiser_stops_within_two_seconds(tmp_path, long_denoise_input, sig
     written = sorted(out.iterdir()) if out.exists() else []
     assert all(path.name.startswith("result_") and path.suffix == ".exr" for path in written), written
     assert len(written) < 8
+
+
+#: commands that run long enough to be stopped, started from their first instant
+STARTING = {"python -m denoise.live": ["-m", "denoise.live", "glossy_shadow", "--port", 0, "--size", 32, 18],
+            "python -m denoise": ["-m", "denoise", "{input}", "{out}", "--method", "bilateral", "--radius", 24]}
+
+
+@pytest.mark.parametrize("delay", [0.05, 0.3, 0.8, 1.5])
+@pytest.mark.parametrize("name", STARTING)
+def test_a_signal_during_a_commands_start_up_stops_it(tmp_path, long_denoise_input, name, delay):
+    """SIGINT at any instant of the imports (Dr.Jit's native start-up among
+    them) is 130 within 2 s and at most one line, never a traceback, a crash,
+    or a signal lost (a live server that goes on serving)."""
+    argv = [str(a).format(input=long_denoise_input, out=tmp_path / "out") for a in STARTING[name]]
+    result = interrupt(python(*argv), delay=delay, signum=signal.SIGINT, cwd=tmp_path)
+    assert result.running, f"{name} ended before the signal"
+    assert result.code == 130, result.stderr[-2000:]
+    assert result.seconds <= STOP_SECONDS
+    assert len(result.stderr.strip().splitlines()) <= 1 and "Traceback" not in result.stderr, result.stderr
+    assert result.left == []
