@@ -54,6 +54,7 @@ from core.errors import UsageError  # noqa: E402
 from core.numbers import ascii_float, ascii_int
 from imaging.image_io import atomic_path, read_exr_rgb
 from renderer.bands import GROUP_SIGNALS
+from renderer.checks import check_writable
 from renderer.variants import set_variant
 from validation.metrics import relmse
 
@@ -284,6 +285,7 @@ def _main(argv: list[str] | None) -> int:
         print_evaluation(args.evaluate, args.switch_frame)
         return 0
 
+    check_writable("--out", args.out)  # before minutes of fitting, not after
     loaded = [(path, Spec.load(path)) for path in specs]  # all checked before any work
     check_switch_frame(args.switch_frame, min(spec.frames for _, spec in loaded))
     set_variant("llvm_ad_rgb", quiet=True)

@@ -95,6 +95,10 @@ def test_specs_without_lights_keep_their_seeds():
     ({"0": {"scale": 0.2, "frames": [1, 2]}}, "lights.0.frames[1]: expected 0..1, found 2"),
     ({"0": {"scale": 0.2, "frames": [1, 1]}}, "lights.0.frames: expected a first frame before the last"),
     ({"0": {"scale": 0.2, "frames": [0.5, 1]}}, "lights.0.frames[0]: expected an integer"),
+    ({"0": {"scale": 0.5}, "00": {"scale": 2}}, "lights.00: expected a light index"),  # light 0 named twice
+    ({"0": {}}, "lights.0: changes nothing"),
+    ({"0": {"frames": [0, 1]}}, "lights.0: changes nothing"),
+    ({"0": {"translate": [1e308, 0, 0]}}, "lights.0.translate[0]: expected a finite number of magnitude at most"),
 ])
 def test_bad_light_changes_are_refused(lights, message):
     from denoise.export import Spec

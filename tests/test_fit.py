@@ -92,7 +92,8 @@ def test_fit_refuses_bad_arguments(tmp_path, capsys):
     (tmp_path / "seq").mkdir()
     (tmp_path / "seq" / "beauty_0.exr").write_bytes(b"")  # only looked for: refused before it is read
     for argv, message in ((["--out", str(tmp_path / "p.txt")], "ending in .json"),
-                          (["--evaluate", str(tmp_path / "seq")], "no ground truth for frame 0")):
+                          (["--evaluate", str(tmp_path / "seq")], "no ground truth for frame 0"),
+                          (["--out", str(tmp_path / "seq" / "beauty_0.exr" / "p.json")], "--out")):
         assert main(argv + ["--work", str(tmp_path)]) == 2
         err = capsys.readouterr().err
         assert err.count("\n") == 1 and message in err, err

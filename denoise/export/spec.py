@@ -27,6 +27,10 @@ def _key_in(source: str, key: str) -> str:
     return f"{source}: {key}" if source else key
 
 
+#: an object's or light's index as a key: one spelling per index ("00" and "01" would name 0 and 1 twice)
+INDEX = r"0|[1-9]\d{0,8}"
+
+
 def _int(value, name: str, source: str, low: int, high: int) -> int:
     if isinstance(value, bool) or not isinstance(value, int):
         raise SpecError(f"{_key_in(source, name)}: expected an integer, found {value!r}")
@@ -38,7 +42,8 @@ def _int(value, name: str, source: str, low: int, high: int) -> int:
 def _number(value, name: str, source: str) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) \
             or abs(value) > 1e30:
-        raise SpecError(f"{_key_in(source, name)}: expected a finite number, found {value!r}")
+        raise SpecError(f"{_key_in(source, name)}: expected a finite number of magnitude at most 1e30, "
+                        f"found {value!r}")
     return float(value)
 
 
@@ -173,7 +178,7 @@ class Spec:
             raise SpecError(f"{_key_in(source, 'objects')}: expected an object, found {self.objects!r}")
         for key, move in self.objects.items():
             name = f"objects.{key}"
-            if not re.fullmatch(r"\d{1,9}", str(key)):
+            if not re.fullmatch(INDEX, str(key)):
                 raise SpecError(f"{_key_in(source, name)}: expected an object index (0, 1, ...), found {key!r}")
             move = _keys(move, name, source, {"translate", "rotate"})
             if "translate" in move:
@@ -188,9 +193,11 @@ class Spec:
             raise SpecError(f"{_key_in(source, 'lights')}: expected an object, found {self.lights!r}")
         for key, change in self.lights.items():
             name = f"lights.{key}"
-            if not re.fullmatch(r"\d{1,9}", str(key)):
+            if not re.fullmatch(INDEX, str(key)):
                 raise SpecError(f"{_key_in(source, name)}: expected a light index (0, 1, ...), found {key!r}")
             change = _keys(change, name, source, {"translate", "rotate", "scale", "frames"})
+            if not set(change) - {"frames"}:
+                raise SpecError(f"{_key_in(source, name)}: changes nothing; give translate, rotate or scale")
             if "translate" in change:
                 _vector(change["translate"], f"{name}.translate", source)
             if "rotate" in change:
