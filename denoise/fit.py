@@ -9,8 +9,10 @@ them the benchmark's) are exported into ``--work`` once (a rerun renders
 nothing). Each step runs :func:`denoise.asvgf.asvgf` over every frame of
 every sequence in ``llvm_ad_rgb`` with gradients enabled on the continuous
 parameters (the edge-stopping sigmas, the history lengths, both clip widths,
-the anti-lag gain and threshold), the history carried from frame to frame,
-so ``dr.backward`` differentiates the whole temporal and spatial pipeline.
+the anti-lag gain and threshold, the wide level's history length), the
+history carried from frame to frame, so ``dr.backward`` differentiates the
+whole temporal and spatial pipeline. The steps run in a worker process: one
+step is one native call, and Ctrl-C or SIGTERM must not wait for it.
 The loss is the relMSE of every frame against its ground truth, averaged.
 Each sequence also enters a second time with a light switch: beauty and
 ground truth of frames >= ``--switch-frame`` scaled by 0.2, a light dimming
