@@ -261,8 +261,17 @@ def check_switch_frame(frame: int, frames: int) -> None:
                          f"got {frame}")
 
 
+#: the options of a fit, which --evaluate (it fits nothing) does not take
+FIT_ONLY = {"specs": "SPEC.json", "work": "--work", "steps": "--steps", "rate": "--rate", "out": "--out"}
+
+
 def _main(argv: list[str] | None) -> int:
     args = _parser().parse_args(argv)
+    if args.evaluate is not None:
+        defaults = _parser().parse_args([])
+        given = [flag for name, flag in FIT_ONLY.items() if getattr(args, name) != getattr(defaults, name)]
+        if given:
+            raise UsageError(f"--evaluate fits nothing: {given[0]} does not apply to it")
     specs = args.specs or TRAINING
     if not specs:
         raise UsageError("no training sequences (scenes/sequences/training/*.json is empty)")

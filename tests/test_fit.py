@@ -85,7 +85,8 @@ def test_fit_refuses_bad_arguments(tmp_path, capsys):
                           (["--evaluate", str(tmp_path)], "not an exported frame folder"),
                           (["--switch-frame", "99"], "--switch-frame must be from 1 to 7"),
                           (["--switch-frame", "0"], "--switch-frame must be from 1 to 7")):
-        assert main(argv + ["--work", str(tmp_path), "--out", str(tmp_path / "p.json")]) == 2
+        fitting = [] if "--evaluate" in argv else ["--work", str(tmp_path), "--out", str(tmp_path / "p.json")]
+        assert main(argv + fitting) == 2
         err = capsys.readouterr().err
         assert err.count("\n") == 1 and err.startswith("python -m denoise.fit: error:") and message in err
     assert not (tmp_path / "p.json").exists()
@@ -93,8 +94,9 @@ def test_fit_refuses_bad_arguments(tmp_path, capsys):
     (tmp_path / "seq" / "beauty_0.exr").write_bytes(b"")  # only looked for: refused before it is read
     for argv, message in ((["--out", str(tmp_path / "p.txt")], "ending in .json"),
                           (["--evaluate", str(tmp_path / "seq")], "no ground truth for frame 0"),
-                          (["--out", str(tmp_path / "seq" / "beauty_0.exr" / "p.json")], "--out")):
-        assert main(argv + ["--work", str(tmp_path)]) == 2
+                          (["--out", str(tmp_path / "seq" / "beauty_0.exr" / "p.json")], "--out"),
+                          (["--evaluate", str(tmp_path / "seq"), "--steps", "3"], "--steps does not apply")):
+        assert main(argv + ([] if "--evaluate" in argv else ["--work", str(tmp_path)])) == 2
         err = capsys.readouterr().err
         assert err.count("\n") == 1 and message in err, err
     assert not (tmp_path / "p.txt").exists()
