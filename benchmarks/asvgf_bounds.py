@@ -49,6 +49,7 @@ from denoise.filters import demodulate, remodulate
 from denoise.fit import prepare
 from denoise.frames import frame_indices, read_frame
 from denoise.methods import from_name
+from denoise.methods.asvgf import fitted
 from renderer.variants import set_variant
 from validation.metrics import relmse
 
@@ -58,7 +59,7 @@ PROG = "python -m benchmarks.asvgf_bounds"
 #: the exact λ: a relative change of the truth's 3x3 mean above the threshold forgets the history
 ORACLE_GAIN = 10.0
 ORACLE_THRESHOLD = 0.02
-#: a clip this wide never acts (the widest ASVGFParams allows)
+#: a clip this wide never acts (the widest asvgf declares)
 NO_CLIP = 100.0
 #: with the exact λ deciding what to forget, the history may be long: the cap is then this
 LONG_HISTORY = 32.0
@@ -101,7 +102,7 @@ def run_baseline(folder: Path, frames) -> list[float]:
 def measure(folder: Path) -> dict[str, float]:
     """Mean relMSE over frames >= QUALITY_FROM of the baseline and each variant."""
     frames = prepare(folder)
-    shipped = ASVGFParams()
+    shipped = fitted()
     unclipped = replace(shipped, clip_width=NO_CLIP, fast_clip=NO_CLIP, slow_frames=LONG_HISTORY)
     per_frame = {BASELINE: run_baseline(folder, frames), "asvgf": run_asvgf(frames, shipped, False),
                  "asvgf, exact λ": run_asvgf(frames, shipped, True),

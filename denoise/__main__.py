@@ -23,7 +23,7 @@ from imaging.colour import side_by_side, tone_map
 from imaging.image_io import read_exr_rgb, write_image, write_video
 from renderer.variants import set_variant
 
-from .methods import METHODS, DenoisingMethod, Option, configured
+from .methods import METHODS, Option, declared_options, make
 from .methods.base import RADIANCE_LIMIT
 from .pipeline import denoise_folder
 
@@ -44,25 +44,11 @@ def methods_help() -> str:
     return "\n".join(lines) + "\n\n" + EXAMPLES
 
 
-def _shown(value) -> str:
+def _shown(option: Option) -> str:
+    if option.default_text is not None:
+        return option.default_text
+    value = option.default
     return f"{value:g}" if isinstance(value, float) else str(value)
-
-
-def declared_options() -> dict[str, tuple[Option, list[tuple[str, object]]]]:
-    """Every option of the registered methods by flag, the common ones first:
-    (its declaration, [(method name, its default)]). Methods that share a flag
-    must declare it alike, defaults apart."""
-    declared: dict[str, tuple[Option, list]] = {}
-    for option in DenoisingMethod.common_options:
-        declared[option.flag] = (option, [])
-    for name, cls in METHODS.items():
-        for option in cls.options:
-            first, users = declared.setdefault(option.flag, (option, []))
-            if (first.key, first.kind, first.help, first.group, first.action, first.choices) != (
-                    option.key, option.kind, option.help, option.group, option.action, option.choices):
-                raise TypeError(f"{cls.__name__}: {option.flag} is declared differently by another method")
-            users.append((name, option.default_text or _shown(option.default)))
-    return declared
 
 
 def check_options_apply(method: str, given: dict) -> None:
@@ -70,6 +56,9 @@ def check_options_apply(method: str, given: dict) -> None:
     atrous), which would otherwise change nothing, silently."""
     own = {option.key for option in METHODS[method].all_options()}
     for flag, (option, users) in declared_options().items():
+        if option.key in given:  # a value out of range is that first, whichever method declares it
+            declaration, name = next(((o, n) for n, o in users if n == method), (users or [(method, option)])[0][::-1])
+            declaration.check(given[option.key], name)
         if option.key in given and option.key not in own:
             raise UsageError(f"{flag} is an option of {', '.join(name for name, _ in users)}, not of {method} "
                              f"(add --method {users[0][0]}, or leave {flag} out)")
@@ -86,10 +75,17 @@ def add_method_options(parser: argparse.ArgumentParser) -> set[str]:
             methods += [name for name, _ in users if name not in methods]
     titled = {group: parser.add_argument_group(f"{group} ({', '.join(methods)})") for group, methods in groups.items()}
     for flag, (option, users) in declared.items():
-        help_text = option.help
+        help_text = option.help + (f", in {option.unit}" if option.unit else "")
+        ranges: dict[str, list[str]] = {}
+        for name, declaration in users or [("", option)]:
+            if declaration.kind in (int, float) and declaration.choices is None:
+                ranges.setdefault(declaration.range_text(), []).append(name)
+        if ranges:
+            help_text += ": " + "; ".join(text + (f" for {', '.join(names)}" if len(ranges) > 1 else "")
+                                          for text, names in ranges.items())
         defaults: dict[str, list[str]] = {}
-        for name, shown in users:
-            defaults.setdefault(shown, []).append(name)
+        for name, declaration in users:
+            defaults.setdefault(_shown(declaration), []).append(name)
         if len(defaults) == 1:
             help_text += f" (default {next(iter(defaults))})"
         elif defaults:
@@ -99,7 +95,7 @@ def add_method_options(parser: argparse.ArgumentParser) -> set[str]:
         if option.action is not None:
             where.add_argument(flag, dest=option.key, action=option.action, default=argparse.SUPPRESS, help=help_text)
         else:
-            where.add_argument(flag, dest=option.key, type=option.kind, choices=option.choices,
+            where.add_argument(flag, dest=option.key, type=option.parse, choices=option.choices,
                                metavar=option.metavar, default=argparse.SUPPRESS, help=help_text)
     return {option.key for option, _ in declared.values()}
 
@@ -127,8 +123,8 @@ def _main(argv: list[str] | None) -> int:
     args = parser.parse_args(argv)
     # every parameter checked before any work
     given = {k: v for k, v in vars(args).items() if k in keys}
-    method = configured(args.method, given)
     check_options_apply(args.method, given)
+    method = make(args.method, **given)  # each parameter checked against its declaration
     if args.fps < 1 or args.fps > 240:
         raise UsageError(f"--fps must be from 1 to 240, got {args.fps}")
     if args.reference is not None and args.video is None:

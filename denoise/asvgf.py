@@ -23,7 +23,7 @@ Per frame, on the (demodulated) colour ``c``, after our back projection
    spatial estimate (:func:`denoise.svgf.estimate_variance`), boosted by
    ``variance_frames / n``.
 6. **À-Trous levels** of SVGF on ``s`` (variance-guided luminance weight,
-   normal weight ``max(0, n·n')^sigma_normal``, plane weight); level
+   normal weight ``max(0, n·n')^normal_exponent``, plane weight); level
    ``feedback_level``'s output is the next frame's slow history.
 7. **Wider where the history is short.** ``wide_levels`` more levels follow;
    the output is ``lerp(wide, c_L, clip((n - 1) / wide_frames, 0, 1))`` with
@@ -34,14 +34,12 @@ Per frame, on the (demodulated) colour ``c``, after our back projection
 Every continuous parameter reaches the kernels through :class:`FilterValues`:
 Python floats when denoising (constants in the kernels), or Dr.Jit Floats with
 gradients enabled when :mod:`denoise.fit` differentiates the whole sequence.
-The fitted values, ``asvgf_params.json`` beside this module, are the defaults
-of :class:`ASVGFParams`; :meth:`ASVGFParams.hand_set` gives the values set by hand.
+The fitted values, ``asvgf_params.json`` beside this module, are the method's
+defaults (:mod:`denoise.methods.asvgf`, which declares each parameter).
 """
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, fields, replace
-from pathlib import Path
 
 import drjit as dr
 import mitsuba as mi
@@ -51,57 +49,20 @@ from core.errors import UsageError
 from .filters import B3, FrameArrays, clamp_box, luminance, neg_exp, plane_distance_sq
 from .svgf import EPSILON, GAUSS3, SVGFParams, estimate_variance, levels_for, normal_power
 
-#: the fitted parameters (written by ``python -m denoise.fit``), the defaults of ASVGFParams
-PARAMETER_FILE = Path(__file__).with_name("asvgf_params.json")
 #: added to the luminance in the temporal gradient's denominator: dark noise is not a change
 GRADIENT_FLOOR = 1e-2
-
-#: the continuous parameters as set by hand: (value, lowest, highest)
-CONTINUOUS = {
-    "sigma_luminance": (4.0, 1e-3, 1e3),
-    "sigma_normal": (128.0, 1e-3, 1e4),  # exponent of max(0, n·n')
-    "sigma_plane": (0.1, 1e-4, 1e3),
-    "slow_frames": (16.0, 1.0, 256.0),
-    "fast_frames": (3.0, 1.0, 256.0),
-    "clip_width": (1.0, 0.0, 100.0),
-    "fast_clip": (2.0, 0.0, 100.0),
-    "antilag_gain": (2.0, 0.0, 1e3),
-    "antilag_threshold": (0.25, 0.0, 10.0),
-    "wide_frames": (16.0, 1.0, 256.0),
-}
-
-
-def load_parameter_file(path: Path = PARAMETER_FILE) -> dict[str, float]:
-    """The fitted continuous parameters of ``path`` (``{}`` where there is no
-    file); a damaged file or an unknown key is a one-line :class:`UsageError`."""
-    if not path.is_file():
-        return {}
-    try:
-        data = json.loads(path.read_text())
-    except (OSError, ValueError) as error:
-        raise UsageError(f"{path}: not a JSON parameter file ({error})") from None
-    values = data.get("parameters") if isinstance(data, dict) else None
-    if not isinstance(values, dict) or set(values) - set(CONTINUOUS):
-        raise UsageError(f"{path}: expected {{\"parameters\": {{NAME: number}}}} with names from "
-                         f"{', '.join(CONTINUOUS)}")
-    return {name: float(value) for name, value in values.items()}
-
-
-FITTED = load_parameter_file()
-
-
-def _default(name: str) -> float:
-    return FITTED.get(name, CONTINUOUS[name][0])
 
 
 @dataclass(frozen=True)
 class ASVGFParams:
-    """The filter's parameters (see the module's steps); continuous ones
-    default to ``asvgf_params.json``, else the hand-set values.
+    """The filter's parameters (see the module's steps). The continuous ones
+    (the fields of :class:`FilterValues`) and ``levels`` are the method's
+    options: :mod:`denoise.methods.asvgf` declares them, with their ranges, the
+    hand-set values and the fitted ones (``asvgf_params.json``).
 
     - ``levels``: À-Trous levels (None: :func:`denoise.svgf.levels_for` the width)
     - ``sigma_luminance``: scale of the variance-guided luminance weight
-    - ``sigma_normal``: exponent of the normal weight ``max(0, n·n')``
+    - ``normal_exponent``: exponent of the normal weight ``max(0, n·n')``
     - ``sigma_plane``: σ of the plane-distance weight
     - ``slow_frames``: cap of the history length (the slow history's 1/α)
     - ``fast_frames``: the fast history's 1/α
@@ -116,17 +77,17 @@ class ASVGFParams:
     - ``spatial_radius``: the spatial variance's window, (2r+1)²
     - ``feedback_level``: the level whose output is the next slow history
     """
+    sigma_luminance: float
+    normal_exponent: float
+    sigma_plane: float
+    slow_frames: float
+    fast_frames: float
+    clip_width: float
+    fast_clip: float
+    antilag_gain: float
+    antilag_threshold: float
+    wide_frames: float
     levels: int | None = None
-    sigma_luminance: float = _default("sigma_luminance")
-    sigma_normal: float = _default("sigma_normal")
-    sigma_plane: float = _default("sigma_plane")
-    slow_frames: float = _default("slow_frames")
-    fast_frames: float = _default("fast_frames")
-    clip_width: float = _default("clip_width")
-    fast_clip: float = _default("fast_clip")
-    antilag_gain: float = _default("antilag_gain")
-    antilag_threshold: float = _default("antilag_threshold")
-    wide_frames: float = _default("wide_frames")
     box_radius: int = 3
     clip_radius: int = 1
     variance_frames: int = 4
@@ -135,27 +96,15 @@ class ASVGFParams:
     wide_levels: int = 1
 
     def __post_init__(self):
-        for name, (_, low, high) in CONTINUOUS.items():
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not (low <= value <= high):
-                raise UsageError(f"asvgf: {name} must be a number from {low:g} to {high:g}, got {value!r}")
-        whole = {"levels": (1, 12), "box_radius": (1, 16), "clip_radius": (1, 16), "variance_frames": (1, 64),
-                 "spatial_radius": (1, 16), "feedback_level": (0, (self.levels or 12) - 1),
-                 "wide_levels": (0, 4)}
+        whole = {"box_radius": (1, 16), "clip_radius": (1, 16), "variance_frames": (1, 64),
+                 "spatial_radius": (1, 16), "feedback_level": (0, (self.levels or 12) - 1), "wide_levels": (0, 4)}
         for name, (low, high) in whole.items():
             value = getattr(self, name)
-            if name == "levels" and value is None:
-                continue
             if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
                 raise UsageError(f"asvgf: {name} must be a whole number from {low} to {high}, got {value!r}")
 
-    @staticmethod
-    def hand_set(**changes) -> ASVGFParams:
-        """The parameters set by hand, whatever the parameter file says."""
-        return ASVGFParams(**{**{name: value for name, (value, _, _) in CONTINUOUS.items()}, **changes})
-
     def continuous(self) -> dict[str, float]:
-        return {name: getattr(self, name) for name in CONTINUOUS}
+        return {f.name: getattr(self, f.name) for f in fields(FilterValues)}
 
     def with_values(self, values: dict[str, float]) -> ASVGFParams:
         return replace(self, **values)
@@ -166,7 +115,7 @@ class FilterValues:
     """The continuous parameters as the kernels take them: Python floats, or
     Dr.Jit Floats (one lane each) whose gradients :mod:`denoise.fit` tracks."""
     sigma_luminance: object
-    sigma_normal: object
+    normal_exponent: object
     sigma_plane: object
     slow_frames: object
     fast_frames: object
@@ -332,7 +281,7 @@ def atrous_level(frame: FrameArrays, color: mi.Vector3f, var: mi.Float, step: in
             n_q, x_q = frame.gather_guides(x, y)
             log_w = (dr.abs(lum_p - luminance(c_q)) * scale
                      - plane_distance_sq(frame.normal, frame.position, x_q) * k_plane)
-            w = hx * hy * normal_weight(dr.dot(frame.normal, n_q), v.sigma_normal) * neg_exp(-log_w)
+            w = hx * hy * normal_weight(dr.dot(frame.normal, n_q), v.normal_exponent) * neg_exp(-log_w)
             w = dr.select(inside, w, 0.0)
             total += w * c_q
             weights += w

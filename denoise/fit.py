@@ -19,7 +19,7 @@ ground truth of frames >= ``--switch-frame`` scaled by 0.2, a light dimming
 to 20 % in one frame (what the anti-lag is for).
 
 Parameters are fitted as logarithms with Adam (``mi.ad.Adam``) and kept inside
-the ranges :class:`denoise.asvgf.ASVGFParams` allows; the loss per step is
+the ranges asvgf's options declare (:mod:`denoise.methods.asvgf`); the loss per step is
 printed (not with ``--quiet``). A step whose loss is not finite stops the fit
 with one line and exit 2, the parameter file left as it was; otherwise the
 parameters of the lowest loss are written to ``--out``
@@ -151,9 +151,10 @@ class Fit:
         import drjit as dr  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
         import mitsuba as mi  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
 
-        from .asvgf import CONTINUOUS  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
+        from .methods.asvgf import FITTED_OPTIONS  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
 
-        self.params, self.ranges = params, CONTINUOUS
+        # the parameter vector, its names and bounds: asvgf's declarations of what is fitted
+        self.params, self.ranges = params, {o.key: (o.low, o.high) for o in FITTED_OPTIONS}
         self.optimizer = mi.ad.Adam(lr=rate)
         for name, value in params.continuous().items():
             # a clip width or threshold of 0 has no logarithm: fit from a tiny value instead
@@ -166,7 +167,7 @@ class Fit:
 
         dr = self.dr
         return FilterValues(**{name: dr.clip(dr.exp(self.optimizer[name]), max(low, 1e-6), high)
-                               for name, (_, low, high) in self.ranges.items()})
+                               for name, (low, high) in self.ranges.items()})
 
     def step(self, sequences) -> float:
         """One gradient step; returns the loss before it."""
@@ -200,8 +201,8 @@ def write_parameters(path: Path, values: dict[str, float], loss: float, hand_set
 
 def evaluate(folder: Path, switch: int | None) -> dict[str, tuple[list[float], list[float]]]:
     """Per method: (relMSE per frame as rendered or dimmed, relMSE of the images divided by the dimming)."""
-    from .asvgf import ASVGFParams  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
     from .methods import from_name  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
+    from .methods.asvgf import fitted, hand_set  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
 
     indices = frame_indices(folder)
     factors = [SWITCH_SCALE if switch is not None and i >= switch else 1.0 for i in indices]
@@ -210,7 +211,7 @@ def evaluate(folder: Path, switch: int | None) -> dict[str, tuple[list[float], l
     outputs = {"svgf": [denoiser.step(replace(frame, beauty=frame.beauty * f))
                         for frame, f in zip((read_frame(folder, i) for i in indices), factors)]}
     frames = prepare(folder, switch)
-    for name, params in (("asvgf hand-set", ASVGFParams.hand_set()), ("asvgf fitted", ASVGFParams())):
+    for name, params in (("asvgf hand-set", hand_set()), ("asvgf fitted", fitted())):
         outputs[name] = [np.array(r) for r in run_sequence(frames, params)]
     return {name: ([relmse(o, t) for o, t in zip(images, truth)],
                    [relmse(o / f, t / f) for o, t, f in zip(images, truth, factors)])
@@ -314,13 +315,13 @@ def _main(argv: list[str] | None) -> int:
 
 def fit_steps(targets: list[Path], switch_frame: int, steps: int, rate: float, quiet: bool):
     """The gradient steps on the exported ``targets``; returns ((lowest loss, its values), the hand-set loss)."""
-    from .asvgf import ASVGFParams  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
+    from .methods.asvgf import hand_set  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
 
     sequences = []
     for target in targets:
         sequences.append(prepare(target))
         sequences.append(prepare(target, scale_from=switch_frame))
-    fit = Fit(ASVGFParams.hand_set(), rate)
+    fit = Fit(hand_set(), rate)
     best, hand_set_loss = None, None
     for step in range(steps):
         values = fit.current()

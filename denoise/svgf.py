@@ -15,7 +15,7 @@ Per frame, on the (demodulated) colour ``c`` with luminance ``l``:
    the paper's footprint, 5 levels or ±62 pixels at 1280 pixels wide, the
    same fraction of the image: see :func:`levels_for`), each tap weighted by
    ``exp(-|l_p - l_q| / (sigma_luminance · sqrt(g(var)_p) + ε))`` (``g``: the
-   3x3 Gaussian blur of the variance), ``max(0, n_p·n_q)^sigma_normal`` and the
+   3x3 Gaussian blur of the variance), ``max(0, n_p·n_q)^normal_exponent`` and the
    assignment's plane weight ``exp(-(n_p · (x_q - x_p)/|x_q - x_p|)² / (2 sigma_plane²))``;
    the variance is filtered along with weights squared.
 4. The first level's output is the next frame's colour history.
@@ -50,10 +50,12 @@ EPSILON = 1e-10
 
 @dataclass(frozen=True)
 class SVGFParams:
-    """SVGF's parameters: the paper's, except ``alpha_color`` and ``levels`` (see there)."""
+    """SVGF's parameters: the paper's, except ``alpha_color`` and ``levels`` (see there).
+    ``levels``, ``sigma_luminance`` and ``normal_exponent`` are the method's
+    options (:class:`denoise.methods.svgf.SVGF` declares and checks them)."""
     levels: int | None = None  # None: levels_for(width), the paper's 5 at 1280 pixels wide
     sigma_luminance: float = 4.0
-    sigma_normal: float = 128.0  # exponent of max(0, n·n')
+    normal_exponent: float = 128.0  # exponent of max(0, n·n')
     sigma_plane: float = 0.1
     # the current frame's weight in the colour history: 0.3, not the paper's 0.2, because
     # our sequences move several pixels per frame and a moving shadow's history goes stale
@@ -65,10 +67,7 @@ class SVGFParams:
     feedback_level: int = 0  # the level whose output becomes the next frame's history
 
     def __post_init__(self):
-        if self.levels is not None:
-            check_whole("svgf", "levels", self.levels, 1, 12)
-        check_positive("svgf", sigma_luminance=self.sigma_luminance, sigma_normal=self.sigma_normal,
-                       sigma_plane=self.sigma_plane)
+        check_positive("svgf", sigma_plane=self.sigma_plane)
         for name in ("alpha_color", "alpha_moments"):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and 0.0 < value <= 1.0):
@@ -160,7 +159,7 @@ def estimate_variance(frame: FrameArrays, moments: mi.Vector2f, length: mi.Float
                 w = mi.Float(1.0)
             else:
                 n_q, x_q = frame.gather_guides(x, y)
-                w = normal_power(dr.dot(normal, n_q), p.sigma_normal) * neg_exp(
+                w = normal_power(dr.dot(normal, n_q), p.normal_exponent) * neg_exp(
                     plane_log_weight(k_plane, normal, position, x_q))
                 w = dr.select(inside, w, 0.0)
             total += w * m
@@ -208,7 +207,7 @@ def atrous_level(frame: FrameArrays, color: mi.Vector3f, variance: mi.Float, ste
             n_q, x_q = frame.gather_guides(x, y)
             log_w = dr.abs(lum_p - luminance(c_q)) * scale - plane_log_weight(
                 k_plane, frame.normal, frame.position, x_q)
-            w = hx * hy * normal_power(dr.dot(frame.normal, n_q), p.sigma_normal) * neg_exp(-log_w)
+            w = hx * hy * normal_power(dr.dot(frame.normal, n_q), p.normal_exponent) * neg_exp(-log_w)
             w = dr.select(inside, w, 0.0)
             total += w * c_q
             weights += w

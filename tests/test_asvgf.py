@@ -108,7 +108,7 @@ def np_level(c, var, n, x, step, p):
             else:
                 nj, _ = shifted(n, dx, dy)
                 xj, _ = shifted(x, dx, dy)
-                wt = (B3[i] * B3[j] * np.maximum((n * nj).sum(-1), 0) ** p.sigma_normal
+                wt = (B3[i] * B3[j] * np.maximum((n * nj).sum(-1), 0) ** p.normal_exponent
                       * np.exp(-np.abs(lp - cj @ LUM) * scale - np_plane(n, x, xj) / (2 * p.sigma_plane ** 2)))
                 wt = np.where(inside, wt, 0)
             tc += wt[..., None] * cj
@@ -177,9 +177,9 @@ def arrays(v, channels):
 
 
 def params(**changes):
-    from denoise.asvgf import ASVGFParams
+    from denoise.methods.asvgf import hand_set
 
-    return ASVGFParams.hand_set(**{"levels": 2, "box_radius": 2, "clip_radius": 1, **changes})
+    return hand_set(**{"levels": 2, "box_radius": 2, "clip_radius": 1, **changes})
 
 
 def frame_of(c, n, x):
@@ -230,7 +230,7 @@ def test_atrous_level_matches_numpy(variant_vectorised_rgb, step):
 
     from denoise.asvgf import FilterValues, atrous_level
 
-    p = params(sigma_normal=20.0)  # not a power of two: dr.power's path
+    p = params(normal_exponent=20.0)  # not a power of two: dr.power's path
     c, n, x = synthetic(5)
     var = np.random.default_rng(6).uniform(0.01, 0.5, (H, W))
     frame = frame_of(c, n, x)
@@ -262,29 +262,35 @@ def test_whole_frames_match_numpy(variant_vectorised_rgb):
 
 def test_parameters_are_checked_and_read_from_the_file(variant_vectorised_rgb, tmp_path):
     from core.errors import UsageError
-    from denoise.asvgf import CONTINUOUS, ASVGFParams, load_parameter_file
+    from denoise.methods import make
+    from denoise.methods.asvgf import FITTED_OPTIONS, hand_set, load_parameter_file
 
-    for bad in ({"clip_width": -1.0}, {"slow_frames": float("nan")}, {"box_radius": 0}, {"levels": 2.5},
-                {"fast_frames": True}):
-        with pytest.raises(UsageError, match=next(iter(bad))):
-            ASVGFParams(**bad)
+    for bad in ({"clip_width": -1.0}, {"slow_frames": float("nan")}, {"levels": 2.5}, {"fast_frames": True}):
+        flag = "--" + next(iter(bad)).replace("_", "-")
+        with pytest.raises(UsageError, match=f"asvgf: {flag} must be"):
+            make("asvgf", **bad)
+    with pytest.raises(UsageError, match="box_radius"):
+        hand_set(box_radius=0)  # the kernel's own, which no option declares
     path = tmp_path / "p.json"
     path.write_text(json.dumps({"parameters": {"clip_width": 1.7}}))
     assert load_parameter_file(path) == {"clip_width": 1.7}
-    path.write_text(json.dumps({"parameters": {"clip": 1.7}}))
-    with pytest.raises(UsageError, match="p.json"):
-        load_parameter_file(path)
-    assert ASVGFParams.hand_set().continuous() == {k: v for k, (v, _, _) in CONTINUOUS.items()}
+    for damaged in (json.dumps({"parameters": {"clip": 1.7}}), json.dumps({"parameters": {"clip_width": "x"}}),
+                    json.dumps({"parameters": {"clip_width": 1e9}}), "{", "[" * 100000):
+        path.write_text(damaged)
+        with pytest.raises(UsageError, match="p.json") as error:
+            load_parameter_file(path)
+        assert "\n" not in str(error.value)
+    assert hand_set().continuous() == {o.key: o.default for o in FITTED_OPTIONS}
 
 
 def test_the_method_passes_its_options_to_the_filter(variant_vectorised_rgb):
     """``python -m denoise --method asvgf``'s options reach ASVGFParams; a bad one names the option."""
     from core.errors import UsageError
-    from denoise.asvgf import ASVGFParams
     from denoise.methods import make
+    from denoise.methods.asvgf import fitted
 
     method = make("asvgf", clip_width=2.5, slow_frames=8.0, normal_exponent=32.0, levels=2)
-    assert method.params == replace(ASVGFParams(), clip_width=2.5, slow_frames=8.0, sigma_normal=32.0, levels=2)
+    assert method.params == replace(fitted(), clip_width=2.5, slow_frames=8.0, normal_exponent=32.0, levels=2)
     assert method.temporal and method.demodulate
     with pytest.raises(UsageError, match="--clip-width"):
         make("asvgf", clip_width=-1.0)
@@ -314,3 +320,26 @@ def test_a_given_gradient_replaces_the_estimate(variant_vectorised_rgb, forget):
         previous = history[3].reshape(-1)[index].reshape(H, W)
         expected = np.where(valid.reshape(H, W), np.minimum(previous + 1, p.slow_frames), 1.0)
         assert np.allclose(length, expected, atol=1e-5)
+
+
+def test_a_damaged_parameter_file_breaks_asvgf_only(monkeypatch, tmp_path, capsys):
+    """The parameter file is read when asvgf is made, not at import: with it
+    damaged, svgf runs, the live page lists asvgf's sliders, and asvgf is one
+    line naming the file."""
+    from core.errors import UsageError
+    from denoise.__main__ import main
+    from denoise.live.methods import sliders_of
+    from denoise.methods import asvgf as method_module, make
+
+    damaged = tmp_path / "asvgf_params.json"
+    damaged.write_text("{\"parameters\": ")
+    monkeypatch.setattr(method_module, "PARAMETER_FILE", damaged)
+    make("svgf")
+    assert sliders_of("asvgf")
+    with pytest.raises(UsageError, match="asvgf_params.json: not a JSON parameter file") as error:
+        make("asvgf")
+    assert "\n" not in str(error.value)
+    assert main([str(tmp_path), str(tmp_path / "out"), "--method", "svgf"]) == 2  # no frames: the folder's error
+    assert "parameter file" not in capsys.readouterr().err
+    assert main([str(tmp_path), str(tmp_path / "out"), "--method", "asvgf"]) == 2
+    assert capsys.readouterr().err.startswith(f"python -m denoise: error: {damaged}: not a JSON parameter file")

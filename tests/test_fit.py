@@ -49,10 +49,11 @@ def loss_of(frames, values: dict, grad: bool = False):
     import drjit as dr
     import mitsuba as mi
 
-    from denoise.asvgf import ASVGFParams, FilterValues
+    from denoise.asvgf import FilterValues
     from denoise.fit import sequence_loss
+    from denoise.methods.asvgf import hand_set
 
-    p = ASVGFParams.hand_set(levels=2, box_radius=2)
+    p = hand_set(levels=2, box_radius=2)
     floats = {**p.continuous(), **values}
     wrapped = {k: dr.opaque(mi.Float, v) for k, v in floats.items()}  # opaque: one kernel for every value
     if grad:
@@ -104,18 +105,18 @@ def test_fit_refuses_bad_arguments(tmp_path, capsys):
 
 def test_diverging_step_is_refused(variant_vectorised_rgb):
     from core.errors import UsageError
-    from denoise.asvgf import ASVGFParams
     from denoise.fit import Fit
+    from denoise.methods.asvgf import hand_set
 
     frames = sequence()
     frames[1].reference = tensors(np.full((H, W, 3), np.nan))[0]
     with pytest.raises(UsageError, match="diverging"):
-        Fit(ASVGFParams.hand_set(levels=2), 0.05).step([frames])
+        Fit(hand_set(levels=2), 0.05).step([frames])
 
 
 def test_parameter_file_round_trip(variant_vectorised_rgb, tmp_path):
-    from denoise.asvgf import load_parameter_file
     from denoise.fit import write_parameters
+    from denoise.methods.asvgf import load_parameter_file
 
     path = tmp_path / "p.json"
     write_parameters(path, {"clip_width": 1.25, "sigma_plane": 0.2}, 0.1, 0.2, ["a.json"])

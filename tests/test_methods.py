@@ -10,29 +10,31 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
-from core.numbers import ascii_int
-from denoise.filters import check_whole, pack
-from denoise.methods import METHODS, DenoisingMethod, Option, benchmark_names, from_name, make, register
+from denoise.filters import pack
+from denoise.methods import (
+    METHODS,
+    DeclarationError,
+    DenoisingMethod,
+    Option,
+    benchmark_names,
+    from_name,
+    make,
+    register,
+)
 
 ROOT = Path(__file__).resolve().parent.parent
 
 
 class Box(DenoisingMethod):
     """A (2 box_radius + 1)² box filter of each frame, no history: a method
-    defined outside the package.
-
-    Parameters:
-
-    - ``--box-radius`` (int 1..4, 1): the box's half width.
-    """
+    defined outside the package."""
     name = "box"
     description = "a box filter defined by tests/test_methods.py"
-    options = (Option("--box-radius", 1, "the box's half width, 1..4", kind=ascii_int, group="box"),)
+    options = (Option("box_radius", 1, "the box's half width", kind=int, low=1, high=4, step=1, group="box"),)
     benchmark = ("box",)
 
     def __init__(self, **props):
         super().__init__(**props)
-        check_whole("box", "--box-radius", self.props["box_radius"], 1, 4)
         self.radius = self.props["box_radius"]
 
     def filter(self, arrays, frame, index, valid):
@@ -108,13 +110,13 @@ def test_a_method_name_is_registered_once(registered_box):
     class Other(Box):
         pass
 
-    with pytest.raises(TypeError, match="taken by Box"):
+    with pytest.raises(DeclarationError, match="taken by Box"):
         register(Other)
 
     class Nameless(DenoisingMethod):
         pass
 
-    with pytest.raises(TypeError, match="needs a name"):
+    with pytest.raises(DeclarationError, match="needs a name"):
         register(Nameless)
 
 
@@ -128,12 +130,15 @@ def test_the_docs_page_is_the_registry():
 
 @pytest.mark.parametrize("name", list(METHODS))
 def test_each_method_documents_its_options(name):
-    """A method's docstring names each of its options; its description is one line."""
+    """The docs list each option from its declaration (no docstring copies a
+    default by hand); a description is one line."""
+    from denoise.methods.listing import method_list
+
     cls = METHODS[name]
-    doc = inspect.getdoc(cls)
-    assert "Parameters:" in doc
+    assert "Parameters:" not in inspect.getdoc(cls)
+    section = method_list().split(f"### `{name}` ", 1)[1].split("\n### ", 1)[0]
     for option in cls.options:
-        assert f"``{option.flag}``" in doc, option.flag
+        assert f"| `{option.flag}` |" in section and option.range_text() in section, option.flag
     assert cls.description and "\n" not in cls.description
 
 
@@ -175,3 +180,49 @@ def test_oidn_quality_reaches_its_parameters(tmp_path, capsys):
     assert main([str(tmp_path), str(tmp_path / "out"), "--method", "oidn", "--oidn-quality", "best"]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "--oidn-quality: invalid choice: 'best'" in err
+
+
+def test_a_range_changed_in_its_declaration_is_followed_everywhere(monkeypatch, tmp_path, capsys):
+    """One declaration: narrowing ``--clip-width``'s range in asvgf's options
+    changes ``--help``, the error of ``python -m denoise``, the generated docs
+    and the live page's slider, and nothing else needs editing."""
+    from dataclasses import replace
+
+    from denoise.__main__ import main
+    from denoise.live.methods import sliders_of
+    from denoise.methods.asvgf import ASVGF
+    from denoise.methods.listing import method_list
+
+    narrowed = tuple(replace(o, high=5.0) if o.key == "clip_width" else o for o in ASVGF.options)
+    monkeypatch.setattr(ASVGF, "options", narrowed)
+
+    with pytest.raises(SystemExit):
+        main(["--help"])
+    help_text = " ".join(capsys.readouterr().out.split())
+    assert "this sigma: a number from 0 to 5 (default fitted" in help_text
+    assert main([str(tmp_path), str(tmp_path / "out"), "--method", "asvgf", "--clip-width", "6"]) == 2
+    assert capsys.readouterr().err == ("python -m denoise: error: asvgf: --clip-width must be a number from 0 to 5, "
+                                       "got 6.0\n")
+    assert "| `--clip-width` | fitted (hand-set 1) | a number from 0 to 5 |" in method_list()
+    assert next(s for s in sliders_of("asvgf") if s.name == "clip_width").high == 5.0
+
+
+def test_a_bad_declaration_names_its_line():
+    """An option whose default is outside its range, or whose key is not a field name, is one line naming where."""
+    with pytest.raises(DeclarationError, match=r"test_methods.py:\d+: option 'width': its default is out of"):
+        Option("width", 9, "a width", kind=int, low=1, high=4)
+    with pytest.raises(DeclarationError, match=r"test_methods.py:\d+: option '--width': the key must be"):
+        Option("--width", 1, "a width", kind=int)
+
+
+def test_a_flag_declared_differently_names_both_declarations(registered_box):
+    """A method of one's own whose ``--radius`` has other help than bilateral's: one line naming both."""
+    class Wide(DenoisingMethod):
+        name, description = "wide", "a method with its own --radius"
+        options = (Option("radius", 2, "another radius", kind=int, low=0, high=9),)
+
+    with pytest.raises(DeclarationError) as error:
+        register(Wide)
+    text = str(error.value)
+    assert "\n" not in text and "test_methods.py:" in text and "bilateral at " in text and "bilateral.py:" in text
+    assert "wide" not in METHODS

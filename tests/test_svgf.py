@@ -59,7 +59,7 @@ def np_svgf(c, n, x, p, history=None, index=None, valid=None):
             else:
                 nj, _ = shifted(n, dx, dy)
                 xj, _ = shifted(x, dx, dy)
-                wt = np.maximum((n * nj).sum(-1), 0) ** p.sigma_normal * np.exp(-np_plane(n, x, xj, k_plane))
+                wt = np.maximum((n * nj).sum(-1), 0) ** p.normal_exponent * np.exp(-np_plane(n, x, xj, k_plane))
                 wt = np.where(inside, wt, 0)
             total += wt[..., None] * mj
             weights += wt
@@ -89,7 +89,7 @@ def np_svgf(c, n, x, p, history=None, index=None, valid=None):
                 else:
                     nj, _ = shifted(n, dx, dy)
                     xj, _ = shifted(x, dx, dy)
-                    wt = (B3[i] * B3[j] * np.maximum((n * nj).sum(-1), 0) ** p.sigma_normal
+                    wt = (B3[i] * B3[j] * np.maximum((n * nj).sum(-1), 0) ** p.normal_exponent
                           * np.exp(-np.abs(lp - cj @ LUM) * scale - np_plane(n, x, xj, k_plane)))
                     wt = np.where(inside, wt, 0)
                 tc += wt[..., None] * cj

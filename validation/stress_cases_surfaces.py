@@ -277,12 +277,12 @@ def fit_largest_step(folder: Path) -> list[str]:
     if code or stderr:
         return [f"exit {code}: {stderr.strip()[-300:]!r}"]
     from core.errors import UsageError  # noqa: PLC0415  Dr.Jit loads after the suite chose its variant
-    from denoise.asvgf import ASVGFParams  # noqa: PLC0415  as above
+    from denoise.methods import make  # noqa: PLC0415  as above
 
     values = json.loads(out.read_text())["parameters"]
     problems = [f"{k} = {v}" for k, v in values.items() if not math.isfinite(v)]
     try:
-        ASVGFParams.hand_set(**values)  # each within the range asvgf accepts
+        make("asvgf", **values)  # each within the range asvgf declares
     except UsageError as error:
         problems.append(str(error))
     code, _, stderr = run_command(python("-m", "denoise.fit", folder / "seq.json", "--work", folder / "work",

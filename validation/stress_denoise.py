@@ -218,6 +218,7 @@ def parameter_type_checks():
     """Each parameter type refuses nonsense when built from Python too (UsageError)."""
     attempts = [lambda: AtrousLevels(0), lambda: AtrousLevels(2.5), lambda: BilateralWindow(radius=65),
                 lambda: EdgeWeights(sigma_normal=float("nan")), lambda: TemporalParams(clamp_radius=0),
+                lambda: make("asvgf", clip_width=float("nan")), lambda: make("svgf", normal_exponent=0.0),
                 lambda: OutlierParams(k=0), lambda: SVGFParams(alpha_moments=0),
                 lambda: SVGFParams(levels=2, feedback_level=2)]
     refused = 0
@@ -360,9 +361,9 @@ def denoise_cases() -> list[DenoiseCase]:
         DenoiseCase("--levels 31", bad_parameter(["--levels", "31"], "levels must be a whole number")),
         DenoiseCase("--radius -5", bad_parameter(["--radius", "-5"], "radius must be a whole number")),
         DenoiseCase("--alpha 2", bad_parameter(["--alpha", "2"], "alpha")),
-        DenoiseCase("--k -1", bad_parameter(["--k", "-1"], "k (the history clamp")),
-        DenoiseCase("--sigma-normal 0", bad_parameter(["--sigma-normal", "0"], "sigma_normal")),
-        DenoiseCase("--outliers nan", bad_parameter(["--outliers", "nan"], "outlier removal")),
+        DenoiseCase("--k -1", bad_parameter(["--k", "-1"], "--k must be")),
+        DenoiseCase("--sigma-normal 0", bad_parameter(["--sigma-normal", "0"], "--sigma-normal")),
+        DenoiseCase("--outliers nan", bad_parameter(["--outliers", "nan"], "--outliers")),
         DenoiseCase("parameter types refuse nonsense", parameter_type_checks),
         DenoiseCase("truncated beauty EXR", damaged_folder(_truncate("beauty_1.exr"), "beauty_1.exr")),
         DenoiseCase("garbage in a normal EXR", damaged_folder(

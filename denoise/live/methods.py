@@ -4,9 +4,9 @@ slider values into a :class:`~denoise.methods.DenoisingMethod`.
 
 Names are ``raw`` (no denoising) and the registry's benchmark names: every
 ``python -m denoise --method`` with its temporal variants and presets. A
-method's sliders are those of its numeric options that :data:`RANGES` gives a
-range on the page, so a new method's options appear as sliders when their keys
-are listed there.
+method's sliders are its options declared with a slider ``step``
+(:class:`denoise.methods.Option`), over the ends the declaration gives, so a
+new method's options appear as sliders from their declarations alone.
 """
 from __future__ import annotations
 
@@ -18,16 +18,6 @@ from denoise.svgf import levels_for
 RAW = "raw"
 #: what the page lists, in its order
 METHOD_NAMES = (RAW,) + tuple(name for name in benchmark_names() if not name.startswith(("demod+", "outliers+")))
-
-#: option key -> (low, high, step, whole number) on the page
-RANGES = {
-    "sigma_color": (0.01, 4.0, 0.01, False), "sigma_normal": (0.01, 2.0, 0.01, False),
-    "sigma_plane": (0.01, 2.0, 0.01, False), "radius": (0, 16, 1, True), "levels": (1, 8, 1, True),
-    "alpha": (0.01, 1.0, 0.01, False), "k": (0.0, 8.0, 0.1, False),
-    "sigma_luminance": (0.1, 32.0, 0.1, False), "normal_exponent": (1.0, 256.0, 1.0, False),
-    "slow_frames": (1.0, 64.0, 1.0, False), "clip_width": (0.05, 8.0, 0.05, False),
-}
-
 
 @dataclass(frozen=True)
 class Slider:
@@ -44,8 +34,9 @@ class Slider:
 
 
 def sliders_of(name: str) -> tuple[Slider, ...]:
-    cls, _ = resolve(name)
-    return tuple(Slider(o.key, *RANGES[o.key]) for o in cls.options if o.key in RANGES)
+    cls, props = resolve(name)  # an option of the accumulation has no slider where there is none
+    return tuple(Slider(o.key, *o.slider_range(), o.step, o.kind is int) for o in cls.options
+                 if o.step is not None and (props["temporal"] or not o.temporal))
 
 
 SLIDERS = {RAW: (), **{name: sliders_of(name) for name in METHOD_NAMES if name != RAW}}

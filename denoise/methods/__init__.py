@@ -13,25 +13,55 @@ from core.errors import UsageError
 from ..filters import OutlierParams
 from .asvgf import ASVGF
 from .atrous import Atrous
-from .base import DenoisingMethod, Option, SpatialFilterMethod
+from .base import DeclarationError, DenoisingMethod, Option, SpatialFilterMethod
 from .bilateral import Bilateral
 from .oidn import OIDNMethod
 from .oidn_guided import OIDNGuided
 from .svgf import SVGF
 
-__all__ = ["METHODS", "DenoisingMethod", "Option", "SpatialFilterMethod", "benchmark_names", "from_name",
-           "make", "register", "resolve"]
+__all__ = ["METHODS", "DeclarationError", "DenoisingMethod", "Option", "SpatialFilterMethod", "benchmark_names",
+           "declared_options", "from_name", "make", "register", "resolve"]
 
 #: every method by its ``name``, in the order ``--help`` and the docs list them
 METHODS: dict[str, type[DenoisingMethod]] = {}
 
 
+def declared_options() -> dict[str, tuple[Option, list[tuple[str, Option]]]]:
+    """Every registered option by flag, the common ones first: (its first
+    declaration, [(method name, that method's declaration)])."""
+    declared: dict[str, tuple[Option, list]] = {o.flag: (o, []) for o in DenoisingMethod.common_options}
+    for name, cls in METHODS.items():
+        for option in cls.options:
+            declared.setdefault(option.flag, (option, []))[1].append((name, option))
+    return declared
+
+
+def _shared(option: Option) -> tuple:
+    """What methods that share a flag must declare alike (defaults, ranges and sliders may differ)."""
+    return option.key, option.kind, option.help, option.unit, option.group, option.action, option.choices
+
+
 def register(cls: type[DenoisingMethod]) -> type[DenoisingMethod]:
-    """Adds ``cls`` under ``cls.name`` (usable as a class decorator)."""
+    """Adds ``cls`` under ``cls.name`` (usable as a class decorator, as
+    ``mi.register_integrator`` is a call); a flag that another method declares
+    differently is a :class:`DeclarationError` naming both declarations."""
+    if not isinstance(cls, type) or not issubclass(cls, DenoisingMethod):
+        raise DeclarationError(f"{cls!r}: a method is a subclass of denoise.methods.DenoisingMethod")
     if not cls.name or not cls.description:
-        raise TypeError(f"{cls.__name__}: a method needs a name and a one-line description")
+        raise DeclarationError(f"{cls.__name__}: a method needs a name and a one-line description")
     if cls.name in METHODS and METHODS[cls.name] is not cls:
-        raise TypeError(f"{cls.__name__}: the method name {cls.name!r} is taken by {METHODS[cls.name].__name__}")
+        raise DeclarationError(f"{cls.__name__}: the method name {cls.name!r} is taken by "
+                               f"{METHODS[cls.name].__name__}")
+    if not all(isinstance(o, Option) for o in cls.options):
+        raise DeclarationError(f"{cls.__name__}: options must be a tuple of denoise.methods.Option")
+    declared = declared_options()
+    for option in cls.options:
+        if option.flag in declared:
+            first, users = declared[option.flag]
+            other, where = (users[0] if users else ("every method", first))
+            if other != cls.name and _shared(where) != _shared(option):
+                raise DeclarationError(f"{option.origin}: {cls.__name__} declares {option.flag} differently from "
+                                       f"{other} at {where.origin} (same key, kind, help, unit and group needed)")
     METHODS[cls.name] = cls
     return cls
 
@@ -46,22 +76,6 @@ def make(name: str, **props) -> DenoisingMethod:
     if name not in METHODS:
         raise UsageError(f"unknown method {name!r}; choose from {', '.join(METHODS)}")
     return METHODS[name](**props)
-
-
-def configured(name: str, values: dict) -> DenoisingMethod:
-    """The method ``name`` made from the command line's ``values`` (option key ->
-    value, the options given). Every other method is made from them too, so that
-    a parameter out of range is an error whichever method reads it."""
-    method = make(name, **_own(METHODS[name], values) if name in METHODS else {})
-    for other in METHODS.values():
-        if other.name != name:
-            other(**_own(other, values))
-    return method
-
-
-def _own(cls: type[DenoisingMethod], values: dict) -> dict:
-    keys = {o.key for o in cls.all_options()}
-    return {k: v for k, v in values.items() if k in keys}
 
 
 def _names() -> dict[str, tuple[type[DenoisingMethod], dict]]:

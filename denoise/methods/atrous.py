@@ -11,15 +11,6 @@ class Atrous(SpatialFilterMethod):
     edge-stopping weights, the colour sigma halved from one level to the next;
     then, with ``temporal``, blended with the back-projected previous result
     clamped to the current 7x7 mean ± k sigma.
-
-    Parameters:
-
-    - ``--sigma-color``, ``--sigma-normal``, ``--sigma-plane`` (float > 0;
-      0.6, 0.1, 0.1): the edge-stopping sigmas of the first level;
-    - ``--levels`` (int 1..12, 5): the passes;
-    - ``--alpha`` (float in (0, 1], 0.2): the current frame's weight;
-    - ``--k`` (float >= 0, 1): the history clamp, mean ± k sigma of the 7x7
-      neighbourhood.
     """
     name = "atrous"
     description = ("the assignment's A-Trous wavelet filter (--levels passes), blended with the "

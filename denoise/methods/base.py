@@ -10,14 +10,16 @@ override :meth:`SpatialFilterMethod.spatial` alone.
 """
 from __future__ import annotations
 
+import math
+import traceback
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from core.errors import FrameError
+from core.errors import FrameError, UsageError
 from core.numbers import ascii_float, ascii_int
 
 from ..filters import (
@@ -52,38 +54,138 @@ def clamp_finite(values: np.ndarray, limit: float) -> tuple[np.ndarray, int]:
 
 @dataclass(frozen=True)
 class Option:
-    """One parameter of a method, and its command-line option.
+    """One parameter of a method, declared once: its command-line option, its
+    range, its ``--help`` and docs text and its slider on the live page.
 
-    ``flag`` is the option (``--sigma-color``), ``key`` the parameter's name in
-    the method's keyword arguments (by default the flag's words joined by
-    ``_``), ``default`` the value when it is not given. ``kind`` is the argparse
-    ``type`` (or, for ``action``, the argparse action of a switch).
-    ``group`` titles the ``--help`` section the option is listed in (``None``:
-    the options every method has). Methods that share an option declare the
-    same flag, type, help and group; their defaults may differ, and ``--help``
-    lists each. ``default_text`` replaces the default's value in ``--help``."""
-    flag: str
+    ``key`` is the parameter's name in the method's keyword arguments and its
+    kernel's field; the flag is ``--KEY`` with dashes (``--no-KEY`` for a
+    ``store_false`` switch). ``default`` is the value when it is not given.
+    ``kind`` is ``float``, ``int`` or ``str`` (``None`` for a switch, whose
+    argparse ``action`` it has). A number lies from ``low`` to ``high`` (``None``:
+    unbounded, yet finite), each end excluded where ``open_low``/``open_high``;
+    :meth:`check` refuses any other value in one line naming the flag. ``step``
+    gives the number a slider on the live page, moving by ``step`` over
+    ``span`` (where the range is wider than a slider is useful) within the
+    range. ``unit`` follows the value in ``--help`` and the docs; ``group``
+    titles the ``--help`` section (``None``: the options every method has).
+    Methods that share an option declare the same key, kind, help, unit and
+    group; defaults and ranges may differ, and ``--help`` lists each default.
+    ``default_text`` replaces the default's value in ``--help``; ``temporal``
+    marks a parameter of the temporal accumulation (of no use without it)."""
+    key: str
     default: object
     help: str
-    kind: Callable | None = ascii_float
+    kind: type | None = float
+    low: float | None = None
+    high: float | None = None
+    open_low: bool = False
+    open_high: bool = False
+    step: float | None = None
+    span: tuple[float, float] | None = None
+    unit: str = ""
     group: str | None = None
-    key: str = ""
     action: str | None = None
     choices: tuple | None = None
     metavar: str | None = None
     default_text: str | None = None
+    temporal: bool = False
+    #: where it was declared (``file:line``), for the messages about it
+    origin: str = field(default="", compare=False)
 
     def __post_init__(self):
-        if not self.key:
-            object.__setattr__(self, "key", self.flag.lstrip("-").replace("-", "_"))
+        if not self.origin:  # the line that called Option(...): the dataclass's __init__ is "<string>"
+            where = next((f for f in reversed(traceback.extract_stack()[:-1]) if f.filename != "<string>"), None)
+            object.__setattr__(self, "origin", f"{where.filename}:{where.lineno}" if where else "?")
+        problem = self.declaration_problem()
+        if problem:
+            raise DeclarationError(f"{self.origin}: option {self.key!r}: {problem}")
+
+    def declaration_problem(self) -> str | None:
+        """What is wrong with this declaration, or None."""
+        if not self.key.isidentifier():
+            return "the key must be a Python name (the parameter's field)"
+        if self.kind not in (float, int, str, None) or (self.kind is None) != (self.action is not None):
+            return "kind must be float, int or str, or None with an action"
+        if self.low is not None and self.high is not None and not self.low <= self.high:
+            return f"low {self.low!r} is above high {self.high!r}"
+        if self.step is not None and (self.kind not in (float, int) or not self.step > 0):
+            return "a slider step needs a number option and a step > 0"
+        if self.step is not None and self.slider_range() is None:
+            return "a slider needs finite ends: give low and high, or span"
+        if self.action is None and self.default is not None and self.default_text is None:
+            try:
+                self.check(self.default, "default")
+            except UsageError as error:
+                return f"its default is out of its range ({str(error).split(': ', 1)[1]})"
+        return None
+
+    @property
+    def flag(self) -> str:
+        words = self.key.replace("_", "-")
+        return f"--no-{words}" if self.action == "store_false" else f"--{words}"
+
+    @property
+    def parse(self) -> Callable | None:
+        """The argparse ``type`` (ASCII digits only)."""
+        return {float: ascii_float, int: ascii_int, str: str}.get(self.kind)
+
+    def range_text(self) -> str:
+        """The range in words: ``a whole number from 1 to 12``, ``a finite number > 0``."""
+        whole = "a whole number" if self.kind is int else "a finite number"
+        low, high = self.low, self.high
+        if low is not None and high is not None:
+            whole = "a whole number" if self.kind is int else "a number"
+            if not self.open_low and not self.open_high:
+                return f"{whole} from {low:g} to {high:g}"
+            return f"{whole} in {'(' if self.open_low else '['}{low:g}, {high:g}{')' if self.open_high else ']'}"
+        if low is not None:
+            return f"{whole} {'>' if self.open_low else '>='} {low:g}"
+        if high is not None:
+            return f"{whole} {'<' if self.open_high else '<='} {high:g}"
+        return whole
+
+    def check(self, value, owner: str) -> None:
+        """A one-line :class:`UsageError` naming ``owner`` and the flag unless
+        ``value`` is in the declared range (or choices)."""
+        if self.action is not None or (value is None and self.default is None):
+            return
+        if self.choices is not None:
+            if value not in self.choices:
+                raise UsageError(f"{owner}: {self.flag} must be one of {', '.join(map(str, self.choices))}, "
+                                 f"got {value!r}")
+            return
+        if self.kind is str:
+            return
+        number = not isinstance(value, bool) and (isinstance(value, int) if self.kind is int
+                                                  else isinstance(value, (int, float)) and math.isfinite(value))
+        if not number or (self.low is not None and (value <= self.low if self.open_low else value < self.low)) or (
+                self.high is not None and (value >= self.high if self.open_high else value > self.high)):
+            raise UsageError(f"{owner}: {self.flag} must be {self.range_text()}, got {value!r}")
+
+    def slider_range(self) -> tuple[float, float] | None:
+        """The slider's ends: ``span`` within the range (an excluded end moved in by a step)."""
+        low, high = self.span if self.span is not None else (self.low, self.high)
+        if low is None or high is None:
+            return None
+        if self.low is not None:
+            low = max(low, self.low + (self.step if self.open_low else 0.0))
+        if self.high is not None:
+            high = min(high, self.high - (self.step if self.open_high else 0.0))
+        return low, high
+
+
+class DeclarationError(UsageError):
+    """A method or option declared wrongly (names where), or two methods that
+    declare one option differently (names both)."""
 
 
 def temporal_options(defaults: TemporalParams) -> tuple[Option, Option]:
     """``--alpha`` and ``--k`` of the clamped temporal accumulation, with ``defaults``' values."""
     group = "temporal accumulation"
-    return (Option("--alpha", defaults.alpha, "weight of the current frame, in (0, 1]", group=group),
-            Option("--k", defaults.k, "clamp the history to the neighbourhood's mean +- k sigma, k >= 0",
-                   group=group))
+    return (Option("alpha", defaults.alpha, "weight of the current frame", low=0.0, high=1.0, open_low=True,
+                   step=0.01, group=group, temporal=True),
+            Option("k", defaults.k, "clamp the history to the neighbourhood's mean +- k sigma", low=0.0,
+                   step=0.1, span=(0.0, 8.0), group=group, temporal=True))
 
 
 def temporal_params(props: dict, defaults: TemporalParams) -> TemporalParams:
@@ -94,16 +196,18 @@ def temporal_params(props: dict, defaults: TemporalParams) -> TemporalParams:
 
 def levels_option(default: int | None, default_text: str | None = None) -> Option:
     """``--levels``, the À-Trous passes (``default_text`` where the default is computed)."""
-    return Option("--levels", default, "passes, 1..12", kind=ascii_int, group="a-trous levels",
+    return Option("levels", default, "passes", kind=int, low=1, high=12, step=1, span=(1, 8), group="a-trous levels",
                   default_text=default_text)
 
 
 def edge_options() -> tuple[Option, Option, Option]:
     """The assignment's edge-stopping sigmas (:class:`denoise.filters.EdgeWeights`)."""
     defaults, group = EdgeWeights(), "edge-stopping weights"
-    return (Option("--sigma-color", defaults.sigma_color, "on the colour difference", group=group),
-            Option("--sigma-normal", defaults.sigma_normal, "on the normals' angle in radians", group=group),
-            Option("--sigma-plane", defaults.sigma_plane, "on the plane distance", group=group))
+    positive = dict(low=0.0, open_low=True, step=0.01, group=group)
+    return (Option("sigma_color", defaults.sigma_color, "on the colour difference", span=(0.01, 4.0), **positive),
+            Option("sigma_normal", defaults.sigma_normal, "on the normals' angle", unit="radians",
+                   span=(0.01, 2.0), **positive),
+            Option("sigma_plane", defaults.sigma_plane, "on the plane distance", span=(0.01, 2.0), **positive))
 
 
 def edge_weights(props: dict) -> EdgeWeights:
@@ -152,25 +256,32 @@ class DenoisingMethod:
     presets: dict[str, dict] = {}
 
     common_options = (
-        Option("--no-temporal", True, "each frame on its own (no history)", kind=None, key="temporal",
-               action="store_false"),
-        Option("--demodulate", False, "filter beauty / albedo and multiply back (needs albedo_i.exr for every "
+        Option("temporal", True, "each frame on its own (no history)", kind=None, action="store_false"),
+        Option("demodulate", False, "filter beauty / albedo and multiply back (needs albedo_i.exr for every "
                "frame; svgf does so whenever the frames have it)", kind=None, action="store_true"),
-        Option("--outliers", None, f"first clamp each pixel's luminance to its 7x7 mean +- K sigma (off by "
-               f"default; {OutlierParams().k:g} is a usual K)", metavar="K"),
+        Option("outliers", None, f"first clamp each pixel's luminance to its 7x7 mean +- K sigma (off by "
+               f"default; {OutlierParams().k:g} is a usual K)", low=0.0, open_low=True, metavar="K"),
     )
 
     @classmethod
     def all_options(cls) -> tuple[Option, ...]:
         return cls.common_options + cls.options
 
+    @classmethod
+    def defaults(cls) -> dict:
+        """Every parameter's default by key: the declarations' (the hook of a
+        method whose defaults are read from a file when it is made)."""
+        return {o.key: o.default for o in cls.all_options()}
+
     def __init__(self, **props):
         options = {o.key: o for o in self.all_options()}
         unknown = set(props) - set(options)
         if unknown:
             raise TypeError(f"{self.name}: no parameter {sorted(unknown)[0]!r}")
-        #: every parameter's value: the given ones, the declared defaults for the rest
-        self.props = {key: props.get(key, option.default) for key, option in options.items()}
+        for key, value in props.items():
+            options[key].check(value, self.name)
+        #: every parameter's value: the given ones, the defaults for the rest
+        self.props = {**self.defaults(), **props}
         self.temporal = bool(self.props["temporal"])
         self.demodulate = bool(self.props["demodulate"]) if self.demodulates is None else self.demodulates
         k = self.props["outliers"]

@@ -1,8 +1,6 @@
 """The assignment's joint bilateral filter, with clamped temporal accumulation."""
 from __future__ import annotations
 
-from core.numbers import ascii_int
-
 from ..filters import BilateralWindow, joint_bilateral
 from .base import Option, SpatialFilterMethod, edge_options, edge_weights, temporal_options
 
@@ -13,26 +11,16 @@ class Bilateral(SpatialFilterMethod):
     ``exp(-d²/(2 sigma_coord²))`` and the edge-stopping weights on colour,
     normal angle and plane distance; then, with ``temporal``, blended with the
     back-projected previous result clamped to the current 7x7 mean ± k sigma.
-
-    Parameters:
-
-    - ``--sigma-color``, ``--sigma-normal``, ``--sigma-plane`` (float > 0;
-      0.6, 0.1, 0.1): the edge-stopping sigmas (colour; normal angle in radians;
-      plane distance);
-    - ``--radius`` (int 0..64, 16): the window's half width;
-    - ``--sigma-coord`` (float > 0, 32): the spatial sigma in pixels;
-    - ``--alpha`` (float in (0, 1], 0.2): the current frame's weight;
-    - ``--k`` (float >= 0, 1): the history clamp, mean ± k sigma of the 7x7
-      neighbourhood.
     """
     name = "bilateral"
     description = ("the assignment's joint bilateral filter ((2 radius + 1)^2 window), blended with the "
                    "back-projected, clamped previous result unless --no-temporal")
     window_defaults = BilateralWindow()
     options = edge_options() + (
-        Option("--radius", window_defaults.radius, "window (2 radius + 1)^2, 0..64", kind=ascii_int,
-               group="bilateral window"),
-        Option("--sigma-coord", window_defaults.sigma_coord, "pixels", group="bilateral window"),
+        Option("radius", window_defaults.radius, "window (2 radius + 1)^2", kind=int, low=0, high=64, step=1,
+               span=(0, 16), group="bilateral window"),
+        Option("sigma_coord", window_defaults.sigma_coord, "the spatial sigma", unit="pixels", low=0.0,
+               open_low=True, group="bilateral window"),
     ) + temporal_options(SpatialFilterMethod.temporal_defaults)
     benchmark = ("bilateral", "bilateral+temporal")
 

@@ -20,11 +20,19 @@ def _default(option: Option) -> str:
     return f"`{option.default:g}`" if isinstance(option.default, float) else f"`{option.default}`"
 
 
+def _range(option: Option) -> str:
+    if option.choices:
+        return ", ".join(f"`{c}`" for c in option.choices)
+    if option.kind in (int, float):
+        return option.range_text()
+    return ""
+
+
 def _options_table(options: tuple[Option, ...]) -> list[str]:
-    lines = ["| option | default | meaning |", "|---|---|---|"]
+    """Each option's flag, default, range, unit and meaning, from its declaration."""
+    lines = ["| option | default | range | unit | meaning |", "|---|---|---|---|---|"]
     for o in options:
-        choices = f" (`{'`, `'.join(o.choices)}`)" if o.choices else ""
-        lines.append(f"| `{o.flag}` | {_default(o)} | {o.help}{choices} |")
+        lines.append(f"| `{o.flag}` | {_default(o)} | {_range(o)} | {o.unit} | {o.help} |")
     return lines
 
 

@@ -23,14 +23,6 @@ class OIDNMethod(DenoisingMethod):
     more loosely than the one after a spatial filter: OIDN removes the noise
     that lets through (the measurement is in docs/denoising_methods.md).
 
-    Parameters:
-
-    - ``--oidn-quality`` (``fast``, ``balanced`` or ``high``; high): OIDN 2's
-      filter quality;
-    - ``--alpha`` (float in (0, 1], 0.5): the current frame's weight;
-    - ``--k`` (float >= 0, 3): the history clamp, mean ± k sigma of the 7x7
-      neighbourhood.
-
     :attr:`last_execute_s` and :attr:`last_execute_cpu_s` are the OIDN execute
     calls' wall and CPU time of the last frame (what the benchmark times).
     """
@@ -39,7 +31,7 @@ class OIDNMethod(DenoisingMethod):
                    "unless --no-temporal")
     demodulates = False
     temporal_defaults = TemporalParams(alpha=0.5, k=3.0)
-    quality = Option("--oidn-quality", OIDNParams().quality, "OIDN 2's filter quality", kind=str, choices=QUALITIES,
+    quality = Option("oidn_quality", OIDNParams().quality, "OIDN 2's filter quality", kind=str, choices=QUALITIES,
                      group="oidn")
     options = (quality,) + temporal_options(temporal_defaults)
     presets = {q: {"oidn_quality": q} for q in QUALITIES}

@@ -15,14 +15,6 @@ class OIDNGuided(OIDNMethod):
     neighbourhood is too wide to stop a moving shadow or highlight from
     lagging; the guide's is tight. Temporal by nature (``--no-temporal``:
     OIDN on each frame alone, once).
-
-    Parameters:
-
-    - ``--oidn-quality`` (``fast``, ``balanced`` or ``high``; high): OIDN 2's
-      filter quality, both runs;
-    - ``--alpha`` (float in (0, 1], 0.5): the current frame's weight;
-    - ``--k`` (float >= 0, 1): the history clamp, mean ± k sigma of the
-      guide's 3x3 neighbourhood.
     """
     name = "oidn-guided"
     description = ("OIDN on the input accumulated over time, its history clamped to the neighbourhood of "
