@@ -23,21 +23,23 @@ from imaging.colour import side_by_side, tone_map
 from imaging.image_io import read_exr_rgb, write_image, write_video
 from renderer.variants import set_variant
 
-from .methods import METHODS, Option, declared_options, make
+from .methods import METHODS, Option, declared_options, from_name, method_names, resolve
 from .methods.base import RADIANCE_LIMIT
 from .pipeline import denoise_folder
 
 PROG = "python -m denoise"
 EXAMPLES = """examples:
   python -m denoise out/seq/lamps out/seq/lamps_denoised --method svgf --png
-  python -m denoise out/seq/lamps out/den --method atrous --video out/den.mp4 --reference out/seq/lamps_reference
+  python -m denoise out/seq/lamps out/den --method atrous+temporal --video out/den.mp4 \
+      --reference out/seq/lamps_reference
 """
 
 
 def methods_help() -> str:
     """The ``--help`` list of methods: each registered one's name and description."""
     width = max(len(name) for name in METHODS) + 4
-    lines = ["methods:"]
+    lines = ["methods (NAME: no history unless temporal by nature; NAME+temporal: with the clamped temporal "
+             "accumulation; the names every command takes):"]
     for name, cls in METHODS.items():
         lines += textwrap.wrap(cls.description, 79, initial_indent=f"  {name}".ljust(width),
                                subsequent_indent=" " * width)
@@ -51,17 +53,28 @@ def _shown(option: Option) -> str:
     return f"{value:g}" if isinstance(value, float) else str(value)
 
 
-def check_options_apply(method: str, given: dict) -> None:
-    """Refuses an option ``method`` does not read (e.g. ``--oidn-quality`` for
-    atrous), which would otherwise change nothing, silently."""
-    own = {option.key for option in METHODS[method].all_options()}
+def check_options_apply(name: str, given: dict) -> None:
+    """Refuses an option the method ``name`` does not read (e.g. ``--oidn-quality``
+    for atrous, ``--alpha`` for atrous without +temporal), which would
+    otherwise change nothing, silently."""
+    cls, named = resolve(name)
+    method = cls.name
+    own = {option.key for option in cls.all_options()}
     for flag, (option, users) in declared_options().items():
         if option.key in given:  # a value out of range is that first, whichever method declares it
-            declaration, name = next(((o, n) for n, o in users if n == method), (users or [(method, option)])[0][::-1])
-            declaration.check(given[option.key], name)
+            declaration, owner = next(((o, n) for n, o in users if n == method),
+                                      (users or [(method, option)])[0][::-1])
+            declaration.check(given[option.key], owner)
         if option.key in given and option.key not in own:
             raise UsageError(f"{flag} is an option of {', '.join(name for name, _ in users)}, not of {method} "
                              f"(add --method {users[0][0]}, or leave {flag} out)")
+    if "temporal" in given and (not cls.temporal_by_nature):
+        raise UsageError(f"--no-temporal: {name} " + (f"accumulates by its name; use {method}" if named["temporal"]
+                                                        else "has no history already"))
+    unused = next((o for o in cls.options if o.temporal and o.key in given and not named["temporal"]), None)
+    if unused is not None:
+        raise UsageError(f"{unused.flag} is an option of the temporal accumulation, which {name} has not "
+                         f"(use --method {method}+temporal)")
 
 
 def add_method_options(parser: argparse.ArgumentParser) -> set[str]:
@@ -105,7 +118,8 @@ def _parser() -> tuple[argparse.ArgumentParser, set[str]]:
                             formatter_class=argparse.RawDescriptionHelpFormatter, epilog=methods_help())
     parser.add_argument("source", type=Path, metavar="IN_DIR", help="the frame folder")
     parser.add_argument("target", type=Path, metavar="OUT_DIR", help="where result_i.exr are written")
-    parser.add_argument("--method", choices=list(METHODS), default="atrous", help="the filter (default: atrous)")
+    parser.add_argument("--method", choices=method_names(), default="atrous+temporal",
+                        help="the filter (default: atrous+temporal)")
     keys = add_method_options(parser)
     group = parser.add_argument_group("previews")
     group.add_argument("--png", action="store_true", help="also write result_i.png (tone-mapped sRGB) beside the EXRs")
@@ -124,7 +138,7 @@ def _main(argv: list[str] | None) -> int:
     # every parameter checked before any work
     given = {k: v for k, v in vars(args).items() if k in keys}
     check_options_apply(args.method, given)
-    method = make(args.method, **given)  # each parameter checked against its declaration
+    method = from_name(args.method, **given)  # each parameter checked against its declaration
     if args.fps < 1 or args.fps > 240:
         raise UsageError(f"--fps must be from 1 to 240, got {args.fps}")
     if args.reference is not None and args.video is None:

@@ -19,6 +19,7 @@ from denoise.methods import (
     benchmark_names,
     from_name,
     make,
+    method_names,
     register,
 )
 
@@ -90,7 +91,7 @@ def test_a_method_defined_here_is_listed_and_runs(registered_box, exported, tmp_
     assert exit_code.value.code == 0
     text = capsys.readouterr().out
     assert "  box " in text and "a box filter defined by tests/test_methods.py" in text
-    assert "box (box):" in text and "--box-radius" in text and "{" + ",".join(METHODS) + "}" in text
+    assert "box (box):" in text and "--box-radius" in text and "{" + ",".join(method_names()) + "}" in text
     assert list(METHODS)[-1] == "box"
     assert "`box`" in method_list() and "box" in benchmark_names()
 
@@ -226,3 +227,25 @@ def test_a_flag_declared_differently_names_both_declarations(registered_box):
     text = str(error.value)
     assert "\n" not in text and "test_methods.py:" in text and "bilateral at " in text and "bilateral.py:" in text
     assert "wide" not in METHODS
+
+
+def test_one_name_one_meaning_in_every_command(tmp_path, capsys):
+    """``bilateral`` is the filter without history wherever a method is named
+    (``python -m denoise --method``, the benchmark, ``denoise.score --compare``,
+    the live page: all :func:`resolve`); ``bilateral+temporal`` accumulates.
+    A flag the name contradicts or leaves unused is one line."""
+    from denoise.__main__ import _parser, check_options_apply
+    from denoise.live.methods import METHOD_NAMES
+
+    assert not from_name("bilateral").temporal and from_name("bilateral+temporal").temporal
+    parser, _ = _parser()
+    for name in ("bilateral", "bilateral+temporal", "atrous", "atrous+temporal", "svgf", "oidn-fast"):
+        assert name in method_names() and name in METHOD_NAMES
+        assert parser.parse_args(["a", "b", "--method", name]).method == name
+    assert parser.parse_args(["a", "b"]).method == "atrous+temporal"  # the default accumulates, as before
+    for name, flags, message in (("bilateral", {"alpha": 0.5}, "--alpha is an option of the temporal accumulation"),
+                                 ("atrous+temporal", {"temporal": False}, "accumulates by its name; use atrous"),
+                                 ("atrous", {"temporal": False}, "has no history already")):
+        with pytest.raises(Exception, match=message):
+            check_options_apply(name, flags)
+    check_options_apply("svgf", {"temporal": False})

@@ -20,7 +20,7 @@ from .oidn_guided import OIDNGuided
 from .svgf import SVGF
 
 __all__ = ["METHODS", "DeclarationError", "DenoisingMethod", "Option", "SpatialFilterMethod", "benchmark_names",
-           "declared_options", "from_name", "make", "register", "resolve"]
+           "declared_options", "from_name", "make", "method_names", "register", "resolve"]
 
 #: every method by its ``name``, in the order ``--help`` and the docs list them
 METHODS: dict[str, type[DenoisingMethod]] = {}
@@ -109,6 +109,19 @@ def from_name(name: str, **props) -> DenoisingMethod:
     """The method of a benchmark name (:func:`resolve`), ``props`` overriding its parameters."""
     cls, named = resolve(name)
     return cls(**{**named, **props})
+
+
+def method_names() -> tuple[str, ...]:
+    """Every name a command takes (``python -m denoise --method``, the
+    benchmark's ``--methods``, ``denoise.score --compare``, the live page), one
+    meaning each: ``NAME`` and ``NAME-PRESET`` as :func:`resolve` makes them
+    (no history unless the method is temporal by nature), and ``NAME+temporal``
+    with the clamped temporal accumulation where the method is not."""
+    names = []
+    for cls in METHODS.values():
+        names += [cls.name] + ([] if cls.temporal_by_nature else [f"{cls.name}+temporal"])
+        names += [f"{cls.name}-{preset}" for preset in cls.presets]
+    return tuple(names)
 
 
 def benchmark_names() -> tuple[str, ...]:

@@ -13,8 +13,8 @@ class Atrous(SpatialFilterMethod):
     clamped to the current 7x7 mean ± k sigma.
     """
     name = "atrous"
-    description = ("the assignment's A-Trous wavelet filter (--levels passes), blended with the "
-                   "back-projected, clamped previous result unless --no-temporal")
+    description = ("the assignment's A-Trous wavelet filter (--levels passes); atrous+temporal: blended with "
+                   "the back-projected, clamped previous result")
     options = edge_options() + (levels_option(AtrousLevels().levels),) + temporal_options(
         SpatialFilterMethod.temporal_defaults)
     benchmark = ("atrous", "atrous+temporal", "demod+outliers+atrous+temporal")

@@ -226,16 +226,15 @@ class DenoisingMethod:
     :meth:`filter`; then it multiplies the albedo back and keeps the frame as
     the previous one.
 
-    Parameters every method has (``--no-temporal``, ``--demodulate``,
-    ``--outliers``):
-
-    - ``temporal`` (bool, True): back-project onto the previous frame (off:
-      each frame on its own, ``index`` and ``valid`` are always ``None``);
-    - ``demodulate`` (bool, False): filter ``beauty / albedo`` and multiply
-      back; a class with ``demodulates`` ``True`` (always) or ``False``
-      (never) overrides it;
-    - ``outliers`` (float or None, None): clamp each pixel's luminance to its
-      7x7 mean +- this many sigma first (None: no clamp).
+    Every method has the parameters of :attr:`common_options` (their table is
+    generated from the declarations): ``temporal`` back-projects onto the
+    previous frame (off: each frame on its own, ``index`` and ``valid`` always
+    ``None``); a command names it in the method's name (``atrous+temporal``,
+    :func:`denoise.methods.resolve`), and ``--no-temporal`` turns it off for a
+    method that is temporal by nature. ``demodulate`` filters ``beauty /
+    albedo`` (a class with ``demodulates`` ``True`` or ``False`` overrides it);
+    ``outliers`` clamps each pixel's luminance to its 7x7 mean +- this many
+    sigma first.
 
     A subclass sets ``name`` (its ``--method`` choice), ``description`` (one
     line for ``--help`` and the docs), ``options`` (its own parameters, read

@@ -13,8 +13,8 @@ class Bilateral(SpatialFilterMethod):
     back-projected previous result clamped to the current 7x7 mean ± k sigma.
     """
     name = "bilateral"
-    description = ("the assignment's joint bilateral filter ((2 radius + 1)^2 window), blended with the "
-                   "back-projected, clamped previous result unless --no-temporal")
+    description = ("the assignment's joint bilateral filter ((2 radius + 1)^2 window); bilateral+temporal: "
+                   "blended with the back-projected, clamped previous result")
     window_defaults = BilateralWindow()
     options = edge_options() + (
         Option("radius", window_defaults.radius, "window (2 radius + 1)^2", kind=int, low=0, high=64, step=1,

@@ -27,8 +27,8 @@ class OIDNMethod(DenoisingMethod):
     calls' wall and CPU time of the last frame (what the benchmark times).
     """
     name = "oidn"
-    description = ("Intel Open Image Denoise (HDR, albedo and normals); with temporal accumulation first "
-                   "unless --no-temporal")
+    description = ("Intel Open Image Denoise (HDR, albedo and normals); oidn+temporal: with temporal "
+                   "accumulation first")
     demodulates = False
     temporal_defaults = TemporalParams(alpha=0.5, k=3.0)
     quality = Option("oidn_quality", OIDNParams().quality, "OIDN 2's filter quality", kind=str, choices=QUALITIES,
