@@ -56,7 +56,8 @@ from core.errors import OutputError, UsageError
 from core.markdown import replace_section
 from denoise.export import Spec, export, reference_folder
 from denoise.frames import frame_indices, read_frame
-from denoise.methods import benchmark_names, from_name
+from denoise.methods import benchmark_names, from_name, resolve
+from denoise.methods.user import add_method_file_option, load_method_files
 from denoise.oidn import QUALITIES, oidn_version
 from imaging.colour import side_by_side
 from imaging.image_io import read_exr_rgb as read_rgb, write_image, write_video
@@ -238,7 +239,7 @@ def _mean(rows, sequence, method, key):
 
 def best_method(results: dict, sequence: str) -> tuple[str, float]:
     rows = results["results"]
-    scores = {m: _mean(rows, sequence, m, "relmse") for m in METHODS if m != "raw"}
+    scores = {m: _mean(rows, sequence, m, "relmse") for m in dict.fromkeys(r["method"] for r in rows) if m != "raw"}
     scores = {m: v for m, v in scores.items() if np.isfinite(v)}
     best = min(scores, key=scores.get)
     return best, scores[best]
@@ -263,7 +264,7 @@ def summary(results: dict) -> str:
     lines = ["| sequence | method | mean relMSE | relMSE last frame | mean FLIP | temporal stability | ms per frame |",
              "|---|---|---|---|---|---|---|"]
     for sequence in dict.fromkeys(r["sequence"] for r in rows):
-        for method in METHODS:
+        for method in dict.fromkeys(r["method"] for r in rows):
             pts = [r for r in rows if r["sequence"] == sequence and r["method"] == method]
             if pts:
                 lines.append(f"| {sequence} | {method} | {np.mean([p['relmse'] for p in pts]):.4f} | "
@@ -394,6 +395,18 @@ def check_work_and_json(work: Path, json_path: Path | None) -> None:
     check_json(json_path)
 
 
+def check_method_names(names: list[str], docs: bool) -> tuple[str, ...]:
+    """``--methods``: known names, each once, and not for the results page (which has every method)."""
+    if docs:
+        raise UsageError("--methods: --docs writes the page of every method; leave one of them out")
+    for name in names:
+        if name != "raw":
+            resolve(name)
+    if len(set(names)) != len(names):
+        raise UsageError("--methods: a name is given twice")
+    return tuple(names)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = ArgumentParser(prog=PROG, description=__doc__.split("\n\n")[0],
                             formatter_class=argparse.RawDescriptionHelpFormatter,
@@ -408,10 +421,16 @@ def main(argv: list[str] | None = None) -> int:
                              "(--readme: its former name)")
     parser.add_argument("--no-timing", action="store_true", help="skip the 1280x720 speed run")
     parser.add_argument("--sequences", nargs="*", metavar="NAME", help="only these sequences")
+    parser.add_argument("--methods", nargs="+", metavar="NAME",
+                        help="only these methods (raw and the names of python -m denoise --method), e.g. a method "
+                             "of one's own from --method-file; not with --docs")
+    add_method_file_option(parser)
     parser.add_argument("--reference-spp", type=int, metavar="N",
                         help="ground-truth spp for every sequence, even (default: " +
                              ", ".join(f"{k} {v}" for k, v in REFERENCE_SPP.items()) + ")")
+    load_method_files(argv)  # before parsing: --methods may name a method of one's own
     args = parser.parse_args(argv)
+    methods = METHODS if args.methods is None else check_method_names(args.methods, args.docs)
     known = [p.stem for p in SEQUENCES]
     unknown = [name for name in args.sequences or [] if name not in known]
     if unknown:
@@ -449,7 +468,7 @@ def main(argv: list[str] | None = None) -> int:
         # depend on thread counts; see denoise/export.py); the quick CI size stays in-process
         export(spec, folder, **({} if args.quick else {"workers": os.cpu_count() or 1}))
         outputs = {} if spec_path.stem == HARD else None
-        rows, figures = run_sequence(folder, spec_path.stem, outputs=outputs)
+        rows, figures = run_sequence(folder, spec_path.stem, methods, outputs=outputs)
         if outputs is not None:
             outputs_hard = outputs
         switch = sudden_change(spec)
@@ -465,11 +484,12 @@ def main(argv: list[str] | None = None) -> int:
         spec_path = SEQUENCES[0]
         folder = timing_folder(args.work, spec_path.stem, timing_size, args.quick)
         export(Spec.load(spec_path, **timing_size), folder)
-        results["timing"] = {"sequence": spec_path.stem, **run_timing(folder)}
+        results["timing"] = {"sequence": spec_path.stem,
+                             **run_timing(folder, TIMED if args.methods is None else methods)}
     results.update(load_average_at_end=round(os.getloadavg()[0], 2), wall_s=round(time.perf_counter() - start, 1))
     print(summary(results))
     checks = reference_checks(results)
-    for line in checks + bar_lines(results):
+    for line in checks + (bar_lines(results) if args.methods is None else []):  # the bars compare every method
         print(line)
     if args.json:
         write_json(args.json, results)

@@ -25,6 +25,7 @@ from renderer.variants import set_variant
 
 from .methods import METHODS, Option, declared_options, from_name, method_names, resolve
 from .methods.base import RADIANCE_LIMIT
+from .methods.user import add_method_file_option, load_method_files
 from .pipeline import denoise_folder
 
 PROG = "python -m denoise"
@@ -120,6 +121,7 @@ def _parser() -> tuple[argparse.ArgumentParser, set[str]]:
     parser.add_argument("target", type=Path, metavar="OUT_DIR", help="where result_i.exr are written")
     parser.add_argument("--method", choices=method_names(), default="atrous+temporal",
                         help="the filter (default: atrous+temporal)")
+    add_method_file_option(parser)
     keys = add_method_options(parser)
     group = parser.add_argument_group("previews")
     group.add_argument("--png", action="store_true", help="also write result_i.png (tone-mapped sRGB) beside the EXRs")
@@ -133,6 +135,7 @@ def _parser() -> tuple[argparse.ArgumentParser, set[str]]:
 
 
 def _main(argv: list[str] | None) -> int:
+    load_method_files(argv)  # before the parser: their methods and options are in --help
     parser, keys = _parser()
     args = parser.parse_args(argv)
     # every parameter checked before any work

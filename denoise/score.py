@@ -43,6 +43,7 @@ from validation.metrics import flip_error, relmse, stability, temporal_relmse
 
 from .frames import frame_indices, read_frame
 from .methods import from_name
+from .methods.user import add_method_file_option, load_method_files
 from .pipeline import check_folder
 
 PROG = "python -m denoise.score"
@@ -292,6 +293,7 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--pattern", default=DEFAULT_PATTERN, help=f"result file names (default {DEFAULT_PATTERN})")
     parser.add_argument("--compare", nargs="+", metavar="METHOD", default=[],
                         help="our methods, run on --frames and scored beside the results (e.g. svgf oidn raw)")
+    add_method_file_option(parser)
     parser.add_argument("--plot", type=Path, metavar="FILE.png", help="write the per-frame figures as a plot")
     parser.add_argument("--json", type=Path, metavar="FILE", help="write every number as JSON")
     parser.add_argument("--variant", help="Mitsuba variant (default: llvm_ad_rgb where usable)")
@@ -299,6 +301,7 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def _main(argv: list[str] | None) -> int:
+    load_method_files(argv)  # a method of one's own, for --compare
     args = _parser().parse_args(argv)
     if args.plot is not None and args.plot.suffix.lower() != ".png":
         raise UsageError(f"--plot writes PNG: name it .png, got {args.plot}")

@@ -18,6 +18,7 @@ import re
 import shlex
 import subprocess
 import sys
+import tempfile
 from pathlib import Path
 
 import pytest
@@ -239,6 +240,25 @@ def parse_in_child(checks: list[dict]) -> list[dict]:
     return json.loads(result.stdout.rsplit("\n", 2)[-2])
 
 
+#: (page, file name) -> where that page's method file is saved for the commands that name it
+SCRATCH: dict[tuple[str, str], Path] = {}
+
+
+def with_method_files(command: dict) -> dict:
+    """``command`` with each ``--method-file NAME`` pointed at the page's own
+    Python block, saved under NAME in a scratch folder (the page tells the
+    reader to save it so: docs/own_method.md)."""
+    args = list(command["args"])
+    for i, word in enumerate(args[:-1]):
+        if word == "--method-file":
+            page = next(p for p in pages() if p.name == command["where"].split(":")[0])
+            code = re.search(r"```python\n(.*?)```", page.read_text(), re.S)
+            saved = SCRATCH.setdefault((page.name, Path(args[i + 1]).name), Path(tempfile.mkdtemp()) / args[i + 1])
+            saved.write_text(code.group(1) if code else "")  # one file per page: its commands share one process
+            args[i + 1] = str(saved)
+    return dict(command, args=args)
+
+
 def check(found: list[dict]) -> list[str]:
     """``page:line: command: why`` for every command that does not parse, in page order."""
     found = [dict(c, order=i) for i, c in enumerate(found)]
@@ -262,7 +282,7 @@ def check(found: list[dict]) -> list[str]:
             if unknown:
                 failures.append((command["order"], f"{command['where']}: {command['line']}: pytest has no flag "
                                  f"{unknown[0]}"))
-    to_parse = [c for c in runnable if c["kind"] != "pytest"]
+    to_parse = [with_method_files(c) for c in runnable if c["kind"] != "pytest"]
     parsed = parse_in_child(to_parse) if to_parse else []
     failures += [(c["order"], f"{c['where']}: {c['line']}: {c['message']}") for c in parsed if not c["ok"]]
     return [line for _, line in sorted(failures)]
@@ -352,7 +372,7 @@ def child() -> None:
             source = Path(spec.origin).read_text() if spec and spec.origin else ""
             # a thin __main__ hands over to a module of its package (denoise.export.cli)
             for imported in re.findall(r"^\s*from ([\w.]+) import main\b", source, re.M):
-                found = importlib.util.find_spec(imported)
+                found = importlib.util.find_spec(imported, package=check["name"])
                 if found is not None and found.origin:
                     source += Path(found.origin).read_text()
             if "argparse" not in source and "ArgumentParser" not in source:

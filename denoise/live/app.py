@@ -13,10 +13,11 @@ from core.entry import ArgumentParser, run
 from core.errors import UsageError
 from core.numbers import ascii_int
 from course import data_dir, resolve_scene
+from denoise.methods.user import add_method_file_option, load_method_files
 from renderer.variants import set_variant
 
 from .frame_loop import FrameLoop, SceneRenderer
-from .methods import METHOD_NAMES
+from .methods import METHOD_NAMES, refresh
 from .session import Session
 
 DESCRIPTION = ("watch a scene rendered at 1 spp and denoised, live, in a browser: serves a local page (it prints "
@@ -42,10 +43,13 @@ def parser() -> argparse.ArgumentParser:
     result.add_argument("--port", type=ascii_int, default=8765, help="port (default 8765; 0: any free one)")
     result.add_argument("--no-freeze", action="store_true", help="trace every frame's render (no dr.freeze)")
     result.add_argument("--data", type=Path, help="course data folder for course scene names")
+    add_method_file_option(result)
     return result
 
 
 def _main(argv: list[str] | None) -> int:
+    load_method_files(argv)  # before the parser: a method of one's own is a --method choice and has its sliders
+    refresh()
     args = parser().parse_args(argv)
     width, height = args.size
     if not (1 <= width <= MAX_SIDE and 1 <= height <= MAX_SIDE):

@@ -12,12 +12,17 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from denoise.methods import DenoisingMethod, benchmark_names, resolve
+from denoise.methods import DenoisingMethod, benchmark_names, method_names, resolve
 from denoise.svgf import levels_for
 
 RAW = "raw"
-#: what the page lists, in its order
-METHOD_NAMES = (RAW,) + tuple(name for name in benchmark_names() if not name.startswith(("demod+", "outliers+")))
+
+
+def page_names() -> list[str]:
+    """What the page lists, in its order: ``raw``, the benchmark's names, then
+    the names of a registered method that has none (one of one's own)."""
+    names = [RAW] + [name for name in benchmark_names() if not name.startswith(("demod+", "outliers+"))]
+    return names + [name for name in method_names() if name not in names and not resolve(name)[0].benchmark]
 
 @dataclass(frozen=True)
 class Slider:
@@ -39,7 +44,19 @@ def sliders_of(name: str) -> tuple[Slider, ...]:
                  if o.step is not None and (props["temporal"] or not o.temporal))
 
 
-SLIDERS = {RAW: (), **{name: sliders_of(name) for name in METHOD_NAMES if name != RAW}}
+#: what the page lists and the sliders of each (:func:`refresh` after registering a method)
+METHOD_NAMES: list[str] = []
+SLIDERS: dict[str, tuple[Slider, ...]] = {}
+
+
+def refresh() -> None:
+    """:data:`METHOD_NAMES` and :data:`SLIDERS` made anew from the registry, in place."""
+    METHOD_NAMES[:] = page_names()
+    SLIDERS.clear()
+    SLIDERS.update({RAW: (), **{name: sliders_of(name) for name in METHOD_NAMES if name != RAW}})
+
+
+refresh()
 
 
 def method_for(name: str, width: int, values: dict[str, float]) -> DenoisingMethod | None:

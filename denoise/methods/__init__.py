@@ -116,10 +116,11 @@ def method_names() -> tuple[str, ...]:
     benchmark's ``--methods``, ``denoise.score --compare``, the live page), one
     meaning each: ``NAME`` and ``NAME-PRESET`` as :func:`resolve` makes them
     (no history unless the method is temporal by nature), and ``NAME+temporal``
-    with the clamped temporal accumulation where the method is not."""
+    with the clamped temporal accumulation where the method has one and is not."""
     names = []
     for cls in METHODS.values():
-        names += [cls.name] + ([] if cls.temporal_by_nature else [f"{cls.name}+temporal"])
+        accumulates = not cls.temporal_by_nature and any(o.temporal for o in cls.options)
+        names += [cls.name] + ([f"{cls.name}+temporal"] if accumulates else [])
         names += [f"{cls.name}-{preset}" for preset in cls.presets]
     return tuple(names)
 
