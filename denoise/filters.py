@@ -38,36 +38,26 @@ def check_whole(owner: str, name: str, value, low: int, high: int) -> None:
 class EdgeWeights:
     """The assignment's edge-stopping weights ``exp(-D²/(2σ²))`` on colour,
     normal angle (``arccos`` of the normals' dot) and plane distance (the
-    normal dotted with the unit vector between the two positions)."""
+    normal dotted with the unit vector between the two positions). The
+    methods' options declare and check each (:func:`denoise.methods.base.edge_options`)."""
     sigma_color: float = 0.6
     sigma_normal: float = 0.1
     sigma_plane: float = 0.1
-
-    def __post_init__(self):
-        check_positive("edge weights", sigma_color=self.sigma_color, sigma_normal=self.sigma_normal,
-                  sigma_plane=self.sigma_plane)
 
 
 @dataclass(frozen=True)
 class BilateralWindow:
     """The plain joint bilateral filter's window: (2 radius + 1)² pixels with a
-    spatial weight ``exp(-d²/(2 sigma_coord²))``."""
+    spatial weight ``exp(-d²/(2 sigma_coord²))`` (bilateral's options declare and check both)."""
     radius: int = 16
     sigma_coord: float = 32.0
-
-    def __post_init__(self):
-        check_whole("bilateral window", "radius", self.radius, 0, 64)
-        check_positive("bilateral window", sigma_coord=self.sigma_coord)
 
 
 @dataclass(frozen=True)
 class AtrousLevels:
     """À-Trous: ``levels`` passes of the 5x5 B3 kernel with holes 2^i; the
-    colour sigma halves from one level to the next."""
+    colour sigma halves from one level to the next (``--levels`` declares and checks it)."""
     levels: int = 5
-
-    def __post_init__(self):
-        check_whole("a-trous", "levels", self.levels, 1, 12)
 
 
 @dataclass(frozen=True)
@@ -77,12 +67,7 @@ class TemporalParams:
     k: float = 1.0  # clamp the history to mean ± k·σ of the current 7x7 neighbourhood
     clamp_radius: int = 3
 
-    def __post_init__(self):
-        if not (isinstance(self.alpha, (int, float)) and 0.0 < self.alpha <= 1.0):
-            raise UsageError(f"temporal: alpha (the current frame's weight) must be in (0, 1], got {self.alpha!r}")
-        if not (isinstance(self.k, (int, float)) and math.isfinite(self.k) and self.k >= 0.0):
-            raise UsageError(f"temporal: k (the history clamp, mean ± k sigma) must be a finite number >= 0, "
-                             f"got {self.k!r}")
+    def __post_init__(self):  # alpha and k: the options of the accumulation declare and check them
         check_whole("temporal", "clamp_radius", self.clamp_radius, 1, 16)
 
 
@@ -93,8 +78,7 @@ class OutlierParams:
     k: float = 2.0
     radius: int = 3
 
-    def __post_init__(self):
-        check_positive("outlier removal", k=self.k)
+    def __post_init__(self):  # k: ``--outliers`` declares and checks it
         check_whole("outlier removal", "radius", self.radius, 1, 16)
 
 

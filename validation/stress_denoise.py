@@ -18,7 +18,7 @@ import numpy as np
 
 from core.errors import FrameError, UsageError
 from denoise.__main__ import main as denoise_main
-from denoise.filters import AtrousLevels, BilateralWindow, EdgeWeights, OutlierParams, TemporalParams, clamp_box
+from denoise.filters import OutlierParams, TemporalParams, clamp_box
 from denoise.frames import FrameData, read_matrices, write_frame
 from denoise.methods import METHODS, make
 from denoise.pipeline import denoise_folder
@@ -216,10 +216,11 @@ def bad_parameter(argv: list[str], expect: str):
 
 def parameter_type_checks():
     """Each parameter type refuses nonsense when built from Python too (UsageError)."""
-    attempts = [lambda: AtrousLevels(0), lambda: AtrousLevels(2.5), lambda: BilateralWindow(radius=65),
-                lambda: EdgeWeights(sigma_normal=float("nan")), lambda: TemporalParams(clamp_radius=0),
-                lambda: make("asvgf", clip_width=float("nan")), lambda: make("svgf", normal_exponent=0.0),
-                lambda: OutlierParams(k=0), lambda: SVGFParams(alpha_moments=0),
+    attempts = [lambda: make("atrous", levels=0), lambda: make("atrous", levels=2.5),
+                lambda: make("bilateral", radius=65), lambda: make("atrous", sigma_normal=float("nan")),
+                lambda: TemporalParams(clamp_radius=0), lambda: make("asvgf", clip_width=float("nan")),
+                lambda: make("svgf", normal_exponent=0.0), lambda: make("atrous", outliers=0.0),
+                lambda: OutlierParams(radius=0), lambda: SVGFParams(alpha_moments=0),
                 lambda: SVGFParams(levels=2, feedback_level=2)]
     refused = 0
     for attempt in attempts:
