@@ -238,6 +238,7 @@ def test_one_name_one_meaning_in_every_command(tmp_path, capsys):
     from denoise.live.methods import METHOD_NAMES
 
     assert not from_name("bilateral").temporal and from_name("bilateral+temporal").temporal
+    assert not make("bilateral").temporal and make("bilateral+temporal").temporal  # the Python API too
     parser, _ = _parser()
     for name in ("bilateral", "bilateral+temporal", "atrous", "atrous+temporal", "svgf", "oidn-fast"):
         assert name in method_names() and name in METHOD_NAMES

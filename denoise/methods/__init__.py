@@ -72,10 +72,10 @@ for method in (Bilateral, Atrous, SVGF, ASVGF, OIDNMethod, OIDNGuided):
 
 
 def make(name: str, **props) -> DenoisingMethod:
-    """The method ``name`` with parameters ``props`` (option keys, e.g. ``levels=3``)."""
-    if name not in METHODS:
-        raise UsageError(f"unknown method {name!r}; choose from {', '.join(METHODS)}")
-    return METHODS[name](**props)
+    """The method ``name`` with parameters ``props`` (option keys, e.g.
+    ``levels=3``): a name means what it means in every command (:func:`resolve`:
+    ``atrous`` without history, ``atrous+temporal`` with it)."""
+    return from_name(name, **props)
 
 
 def _names() -> dict[str, tuple[type[DenoisingMethod], dict]]:
