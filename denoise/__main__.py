@@ -67,8 +67,10 @@ def check_options_apply(name: str, given: dict) -> None:
                                       (users or [(method, option)])[0][::-1])
             declaration.check(given[option.key], owner)
         if option.key in given and option.key not in own:
+            suggested = next((n for n in method_names() if resolve(n)[0].name == users[0][0]
+                              and (resolve(n)[1]["temporal"] or not option.temporal)), users[0][0])
             raise UsageError(f"{flag} is an option of {', '.join(name for name, _ in users)}, not of {method} "
-                             f"(add --method {users[0][0]}, or leave {flag} out)")
+                             f"(add --method {suggested}, or leave {flag} out)")
     if "temporal" in given and (not cls.temporal_by_nature):
         raise UsageError(f"--no-temporal: {name} " + (f"accumulates by its name; use {method}" if named["temporal"]
                                                         else "has no history already"))
