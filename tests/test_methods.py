@@ -204,7 +204,7 @@ def test_a_range_changed_in_its_declaration_is_followed_everywhere(monkeypatch, 
     assert main([str(tmp_path), str(tmp_path / "out"), "--method", "asvgf", "--clip-width", "6"]) == 2
     assert capsys.readouterr().err == ("python -m denoise: error: asvgf: --clip-width must be a number from 0 to 5, "
                                        "got 6.0\n")
-    assert "| `--clip-width` | fitted (hand-set 1) | a number from 0 to 5 |" in method_list()
+    assert "| `--clip-width` | fitted (hand-set 1) | a number from 0 to 5 |  | 0.05 to 5, step 0.05 |" in method_list()
     assert next(s for s in sliders_of("asvgf") if s.name == "clip_width").high == 5.0
 
 

@@ -30,9 +30,10 @@ def _range(option: Option) -> str:
 
 def _options_table(options: tuple[Option, ...]) -> list[str]:
     """Each option's flag, default, range, unit and meaning, from its declaration."""
-    lines = ["| option | default | range | unit | meaning |", "|---|---|---|---|---|"]
+    lines = ["| option | default | range | unit | live slider | meaning |", "|---|---|---|---|---|---|"]
     for o in options:
-        lines.append(f"| `{o.flag}` | {_default(o)} | {_range(o)} | {o.unit} | {o.help} |")
+        slider = "" if o.step is None else "{:g} to {:g}, step {:g}".format(*o.slider_range(), o.step)
+        lines.append(f"| `{o.flag}` | {_default(o)} | {_range(o)} | {o.unit} | {slider} | {o.help} |")
     return lines
 
 
