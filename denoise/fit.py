@@ -336,7 +336,11 @@ def fit_steps(targets: list[Path], switch_frame: int, steps: int, rate: float, q
 
 def fit_worker(connection, *arguments) -> None:
     """:func:`fit_steps` in a worker process, started with GROUP_SIGNALS blocked
-    (the parent stops it); sends ("done", the result) or ("error", its line)."""
+    and then ignoring them: the parent alone answers a terminal's signals and
+    stops this process, which prints nothing of its own (a thread of a native
+    library may run with them unblocked); sends ("done", the result) or ("error", its line)."""
+    for signum in GROUP_SIGNALS:
+        signal.signal(signum, signal.SIG_IGN)
     set_variant("llvm_ad_rgb", quiet=True)
     try:
         connection.send(("done", fit_steps(*arguments)))

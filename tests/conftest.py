@@ -29,6 +29,7 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from course import ENVIRONMENT as COURSE_ENVIRONMENT, root as course_root  # noqa: E402
+from denoise.export.tasks import forget_loaded_scenes  # noqa: E402
 from renderer import variants  # noqa: E402
 
 # Point Dr.Jit at a usable LLVM before anything initialises its LLVM backend
@@ -77,6 +78,7 @@ def _clean_up(previous: str | None) -> None:
     dr.kernel_history_clear()
     dr.flush_malloc_cache()
     dr.detail.malloc_clear_statistics()
+    forget_loaded_scenes()  # the export's scenes hold instances that the registry's clearing invalidates
     dr.detail.clear_registry()  # instances kept alive by a failed test's traceback
     dr.set_flag(dr.JitFlag.Default, True)
     if previous is not None and previous != _active_variant():
@@ -177,3 +179,16 @@ def pytest_sessionfinish(session, exitstatus):
             {"variant": best_variant(), **_outcomes, "skipped": len(_skipped["required"]) + len(_skipped["other"]),
              "required_skipped": len(_skipped["required"]), "skips": _skipped["other"] + _skipped["required"]},
             indent=2) + "\n")
+
+
+@pytest.fixture
+def exported(variant_llvm_ad_rgb, tmp_path):
+    """A small sequence exported by ``denoise.export`` (32x18, 2 frames), checked to be lit."""
+    from denoise.export import Spec, export
+    from imaging.image_io import read_exr_rgb
+
+    folder = tmp_path / "glossy_shadow"
+    export(Spec.load(ROOT / "scenes" / "sequences" / "glossy_shadow.json", size=(32, 18), frames=2, reference_spp=2),
+           folder)
+    assert read_exr_rgb(folder / "beauty_0.exr").max() > 0, "the exported frame is black"
+    return folder

@@ -59,16 +59,6 @@ def registered_box():
     METHODS.update(before)
 
 
-@pytest.fixture
-def exported(variant_llvm_ad_rgb, tmp_path):
-    """A small sequence exported by ``denoise.export`` (32x18, 2 frames)."""
-    from denoise.export import Spec, export
-
-    folder = tmp_path / "glossy_shadow"
-    export(Spec.load(ROOT / "scenes" / "sequences" / "glossy_shadow.json", size=(32, 18), frames=2, reference_spp=2),
-           folder)
-    return folder
-
 
 def box_numpy(image: np.ndarray, radius: int) -> np.ndarray:
     padded = np.pad(image.astype(np.float64), ((radius, radius), (radius, radius), (0, 0)), mode="edge")

@@ -41,15 +41,6 @@ def my_filter(tmp_path, registry):
     return path
 
 
-@pytest.fixture
-def exported(variant_llvm_ad_rgb, tmp_path):
-    from denoise.export import Spec, export
-
-    folder = tmp_path / "seq"
-    export(Spec.load(ROOT / "scenes" / "sequences" / "glossy_shadow.json", size=(32, 18), frames=2, reference_spp=2),
-           folder)
-    return folder
-
 
 def test_the_page_is_about_thirty_lines():
     assert 25 <= len(page_code().strip().splitlines()) <= 45

@@ -48,10 +48,16 @@ class Task:
         return f"{self.sequence.name}-{self.sequence.key[:8]}-{self.frame}-{tail}"
 
 
-# The loaded Mitsuba scenes of the last frames this process rendered: a frame's
-# batches that land on one worker load its scene once.
+# The loaded Mitsuba scenes of the last frames this process rendered, by
+# variant: a frame's batches that land on one worker load its scene once.
 _LOADED: OrderedDict = OrderedDict()
 _COURSE_SCENES: dict = {}
+
+
+def forget_loaded_scenes() -> None:
+    """Drops the loaded scenes: they hold Dr.Jit instances, which
+    ``dr.detail.clear_registry()`` invalidates (they would then render black)."""
+    _LOADED.clear()
 
 
 def prepare_process(variant: str, threads: int | None) -> None:
@@ -87,7 +93,7 @@ def loaded_frame(sequence: Sequence, frame: int):
 
     from converters.to_mitsuba import load_scene_dict  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
 
-    cache_key = (sequence.key, sequence.scene_path, frame)
+    cache_key = (mi.variant(), sequence.key, sequence.scene_path, frame)
     if cache_key in _LOADED:
         _LOADED.move_to_end(cache_key)
         return _LOADED[cache_key]
