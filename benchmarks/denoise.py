@@ -303,11 +303,19 @@ def bar_lines(results: dict) -> list[str]:
     return lines
 
 
-def tail_mean(rows: list[dict], sequence: str, method: str) -> float:
-    """``method``'s mean relMSE on ``sequence`` over frames >= :data:`QUALITY_FROM`."""
+def tail_mean(rows: list[dict], sequence: str, method: str) -> float | None:
+    """``method``'s mean relMSE on ``sequence`` over frames >= :data:`QUALITY_FROM`; None without such frames."""
     values = [r["relmse"] for r in rows
               if r["sequence"] == sequence and r["method"] == method and r["frame"] >= QUALITY_FROM]
-    return float(np.mean(values)) if values else float("nan")
+    return float(np.mean(values)) if values else None
+
+
+def tail_text(ours: float | None, theirs: float | None) -> str:
+    """asvgf's tail mean against the baseline's, or why there is none."""
+    if ours is None or theirs is None:
+        return f"asvgf mean relMSE: no frames >= {QUALITY_FROM}"
+    return (f"asvgf mean relMSE (frames >= {QUALITY_FROM}) {ours:.4f} = {ours / theirs:.2f}x {BASELINE}'s "
+            f"{theirs:.4f} (bar {ASVGF_RELMSE_BAR}x: {'met' if ours <= ASVGF_RELMSE_BAR * theirs else 'not met'})")
 
 
 def frames_text(response_frames: int | None) -> str:
@@ -326,8 +334,7 @@ def asvgf_lines(results: dict) -> list[str]:
         name = s["name"]
         ours, oidn = tail_mean(rows, name, "asvgf"), tail_mean(rows, name, BASELINE)
         stability = s["stability"]
-        line = (f"{name}: asvgf mean relMSE (frames >= {QUALITY_FROM}) {ours:.4f} = {ours / oidn:.2f}x {BASELINE}'s "
-                f"{oidn:.4f} (bar {ASVGF_RELMSE_BAR}x: {'met' if ours <= ASVGF_RELMSE_BAR * oidn else 'not met'}); "
+        line = (f"{name}: {tail_text(ours, oidn)}; "
                 f"stability {stability['asvgf']:.2f} vs {BASELINE} {stability[BASELINE]:.2f} "
                 f"({'met' if stability['asvgf'] < stability[BASELINE] else 'not met'})")
         if "response" in s:

@@ -23,6 +23,7 @@ from imaging.colour import side_by_side, tone_map
 from imaging.image_io import read_exr_rgb, write_image, write_video
 from renderer.variants import set_variant
 
+from .ground_truth import check_ground_truth
 from .methods import METHODS, Option, declared_options, from_name, method_names, resolve
 from .methods.base import RADIANCE_LIMIT
 from .methods.user import add_method_file_option, load_method_files
@@ -152,6 +153,8 @@ def _main(argv: list[str] | None) -> int:
         raise UsageError(f"--video writes H.264 MP4: name it .mp4, got {args.video}")
     if args.reference is not None and not args.reference.is_dir():
         raise FrameError(f"{args.reference}: not a folder")
+    if args.reference is not None:
+        check_ground_truth("--reference", args.reference, args.source)
     set_variant(args.variant, quiet=True)
     panels: list[list] = []
 

@@ -11,7 +11,9 @@ frame: relMSE and mean FLIP against the truth. With ``--frames`` (the frame
 folder the results were made from: its positions, ids and matrices) also
 ``temporal``, the relMSE between a result and the previous one
 back-projected onto it, and the stability figure: its mean over the
-ground truth's (1 = as steady as the truth). ``--compare METHOD ...`` runs
+ground truth's (1 = as steady as the truth). A reference that is no ground
+truth (a frame folder, or an export's truth of no more samples than the
+frames) is refused (:mod:`denoise.ground_truth`). ``--compare METHOD ...`` runs
 our methods (``python -m denoise``'s, named as in ``benchmarks.denoise``:
 ``svgf``, ``atrous+temporal``, ``oidn``, ...; ``raw`` is the noisy input) on
 the same frames and scores them beside the results. Every number comes from
@@ -42,6 +44,7 @@ from renderer.variants import set_variant
 from validation.metrics import flip_error, relmse, stability, temporal_relmse
 
 from .frames import frame_indices, read_frame
+from .ground_truth import check_ground_truth
 from .methods import from_name
 from .methods.user import add_method_file_option, load_method_files
 from .pipeline import check_folder
@@ -215,6 +218,7 @@ def score_sequence(results: Path, reference: Path, frames_folder: Path | None = 
         raise UsageError("--compare runs our methods on the frames: give --frames FRAME_DIR")
     check_methods(list(compare))
     indices = reference_indices(reference)
+    check_ground_truth("--reference", reference, frames_folder)
     if frames_folder is not None:
         check_consecutive(reference, indices)
     paths = result_paths(results, pattern, indices)

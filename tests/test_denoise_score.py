@@ -42,6 +42,8 @@ def test_matches_the_benchmark_on_an_exported_sequence(variant_vectorised_rgb, t
                                "dolly_lamps", "--work", str(work), "--json", str(benchmark)],
                               cwd=ROOT, capture_output=True, text=True, timeout=900)
     assert finished.returncode == 0, finished.stderr[-3000:]
+    # its 4 frames have none >= 4, where the asvgf bar's mean is taken: said so, not NaN
+    assert "nan" not in finished.stdout and "dolly_lamps: asvgf mean relMSE: no frames >= 4;" in finished.stdout
     frames = work / "dolly_lamps_96x54_16spp_quick"
     assert denoise_main([str(frames), str(tmp_path / "svgf_results"), "--method", "svgf"]) == 0
     ours = tmp_path / "score.json"
@@ -238,3 +240,40 @@ def test_two_frames_read_from_one_file_are_refused(capsys, tmp_path):
     status, _, err = score(capsys, tmp_path, "--reference", tmp_path, "--pattern", "{i:.0e}.exr")
     assert status == 2 and err.count("\n") == 1, err
     assert "frames 15 and 25 would both be read from 2e+01.exr" in err, err
+
+
+def test_a_reference_that_is_not_a_ground_truth_is_refused(exported, tmp_path, capsys):
+    """The noisy frames, any frame folder, or a truth with no more samples than the frames,
+    given as --reference: one line, exit 2, in denoise.score and in python -m denoise."""
+    import shutil
+
+    from denoise.__main__ import main as denoise_main
+    from denoise.ground_truth import GROUND_TRUTH_RECORD, SEQUENCE_RECORD, reference_folder
+
+    truth = reference_folder(exported)
+    record = json.loads((truth / GROUND_TRUTH_RECORD).read_text())
+    assert (record["holds"], record["spp"], record["frames_spp"]) == ("ground truth", 2, 1)
+    results = tmp_path / "results"
+    results.mkdir()
+    for i in (0, 1):
+        shutil.copy(exported / f"beauty_{i}.exr", results / f"result_{i}.exr")
+    assert score(capsys, results, "--reference", truth, "--frames", exported)[0] == 0
+    status, out, err = score(capsys, results, "--reference", exported)
+    assert (status, out) == (2, "")
+    assert err == (f"python -m denoise.score: error: --reference {exported}: holds an export's noisy frames "
+                   f"({SEQUENCE_RECORD}), not a ground truth; its ground truth is {truth}\n")
+    course_layout = tmp_path / "frames_by_hand"  # the course's layout, no record
+    shutil.copytree(exported, course_layout)
+    (course_layout / SEQUENCE_RECORD).unlink()
+    status, _, err = score(capsys, results, "--reference", course_layout)
+    assert status == 2 and err.count("\n") == 1 and "holds frames with G-buffers" in err, err
+    thin = tmp_path / "thin_reference"  # a truth of as many samples as the frames it would judge
+    shutil.copytree(truth, thin)
+    (thin / GROUND_TRUTH_RECORD).write_text(json.dumps(dict(record, spp=1)))
+    for frames in ([], ["--frames", exported]):
+        status, _, err = score(capsys, results, "--reference", thin, *frames)
+        assert status == 2 and err.count("\n") == 1, err
+        assert "a ground truth of 1 samples per pixel cannot judge" in err and "rendered at 1" in err, err
+    assert denoise_main([str(exported), str(tmp_path / "out"), "--video", str(tmp_path / "v.mp4"),
+                         "--reference", str(exported)]) == 2
+    assert "holds an export's noisy frames" in capsys.readouterr().err

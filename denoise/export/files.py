@@ -24,8 +24,8 @@ STAGING = ".partial"
 LOCK_NAME = ".export.lock"
 #: a staging file, or the temporary file ``imaging.image_io.atomic_path`` makes
 #: beside a target (``.NAME.1a2b3c4d.exr``), of a file the export writes
-_STAGED = re.compile(r"\.\.?(?:beauty|normal|position|depth|ID|albedo|matrix|half_a|half_b|batch|sequence|dataset)"
-                     r"[\w.]*?(?:\.partial(?:\.[0-9a-f]{8}\.\w+)?|\.[0-9a-f]{8}\.\w+)")
+_STAGED = re.compile(r"\.\.?(?:beauty|normal|position|depth|ID|albedo|matrix|half_a|half_b|batch|sequence|ground_truth"
+                     r"|dataset)[\w.]*?(?:\.partial(?:\.[0-9a-f]{8}\.\w+)?|\.[0-9a-f]{8}\.\w+)")
 
 
 def _fsync(path: Path, flags: int = os.O_RDONLY) -> None:

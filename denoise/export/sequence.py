@@ -13,6 +13,7 @@ import json
 from importlib.metadata import version
 from pathlib import Path
 
+from ..ground_truth import reference_folder
 from .spec import Spec
 
 #: bump when the way frames are rendered changes (seeds, batching, passes)
@@ -92,6 +93,3 @@ def part_seed(seed: int, part: int) -> int:
     return int.from_bytes(digest[:4], "little") & 0x7FFFFFFF
 
 
-def reference_folder(target: Path) -> Path:
-    target = Path(target)
-    return target.parent / f"{target.name}_reference"

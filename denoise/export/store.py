@@ -5,7 +5,10 @@ A sequence writes its frames into ``target`` and its ground truth into
 ``target_reference``; reference batches wait in ``target_reference/.batches``
 until a frame's last one is in, and are then summed (in batch order, in
 float64) into the halves and the reference. ``target/sequence.json`` records
-the settings: an export with other settings is refused.
+the settings: an export with other settings is refused;
+``target_reference/ground_truth.json`` says what that folder is (the ground
+truth of ``target``, at how many samples), so that a scorer can refuse the
+noisy frames, or a thinner truth, given as its reference.
 
 Every file is written crash-safely (:func:`denoise.export.files.publish`), and
 the file that marks a part complete is written last: ``matrix_i.mat`` for a
@@ -27,8 +30,9 @@ from core.errors import SpecError
 from imaging.image_io import write_exr
 
 from ..frames import BUFFERS, FrameData, write_matrices
+from ..ground_truth import GROUND_TRUTH_RECORD, SEQUENCE_RECORD
 from .files import publish, remove_staging
-from .sequence import Sequence, reference_folder, seed
+from .sequence import EXPORT_FORMAT, Sequence, reference_folder, seed
 from .tasks import Task
 
 
@@ -87,7 +91,8 @@ def start_over(sequence: Sequence) -> None:
     for path in _our_files(sequence):
         path.unlink()
     shutil.rmtree(sequence.reference / ".batches", ignore_errors=True)
-    (Path(sequence.target) / "sequence.json").unlink(missing_ok=True)
+    (Path(sequence.target) / SEQUENCE_RECORD).unlink(missing_ok=True)
+    (sequence.reference / GROUND_TRUTH_RECORD).unlink(missing_ok=True)
 
 
 def _differences(old: dict, new: dict, prefix: str = "") -> list[str]:
@@ -120,7 +125,7 @@ def check_folder(sequence: Sequence) -> None:
     """Raises :class:`SpecError` unless ``sequence`` may write into its folders:
     they are new, or were made with the same settings. Writes nothing."""
     target = Path(sequence.target)
-    record = target / "sequence.json"
+    record = target / SEQUENCE_RECORD
     settings = sequence.settings()
     if record.exists():
         try:
@@ -147,9 +152,17 @@ def claim_folder(sequence: Sequence, force: bool = False) -> None:
     if force:
         start_over(sequence)
     check_folder(sequence)
-    record = Path(sequence.target) / "sequence.json"
+    record = Path(sequence.target) / SEQUENCE_RECORD
     if not record.exists():
         write_record(record, sequence.settings())
+    if not (sequence.reference / GROUND_TRUTH_RECORD).exists():
+        write_record(sequence.reference / GROUND_TRUTH_RECORD, ground_truth_record(sequence))
+
+
+def ground_truth_record(sequence: Sequence) -> dict:
+    """What the reference folder holds: the ground truth of which frames, at how many samples per pixel."""
+    return {"format": EXPORT_FORMAT, "holds": "ground truth", "frames_folder": Path(sequence.target).name,
+            "key": sequence.key, "spp": sequence.spec.reference_spp, "frames_spp": sequence.spec.spp}
 
 
 def recover(sequence: Sequence) -> None:
