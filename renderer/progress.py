@@ -42,6 +42,16 @@ class _TqdmAppender(mi.Appender):
             self.bar = None
 
 
+def log_to_stderr() -> None:
+    """Mitsuba's messages on stderr, as every command's own: its default
+    appender writes them to stdout, which carries only what a command is for."""
+    logger = mi.logger()
+    appenders = [logger.appender(i) for i in range(logger.appender_count())]
+    if not any(isinstance(a, _TqdmAppender) for a in appenders):
+        logger.clear_appenders()
+        logger.add_appender(_TqdmAppender(bars=False))
+
+
 def bars_wanted(enabled: bool = True) -> bool:
     """Whether to draw progress bars: asked for, and stderr is a terminal."""
     try:

@@ -236,4 +236,7 @@ def set_variant(requested: str | None = None, quiet: bool = False) -> str:
             raise UsageError(f"--variant {variant} cannot be used here: "
                              f"{' '.join(str(error).split())[:200]}") from None
         register_plugins()
+        from renderer.progress import log_to_stderr  # noqa: PLC0415  imports Mitsuba: after the libLLVM is chosen
+
+        log_to_stderr()
     return variant

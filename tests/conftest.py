@@ -27,6 +27,9 @@ import pytest
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+# the commands the tests start import this checkout, whatever folder they run in
+# (the venv's editable install may name another checkout of the project)
+os.environ["PYTHONPATH"] = os.pathsep.join([str(ROOT), *filter(None, [os.environ.get("PYTHONPATH")])])
 
 from course import ENVIRONMENT as COURSE_ENVIRONMENT, root as course_root  # noqa: E402
 from denoise.export.tasks import forget_loaded_scenes  # noqa: E402

@@ -159,3 +159,15 @@ def test_the_live_server_logs_nothing_but_its_stop_line(tmp_path):
                 process.wait()
     assert log.read_text().splitlines() == [
         "python -m denoise.live: stopped (the live page writes no files)"]
+
+
+def test_mitsubas_warnings_go_to_stderr_not_stdout(tmp_path):
+    """Mitsuba's default appender writes to stdout; every command sets its
+    variant through ``set_variant``, which sends Mitsuba's log to stderr, so
+    stdout carries only the command's output (here the stress suite's summary
+    while a case's sphere, scaled away, makes Mitsuba warn)."""
+    done = subprocess.run(python("-m", "benchmarks.stress", "--only", "scene scaled by 1e-10",
+                                 "--fuzz", 0), cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout == '{"cases": 1, "passed": 1, "fuzz_inputs": 0}\n', done.stdout
+    assert "non-uniform scaling" in done.stderr
