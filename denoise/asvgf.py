@@ -46,8 +46,9 @@ import mitsuba as mi
 
 from core.errors import UsageError
 
-from .filters import B3, FrameArrays, clamp_box, luminance, neg_exp, plane_distance_sq
-from .svgf import EPSILON, GAUSS3, SVGFParams, estimate_variance, levels_for, normal_power
+from .atrous_level import atrous_level
+from .filters import FrameArrays, clamp_box, luminance
+from .svgf import SVGFParams, estimate_variance, levels_for
 
 #: added to the luminance in the temporal gradient's denominator: dark noise is not a change
 GRADIENT_FLOOR = 1e-2
@@ -238,55 +239,6 @@ def variance(frame: FrameArrays, moments: mi.Vector2f, length: mi.Float, p: ASVG
     spatial = estimate_variance(frame, mi.Vector2f(lum, lum * lum), detached,
                                 SVGFParams(variance_frames=p.variance_frames, spatial_radius=p.spatial_radius))
     return dr.select(detached < p.variance_frames, spatial * (detached / length), temporal)
-
-
-def normal_weight(cosine: mi.Float, exponent) -> mi.Float:
-    """``max(0, cosine)^exponent``: SVGF's repeated squaring for a plain power of two, else ``dr.power``."""
-    if not dr.is_array_v(exponent):
-        return normal_power(cosine, exponent)
-    x = dr.maximum(cosine, 0.0)
-    return dr.select(x > 0.0, dr.power(dr.select(x > 0.0, x, 1.0), exponent), 0.0)
-
-
-def atrous_level(frame: FrameArrays, color: mi.Vector3f, var: mi.Float, step: int, v: FilterValues
-                 ) -> tuple[mi.Vector3f, mi.Float]:
-    """One SVGF À-Trous level with holes ``step``, parameters from ``v``."""
-    packed = dr.ravel(mi.Vector4f(color.x, color.y, color.z, var))
-    dr.eval(packed, var)
-    k_plane = 1.0 / dr.maximum(2.0 * v.sigma_plane * v.sigma_plane, 1e-30)
-    blurred = GAUSS3[1] * GAUSS3[1] * var
-    for dy in (-1, 0, 1):
-        for dx in (-1, 0, 1):
-            if dx == 0 and dy == 0:
-                continue
-            x = dr.clip(frame.x + dx, 0, frame.width - 1)
-            y = dr.clip(frame.y + dy, 0, frame.height - 1)
-            blurred += GAUSS3[dx + 1] * GAUSS3[dy + 1] * dr.gather(mi.Float, var, mi.UInt32(y * frame.width + x))
-    scale = -1.0 / (v.sigma_luminance * dr.sqrt(dr.maximum(blurred, 0.0)) + EPSILON)
-    lum_p = luminance(color)
-    total, weights, total_var = mi.Vector3f(0.0), mi.Float(0.0), mi.Float(0.0)
-    for j, hy in enumerate(B3):
-        for i, hx in enumerate(B3):
-            dx, dy = (i - 2) * step, (j - 2) * step
-            if dx == 0 and dy == 0:
-                total += hx * hy * color
-                weights += hx * hy
-                total_var += hx * hy * hx * hy * var
-                continue
-            x, y = frame.x + dx, frame.y + dy
-            inside = (x >= 0) & (x < frame.width) & (y >= 0) & (y < frame.height)
-            q = dr.gather(mi.Vector4f, packed, mi.UInt32(dr.clip(y, 0, frame.height - 1) * frame.width
-                                                         + dr.clip(x, 0, frame.width - 1)))
-            c_q = mi.Vector3f(q.x, q.y, q.z)
-            n_q, x_q = frame.gather_guides(x, y)
-            log_w = (dr.abs(lum_p - luminance(c_q)) * scale
-                     - plane_distance_sq(frame.normal, frame.position, x_q) * k_plane)
-            w = hx * hy * normal_weight(dr.dot(frame.normal, n_q), v.normal_exponent) * neg_exp(-log_w)
-            w = dr.select(inside, w, 0.0)
-            total += w * c_q
-            weights += w
-            total_var += w * w * q.w
-    return total / weights, total_var / (weights * weights)
 
 
 def asvgf(frame: FrameArrays, p: ASVGFParams, history: ASVGFHistory | None = None, index: mi.UInt32 | None = None,

@@ -33,19 +33,8 @@ import mitsuba as mi
 
 from core.errors import UsageError
 
-from .filters import (
-    B3,
-    FrameArrays,
-    check_positive,
-    check_whole,
-    inv_two_sigma_sq,
-    luminance,
-    neg_exp,
-    plane_distance_sq,
-)
-
-GAUSS3 = (0.25, 0.5, 0.25)
-EPSILON = 1e-10
+from .atrous_level import atrous_level, normal_power
+from .filters import FrameArrays, check_positive, check_whole, inv_two_sigma_sq, luminance, neg_exp, plane_distance_sq
 
 
 @dataclass(frozen=True)
@@ -95,18 +84,6 @@ class SVGFHistory:
     color: mi.Vector3f
     moments: mi.Vector2f
     length: mi.Float
-
-
-def normal_power(cosine: mi.Float, exponent: float) -> mi.Float:
-    """``max(0, cosine)^exponent``; a power of two as repeated squaring (exact
-    enough and cheaper than exp/log)."""
-    x = dr.maximum(cosine, 0.0)
-    e = float(exponent)
-    if e >= 1 and e == int(e) and (int(e) & (int(e) - 1)) == 0:
-        for _ in range(int(e).bit_length() - 1):
-            x = x * x
-        return x
-    return dr.select(x > 0.0, dr.power(x, e), 0.0)
 
 
 def plane_log_weight(k_plane: float, normal_p: mi.Vector3f, position_p: mi.Vector3f,
@@ -171,48 +148,6 @@ def estimate_variance(frame: FrameArrays, moments: mi.Vector2f, length: mi.Float
     dr.scatter(spread, spatial, short)
     dr.eval(spread)
     return dr.select(length < p.variance_frames, spread, temporal)
-
-
-def atrous_level(frame: FrameArrays, color: mi.Vector3f, variance: mi.Float, step: int, p: SVGFParams
-                 ) -> tuple[mi.Vector3f, mi.Float]:
-    """One SVGF À-Trous level with holes ``step``."""
-    packed = dr.ravel(mi.Vector4f(color.x, color.y, color.z, variance))
-    dr.eval(packed, variance)  # the 3x3 blur gathers the variance alone
-    k_plane = inv_two_sigma_sq(p.sigma_plane)
-    # 3x3 Gaussian of the variance at the centre: the luminance weight's scale
-    blurred = GAUSS3[1] * GAUSS3[1] * variance  # the centre's own (no gather)
-    for dy in (-1, 0, 1):
-        for dx in (-1, 0, 1):
-            if dx == 0 and dy == 0:
-                continue
-            x = dr.clip(frame.x + dx, 0, frame.width - 1)
-            y = dr.clip(frame.y + dy, 0, frame.height - 1)
-            blurred += GAUSS3[dx + 1] * GAUSS3[dy + 1] * dr.gather(mi.Float, variance, mi.UInt32(y * frame.width + x))
-    scale = -1.0 / (p.sigma_luminance * dr.sqrt(dr.maximum(blurred, 0.0)) + EPSILON)
-    lum_p = luminance(color)
-    total, weights, total_var = mi.Vector3f(0.0), mi.Float(0.0), mi.Float(0.0)
-    for j, hy in enumerate(B3):
-        for i, hx in enumerate(B3):
-            dx, dy = (i - 2) * step, (j - 2) * step
-            if dx == 0 and dy == 0:  # the centre: weight 1 times the kernel's, its own values (no gather)
-                total += hx * hy * color
-                weights += hx * hy
-                total_var += hx * hy * hx * hy * variance
-                continue
-            x, y = frame.x + dx, frame.y + dy
-            inside = (x >= 0) & (x < frame.width) & (y >= 0) & (y < frame.height)
-            q = dr.gather(mi.Vector4f, packed, mi.UInt32(dr.clip(y, 0, frame.height - 1) * frame.width
-                                                         + dr.clip(x, 0, frame.width - 1)))
-            c_q = mi.Vector3f(q.x, q.y, q.z)
-            n_q, x_q = frame.gather_guides(x, y)
-            log_w = dr.abs(lum_p - luminance(c_q)) * scale - plane_log_weight(
-                k_plane, frame.normal, frame.position, x_q)
-            w = hx * hy * normal_power(dr.dot(frame.normal, n_q), p.normal_exponent) * neg_exp(-log_w)
-            w = dr.select(inside, w, 0.0)
-            total += w * c_q
-            weights += w
-            total_var += w * w * q.w
-    return total / weights, total_var / (weights * weights)
 
 
 def svgf(frame: FrameArrays, p: SVGFParams, history: SVGFHistory | None = None, index: mi.UInt32 | None = None,

@@ -228,7 +228,8 @@ def test_variance_matches_numpy(variant_vectorised_rgb):
 def test_atrous_level_matches_numpy(variant_vectorised_rgb, step):
     import mitsuba as mi
 
-    from denoise.asvgf import FilterValues, atrous_level
+    from denoise.asvgf import FilterValues
+    from denoise.atrous_level import atrous_level
 
     p = params(normal_exponent=20.0)  # not a power of two: dr.power's path
     c, n, x = synthetic(5)
