@@ -9,8 +9,7 @@ import platform
 from pathlib import Path
 
 from core.errors import OutputError
-from imaging.image_io import atomic_path
-from renderer.checks import check_writable
+from imaging.image_io import atomic_path, check_writable
 
 
 def write_json(path: Path, data) -> None:

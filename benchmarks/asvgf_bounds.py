@@ -50,8 +50,8 @@ from denoise.fit import prepare
 from denoise.frames import frame_indices, read_frame
 from denoise.methods import from_name
 from denoise.methods.asvgf import fitted
+from imaging.metrics import relmse
 from renderer.variants import set_variant
-from validation.metrics import relmse
 
 ROOT = Path(__file__).resolve().parent.parent
 PAGE = ROOT / "docs" / "asvgf.md"

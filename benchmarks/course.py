@@ -24,9 +24,9 @@ if __name__ == "__main__" and not __package__:
 from benchmarks import machine, write_json
 from core.entry import ArgumentParser
 from course import root as course_root
+from imaging.metrics import TOLERANCE
 from renderer.variants import set_variant
 from validation.course_images import RECORD, ROOT, image_counts, render_grading_images
-from validation.metrics import TOLERANCE
 
 
 def record(course: Path, variant: str | None, path: Path = RECORD) -> dict:

@@ -59,10 +59,11 @@ from denoise.frames import frame_indices, read_frame
 from denoise.methods import benchmark_names, from_name, resolve
 from denoise.methods.user import add_method_file_option, load_method_files
 from denoise.oidn import QUALITIES, oidn_version
+from denoise.temporal_metrics import stability, temporal_relmse
 from imaging.colour import side_by_side
 from imaging.image_io import read_exr_rgb as read_rgb, write_image, write_video
+from imaging.metrics import flip_error, relmse
 from renderer.variants import set_variant
-from validation.metrics import flip_error, relmse, stability, temporal_relmse
 
 ROOT = Path(__file__).resolve().parent.parent
 SEQUENCES = sorted((ROOT / "scenes" / "sequences").glob("*.json"))

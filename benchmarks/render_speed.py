@@ -65,6 +65,7 @@ def measure(course: Path, repeat: int, variant: str | None, peer: Path | None = 
     import mitsuba as mi  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
 
     from converters.to_mitsuba import load_scene_dict  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
+    from renderer.job import course_job  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
 
     def render(scene):
         image = mi.render(scene)
@@ -78,7 +79,7 @@ def measure(course: Path, repeat: int, variant: str | None, peer: Path | None = 
         tmp = Path(tmp)
         for run in runs:
             args = outputs_into(run.arguments, tmp)
-            job = run.job(course, outputs=tmp)
+            job = course_job(run, course, outputs=tmp)
             parsed = load_scene(job.scene)
             description = scene_dict(parsed, job.options())
             scene = load_scene_dict(description)

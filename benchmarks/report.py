@@ -44,8 +44,8 @@ from benchmarks.course import record
 from core.entry import ArgumentParser
 from core.markdown import replace_section
 from course import root as course_root
+from imaging.metrics import MAX_BAD_FRACTION
 from validation.crossval import FURNACE_SIGMAS
-from validation.metrics import MAX_BAD_FRACTION
 
 ROOT = Path(__file__).resolve().parent.parent
 

@@ -32,11 +32,11 @@ import sys
 import tempfile
 from pathlib import Path
 
+from converters.render_flags import RenderJob, check_numbers, check_samples
+from converters.scene_flags import DEFAULTS, with_scene_flags
 from core.entry import ArgumentParser, hold_signals, native_start_up, run
 from core.errors import OutputError, UsageError
 from core.numbers import ascii_int
-from renderer.checks import check_limits, check_numbers
-from renderer.scene_flags import DEFAULTS, with_scene_flags
 
 EXAMPLES = """examples:
   python -m converters scenes/showcase.txt -o showcase.xml
@@ -109,8 +109,6 @@ def convert(source: Path, target: Path, root: Path | None = None, settings: dict
     ``settings``: render flags as in :func:`render_settings`; the scene's
     ``# render:`` header fills in the ones left out.
     """
-    from renderer.job import RenderJob  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
-
     from .course_scene import load_scene  # noqa: PLC0415  NumPy loads on use: --help stays quick
     from .description import scene_dict  # noqa: PLC0415  NumPy loads on use: --help stays quick
     from .xml_writer import write_xml  # noqa: PLC0415  NumPy loads on use: --help stays quick
@@ -120,7 +118,7 @@ def convert(source: Path, target: Path, root: Path | None = None, settings: dict
     job = RenderJob(scene=source, **final)
     # the limits render.py enforces: an XML that no render could run is refused here too
     check_numbers(job.width, job.height, job.bounces, job.spp)
-    check_limits(job, memory=2**63)  # samples only: the XML is rendered elsewhere, with its own memory
+    check_samples(job)  # not its memory: the XML is rendered elsewhere
     options = job.options()
     shown = source.resolve().relative_to(root) if root and source.resolve().is_relative_to(root) else source.name
     note = f"with {flags_text(final)}" if flags_text(final) else "with the default flags"

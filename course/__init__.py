@@ -112,27 +112,6 @@ class CourseRun:
             flags[flag] = [words.pop(0) for _ in range(FLAG_VALUE_COUNTS[flag])]
         return flags
 
-    def job(self, course: Path | None = None, outputs: Path | None = None):
-        """The line as a :class:`renderer.job.RenderJob`: the input relative to ``course``
-        (the folder the line runs in), outputs moved into ``outputs`` if given."""
-        from renderer.job import DepthOutput, RenderJob  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
-
-        flags = self.flags()
-        course = root() if course is None else course
-
-        def output(name: str) -> Path:
-            return Path(outputs) / Path(name).name if outputs is not None else Path(name)
-
-        depth = flags.get("-depth")
-        return RenderJob(
-            scene=course / flags["-input"][0],
-            width=int(flags.get("-size", [800, 800])[0]), height=int(flags.get("-size", [800, 800])[1]),
-            output=output(flags["-output"][0]) if "-output" in flags else None,
-            normals=output(flags["-normals"][0]) if "-normals" in flags else None,
-            depth=DepthOutput(float(depth[0]), float(depth[1]), output(depth[2])) if depth else None,
-            bounces=int(flags.get("-bounces", [0])[0]), shadows="-shadows" in flags, jitter="-jitter" in flags,
-            filter="-filter" in flags)
-
 
 def grading_lines(course: Path | None = None) -> list[str]:
     """The course README's ``a2 -size ...`` command lines, verbatim."""

@@ -29,9 +29,8 @@ from tqdm import tqdm
 from core.entry import ArgumentParser, run
 from core.errors import FrameError, UsageError
 from course import ENVIRONMENT, root
-from imaging.image_io import IMAGE_DECODE_ERRORS, atomic_path, read_png, write_image
-from renderer.checks import check_writable
-from validation.metrics import MAX_BAD_FRACTION, TOLERANCE, bad_pixels, flip_error, flip_heat_map
+from imaging.image_io import IMAGE_DECODE_ERRORS, atomic_path, check_writable, read_png, write_image
+from imaging.metrics import MAX_BAD_FRACTION, TOLERANCE, bad_pixels, flip_error, flip_heat_map
 
 PROG = "python -m course.score"
 #: thumbnails in the report are at most this wide

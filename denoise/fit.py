@@ -54,11 +54,10 @@ import numpy as np
 from core.entry import ArgumentParser, hold_signals, run
 from core.errors import UsageError  # noqa: E402
 from core.numbers import ascii_float, ascii_int
-from imaging.image_io import atomic_path, read_exr_rgb
+from imaging.image_io import atomic_path, check_writable, read_exr_rgb
+from imaging.metrics import relmse
 from renderer.bands import GROUP_SIGNALS
-from renderer.checks import check_writable
 from renderer.variants import set_variant
-from validation.metrics import relmse
 
 from .export import Spec, export, reference_folder
 from .frames import frame_indices, read_frame
@@ -115,7 +114,7 @@ def prepare(folder: Path, scale_from: int | None = None, scale: float = SWITCH_S
 
 
 def relmse_loss(image, reference, epsilon: float = 1e-2):
-    """validation.metrics.relmse's ``mean((x - ref)² / (ref² + ε))`` as a differentiable Dr.Jit Float."""
+    """imaging.metrics.relmse's ``mean((x - ref)² / (ref² + ε))`` as a differentiable Dr.Jit Float."""
     import drjit as dr  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
 
     return dr.mean(dr.square(image.array - reference.array) / (dr.square(reference.array) + epsilon))

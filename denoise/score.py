@@ -17,7 +17,7 @@ frames) is refused (:mod:`denoise.ground_truth`). ``--compare METHOD ...`` runs
 our methods (``python -m denoise``'s, named as in ``benchmarks.denoise``:
 ``svgf``, ``atrous+temporal``, ``oidn``, ...; ``raw`` is the noisy input) on
 the same frames and scores them beside the results. Every number comes from
-:mod:`validation.metrics`, as in ``python -m benchmarks.denoise``.
+:mod:`imaging.metrics`, as in ``python -m benchmarks.denoise``.
 """
 from __future__ import annotations
 
@@ -38,16 +38,16 @@ import numpy as np
 
 from core.entry import ArgumentParser, run
 from core.errors import FrameError, OutputError, UsageError
-from imaging.image_io import atomic_path, read_exr_rgb
-from renderer.checks import check_writable
+from imaging.image_io import atomic_path, check_writable, read_exr_rgb
+from imaging.metrics import flip_error, relmse
 from renderer.variants import set_variant
-from validation.metrics import flip_error, relmse, stability, temporal_relmse
 
 from .frames import frame_indices, read_frame
 from .ground_truth import check_ground_truth
 from .methods import from_name
 from .methods.user import add_method_file_option, load_method_files
 from .pipeline import check_folder
+from .temporal_metrics import stability, temporal_relmse
 
 PROG = "python -m denoise.score"
 DEFAULT_PATTERN = "result_{i}.exr"

@@ -311,3 +311,26 @@ def read_exr_rgb(path: str | Path) -> np.ndarray:
     """The R, G, B channels of an EXR as one float32 (H, W, 3) array."""
     channels = read_exr(path)
     return np.stack([channels[c] for c in "RGB"], -1)
+
+
+def check_writable(flag: str, path: Path) -> None:
+    """``path`` can become a file: not a folder, its folder exists or can be
+    created, and we may write there (and replace it, if it exists)."""
+    if path.name in ("", ".", ".."):
+        raise OutputError(f"{flag} {path}: expected a file name, found a folder")
+    try:
+        target = output_target(path)
+    except OutputError as error:
+        raise OutputError(f"{flag} {error}") from None
+    if is_read_only(target):
+        raise OutputError(f"{flag} {path}: the existing file is read-only")
+    folder = target.parent if str(target.parent) else Path(".")
+    existing = folder
+    while not existing.exists():
+        if existing.is_symlink():
+            raise OutputError(f"{flag} {path}: {existing} is a broken link")
+        existing = existing.parent
+    if not existing.is_dir():
+        raise OutputError(f"{flag} {path}: cannot create folder {folder}: {existing} is a file")
+    if not os.access(existing, os.W_OK | os.X_OK):
+        raise OutputError(f"{flag} {path}: no permission to write in {existing}")

@@ -19,19 +19,17 @@ import os
 import resource
 from pathlib import Path
 
-from core.errors import LimitError, OutputError, UsageError
+from converters.render_flags import (  # noqa: F401 (MAX_*, check_numbers re-exported for the CLI)
+    MAX_BOUNCES,
+    MAX_SAMPLES,
+    MAX_SPP,
+    check_numbers,
+    check_samples,
+)
+from core.errors import LimitError, OutputError
+from imaging.image_io import check_writable
 from mi_plugins.aovs import AOV_CHANNELS
 
-#: Deepest mirror recursion accepted. Each bounce multiplies by the mirror's
-#: specular colour; past a few dozen bounces nothing changes in an 8-bit image
-#: unless mirrors reflect nearly all light, and a huge count (1e9) would only
-#: make two parallel mirrors loop for hours.
-MAX_BOUNCES = 1000
-#: Mitsuba and Dr.Jit index the samples of one render (pixels x samples per
-#: pixel, x9 with -filter) with 32-bit integers; beyond this they crash (SIGSEGV).
-MAX_SAMPLES = 2**32 - 1
-#: Largest --spp, so that huge numbers are refused as a count, not as memory
-MAX_SPP = 2**20
 #: Peak memory per film pixel and channel, in float32 copies: Mitsuba's image
 #: block, the developed film, the NumPy copy, the split layers and the encoded
 #: files (the peak measured with /usr/bin/time -v: docs/rendering.md)
@@ -42,21 +40,6 @@ BEAUTY_CHANNELS = 5
 BASELINE_BYTES = 400 * 2**20
 #: Image formats per flag, by suffix
 IMAGE_SUFFIXES = (".png", ".bmp", ".tga", ".exr")
-
-
-def check_numbers(width: int, height: int, bounces: int, spp: int | None) -> None:
-    """The command line's numbers, before anything is loaded."""
-    if width < 1 or height < 1:
-        raise UsageError(f"-size wants positive numbers, got {width} {height}")
-    if not 0 <= bounces <= MAX_BOUNCES:
-        raise UsageError(f"-bounces wants a number in 0..{MAX_BOUNCES}, got {bounces}")
-    if spp is not None and not 1 <= spp <= MAX_SPP:
-        raise UsageError(f"--spp wants a number in 1..{MAX_SPP}, got {spp}")
-
-
-def render_samples(job) -> int:
-    options = job.options()
-    return options.width * options.height * options.spp
 
 
 def render_memory(job) -> int:
@@ -103,10 +86,7 @@ def check_limits(job, memory: int | None = None) -> None:
     what = f"{options.width}x{options.height} pixels x {options.spp} spp"
     if job.filter:
         what += " (-filter renders at 3x)"
-    samples = render_samples(job)
-    if samples > MAX_SAMPLES:
-        raise LimitError(f"{samples:,} samples ({what}) exceed the {MAX_SAMPLES:,} that one render can index "
-                         f"(32-bit); use a smaller -size or fewer samples")
+    check_samples(job)
     memory = available_memory() if memory is None else memory
     needed = render_memory(job)
     if memory is not None and needed > memory:
@@ -150,33 +130,6 @@ def _same_file(output: Path, source: Path) -> bool:
 def _identity(path: Path) -> str:
     """Two spellings of one file (relative, through links) give one identity."""
     return os.path.normcase(os.path.realpath(path))
-
-
-def check_writable(flag: str, path: Path) -> None:
-    """``path`` can become a file: not a folder, its folder exists or can be
-    created, and we may write there (and replace it, if it exists)."""
-    if path.name in ("", ".", ".."):
-        raise OutputError(f"{flag} {path}: expected a file name, found a folder")
-    from imaging.image_io import output_target  # noqa: PLC0415  NumPy loads on use: --help stays quick
-
-    try:
-        target = output_target(path)
-    except OutputError as error:
-        raise OutputError(f"{flag} {error}") from None
-    from imaging.image_io import is_read_only  # noqa: PLC0415  NumPy loads on use: --help stays quick
-
-    if is_read_only(target):
-        raise OutputError(f"{flag} {path}: the existing file is read-only")
-    folder = target.parent if str(target.parent) else Path(".")
-    existing = folder
-    while not existing.exists():
-        if existing.is_symlink():
-            raise OutputError(f"{flag} {path}: {existing} is a broken link")
-        existing = existing.parent
-    if not existing.is_dir():
-        raise OutputError(f"{flag} {path}: cannot create folder {folder}: {existing} is a file")
-    if not os.access(existing, os.W_OK | os.X_OK):
-        raise OutputError(f"{flag} {path}: no permission to write in {existing}")
 
 
 def check_outputs(job, seen: dict[str, str] | None = None, extra: list[tuple[str, Path]] = ()) -> None:

@@ -20,6 +20,8 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
+from converters.render_flags import DepthOutput, RenderJob
+from converters.scene_flags import with_scene_flags
 from core.entry import ArgumentParser, hold_signals, native_start_up, one_line, run
 from core.errors import ToolkitError, UsageError, describe
 from core.inputs import NotAnInputFile, read_input
@@ -27,7 +29,6 @@ from core.numbers import ascii_int
 from course import ENVIRONMENT as COURSE_ENVIRONMENT, data_dir, resolve_scene
 
 from . import checks
-from .scene_flags import with_scene_flags
 from .variants import prepare_libllvm, set_variant
 
 DEFAULT_SCENE = "showcase"
@@ -127,7 +128,6 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _depth(values: list[str] | None):
-    from .job import DepthOutput  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
 
     if values is None:
         return None
@@ -143,7 +143,7 @@ def _depth(values: list[str] | None):
 def jobs_from_args(args: argparse.Namespace) -> list:
     """The render jobs one command line asks for (checked: numbers here, limits
     and outputs in :func:`checked_jobs`)."""
-    from .job import RenderJob, with_outputs_in  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
+    from .job import with_outputs_in  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
 
     checks.check_numbers(args.size[0], args.size[1], args.bounces, args.spp)
     base = dict(width=args.size[0], height=args.size[1], bounces=args.bounces, shadows=args.shadows,

@@ -10,58 +10,16 @@ import mitsuba as mi
 import numpy as np
 
 from converters.course_scene import load_scene
-from converters.description import RenderOptions, scene_dict
+from converters.description import scene_dict
+from converters.render_flags import DepthOutput, RenderJob
 from converters.to_mitsuba import load_scene_dict
+from course import CourseRun, root as course_root
 from imaging import colour as encoding, image_io
 from imaging.filters import centre_sample_3x, downsample_3x
 from mi_plugins.aovs import AOV_CHANNELS
 
 from . import bands
 from .launches import render_in_launches
-
-#: Every AOV, in the order the EXR stores them
-ALL_AOVS = tuple(AOV_CHANNELS)
-JITTER_SPP = 16
-FILTER_SCALE = 3
-
-
-@dataclass(frozen=True)
-class DepthOutput:
-    near: float
-    far: float
-    path: Path
-
-
-@dataclass(frozen=True)
-class RenderJob:
-    """The course binary's command line, as data."""
-    scene: Path
-    width: int = 800
-    height: int = 800
-    output: Path | None = None  # beauty image (8-bit, course encoding; .exr writes float)
-    normals: Path | None = None
-    depth: DepthOutput | None = None
-    exr: Path | None = None  # multilayer EXR: beauty and every AOV
-    bounces: int = 0
-    shadows: bool = False
-    jitter: bool = False  # 16 jittered samples per pixel
-    filter: bool = False  # render 3x larger, then the course's 3x3 Gaussian
-    spp: int | None = None  # overrides the sample count (default 1, or 16 with jitter)
-    stats: bool = False  # count what the render traces (see RenderResult.stats)
-
-    @property
-    def aovs(self) -> tuple[str, ...]:
-        """Only the AOVs some output needs."""
-        if self.exr is not None:
-            return ALL_AOVS
-        return tuple(name for name, wanted in (("depth", self.depth is not None),
-                                               ("normal", self.normals is not None)) if wanted)
-
-    def options(self) -> RenderOptions:
-        scale = FILTER_SCALE if self.filter else 1
-        spp = self.spp if self.spp is not None else (JITTER_SPP if self.jitter else 1)
-        return RenderOptions(width=self.width * scale, height=self.height * scale, bounces=self.bounces,
-                             shadows=self.shadows, spp=spp, jitter=self.jitter, aovs=self.aovs, stats=self.stats)
 
 
 @dataclass
@@ -190,3 +148,23 @@ def _write_image(path: Path, make_linear) -> Path:
 def with_outputs_in(job: RenderJob, folder: Path, stem: str, exr: bool) -> RenderJob:
     """``job`` writing ``<stem>.png`` (and ``<stem>.exr``) into ``folder``."""
     return replace(job, output=folder / f"{stem}.png", exr=folder / f"{stem}.exr" if exr else None)
+
+
+def course_job(run: CourseRun, course: Path | None = None, outputs: Path | None = None) -> RenderJob:
+    """A grading line as a job: the input relative to ``course`` (the folder the
+    line runs in; default the course's), outputs moved into ``outputs`` if given."""
+    flags = run.flags()
+    course = course_root() if course is None else course
+
+    def output(name: str) -> Path:
+        return Path(outputs) / Path(name).name if outputs is not None else Path(name)
+
+    depth = flags.get("-depth")
+    return RenderJob(
+        scene=course / flags["-input"][0],
+        width=int(flags.get("-size", [800, 800])[0]), height=int(flags.get("-size", [800, 800])[1]),
+        output=output(flags["-output"][0]) if "-output" in flags else None,
+        normals=output(flags["-normals"][0]) if "-normals" in flags else None,
+        depth=DepthOutput(float(depth[0]), float(depth[1]), output(depth[2])) if depth else None,
+        bounces=int(flags.get("-bounces", [0])[0]), shadows="-shadows" in flags, jitter="-jitter" in flags,
+        filter="-filter" in flags)

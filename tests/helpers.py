@@ -8,7 +8,7 @@ from converters.model import Scene
 from converters.scene_variants import apply
 from converters.to_mitsuba import load_scene_dict
 from imaging.colour import to_course_8bit
-from validation.metrics import MAX_BAD_FRACTION, bad_fraction, bad_pixels  # noqa: F401 (the course's bar, re-exported)
+from imaging.metrics import MAX_BAD_FRACTION, bad_fraction, bad_pixels  # noqa: F401 (the course's bar, re-exported)
 
 
 def render_layers(scene: Scene, variants=(), **options) -> dict[str, np.ndarray]:

@@ -19,8 +19,8 @@ from helpers import MAX_BAD_FRACTION, bad_fraction, encode, render_layers
 from converters.course_scene import load_scene
 from course import CourseRun, course_runs, grading_lines
 from imaging.image_io import read_png
+from imaging.metrics import bad_pixels
 from validation.course_images import RECORD, allowed_bad_pixels, image_counts, render_grading_images
-from validation.metrics import bad_pixels
 
 SCENES = ["scene01_plane", "scene02_cube", "scene03_sphere", "scene04_axes", "scene05_bunny_200",
           "scene06_bunny_1k", "scene07_arch"]
@@ -62,6 +62,7 @@ def test_grading_lines_become_the_jobs_render_py_makes(course, monkeypatch):
     """The course module's jobs (used by the benchmarks and the scalar band check) are
     exactly the jobs ``render.py`` makes of the same command lines, run in the course folder."""
     from renderer.cli import build_parser, jobs_from_args
+    from renderer.job import course_job
 
     monkeypatch.chdir(course)
     runs = course_runs(course)
@@ -70,9 +71,9 @@ def test_grading_lines_become_the_jobs_render_py_makes(course, monkeypatch):
                                  "-depth", "8", "18", "d.png", "-bounces", "4", "-shadows", "-jitter", "-filter"])
     for run in runs + [every_flag]:
         (expected,) = jobs_from_args(build_parser().parse_args(run.arguments))
-        job = run.job(Path("."))
+        job = course_job(run, Path("."))
         assert job == expected, run.arguments
-        assert run.job(course).scene == course / expected.scene
+        assert course_job(run, course).scene == course / expected.scene
     with pytest.raises(ValueError, match="-fast"):
         CourseRun("x", ["-input", "x.txt", "-fast"]).flags()
 
@@ -82,14 +83,15 @@ def check_band_on_scalar(course):
     import mitsuba as mi
 
     from converters.description import scene_dict
+    from converters.render_flags import FILTER_SCALE
     from converters.to_mitsuba import load_scene_dict
     from imaging import colour
     from imaging.filters import downsample_3x
-    from renderer.job import FILTER_SCALE, split_layers
+    from renderer.job import course_job, split_layers
 
     y0, y1 = SCALAR_BAND
     for run in course_runs(course):
-        job = run.job(course, outputs=course / "sample_out")  # the outputs name the reference images
+        job = course_job(run, course, outputs=course / "sample_out")  # the outputs name the reference images
         options = job.options()
         scale = FILTER_SCALE if job.filter else 1
         description = scene_dict(load_scene(job.scene), options)

@@ -280,7 +280,7 @@ def test_reprojection_of_the_ground_truth(variant_llvm_ad_rgb, tmp_path, motion)
     from denoise.filters import reproject
     from denoise.frames import read_frame
     from imaging.image_io import read_exr
-    from validation.metrics import relmse
+    from imaging.metrics import relmse
 
     (tmp_path / "diffuse.txt").write_text(DIFFUSE_SCENE)
     moves = {"camera": dict(camera={"orbit": {"center": [0, 0.5, 0], "degrees": 4}, "pan": [0.2, 0, 0]}),

@@ -17,7 +17,7 @@ import pytest
 from denoise.frames import FrameData, write_frame
 from denoise.score import main
 from imaging.image_io import read_exr_rgb, write_exr
-from validation.metrics import relmse
+from imaging.metrics import relmse
 
 ROOT = Path(__file__).resolve().parent.parent
 #: the benchmark's figures and ours agree to this (they are the same computation)

@@ -65,9 +65,9 @@ def test_limits_are_refused_at_once_with_the_limit_named(tmp_path, scene_file):
 
 def test_memory_estimate_against_a_small_machine(scene_file):
     """check_limits with 1 GiB available refuses 4000x4000 with every AOV, accepts 400x400."""
+    from converters.render_flags import RenderJob
     from core.errors import LimitError
     from renderer import checks
-    from renderer.job import RenderJob
 
     big = RenderJob(scene=scene_file, width=4000, height=4000, exr=Path("a.exr"))
     with pytest.raises(LimitError, match="memory"):

@@ -28,22 +28,21 @@ ROOT = Path(__file__).resolve().parent.parent
 PACKAGES = ("core", "converters", "course", "mi_plugins", "imaging", "renderer", "validation", "benchmarks",
             "denoise", "notebooks", "tests")
 #: function name -> the one module that defines it
-HOMES = {"relmse": "validation/metrics.py", "flip_error": "validation/metrics.py",
-         "bad_pixels": "validation/metrics.py", "bad_fraction": "validation/metrics.py",
+HOMES = {"relmse": "imaging/metrics.py", "flip_error": "imaging/metrics.py",
+         "bad_pixels": "imaging/metrics.py", "bad_fraction": "imaging/metrics.py",
          "grading_lines": "course/__init__.py", "course_runs": "course/__init__.py",
          "resolve_scene": "course/__init__.py", "course_camera_basis": "mi_plugins/camera_basis.py",
          "tone_map": "imaging/colour.py", "write_video": "imaging/image_io.py", "read_exr": "imaging/image_io.py",
          "ascii_int": "core/numbers.py", "ascii_float": "core/numbers.py", "read_input": "core/inputs.py",
          "pixel_coordinates": "denoise/filters.py", "check_json": "benchmarks/__init__.py",
-         "replace_section": "core/markdown.py", "temporal_relmse": "validation/metrics.py",
-         "back_projected": "validation/metrics.py", "stability": "validation/metrics.py",
-         "flip_heat_map": "validation/metrics.py"}
-#: the packages users run; they never need the checks or the measurements
-PRODUCTION = ("core", "converters", "course", "mi_plugins", "imaging", "renderer", "denoise")
-#: the commands that measure against a ground truth (a student's output, the fit's loss): checks that
-#: users run, so they use validation's metrics
-SCORING = ("course/score.py", "denoise/score.py", "denoise/fit.py")
-
+         "replace_section": "core/markdown.py", "temporal_relmse": "denoise/temporal_metrics.py",
+         "back_projected": "denoise/temporal_metrics.py", "stability": "denoise/temporal_metrics.py",
+         "flip_heat_map": "imaging/metrics.py"}
+#: the floors, lowest first: a package imports only those below it (tests and notebooks sit on top)
+FLOORS = ("core", "imaging", "mi_plugins", "converters", "course", "renderer", "denoise", "validation",
+          "benchmarks", "notebooks", "tests")
+#: the packages users run (the floors up to the denoiser)
+PRODUCTION = FLOORS[:FLOORS.index("denoise") + 1]
 
 def sources(root: Path):
     for package in PACKAGES:
@@ -112,17 +111,19 @@ def test_tests_do_not_import_benchmarks():
     assert offenders == []
 
 
-def production_offenders(root: Path) -> list[str]:
-    return [path.relative_to(root).as_posix() for path, tree in sources(root)
-            if any(path.is_relative_to(root / package) for package in PRODUCTION)
-            and imported_packages(path, tree) & ({"benchmarks", "notebooks", "tests"}
-                                                 | ({"validation"} if path.relative_to(root).as_posix()
-                                                    not in SCORING else set()))]
+def upward_imports(root: Path) -> list[str]:
+    """``file: package`` for every import (in functions too) of a package on a floor above the file's."""
+    found = []
+    for path, tree in sources(root):
+        floor = FLOORS.index(path.relative_to(root).parts[0])
+        found += [f"{path.relative_to(root).as_posix()}: {name}"
+                  for name in sorted(imported_packages(path, tree) & set(FLOORS)) if FLOORS.index(name) > floor]
+    return found
 
 
-def test_production_code_imports_no_checks_or_benchmarks():
-    """denoise's CLI once took its PNG and video writers from benchmarks.denoise."""
-    assert production_offenders(ROOT) == []
+def test_no_import_runs_up_the_floors():
+    """Helpers sit below their users: metrics in imaging, the writability check beside the writers."""
+    assert upward_imports(ROOT) == []
 
 
 def test_imaging_depends_on_core_only():
@@ -144,8 +145,9 @@ def test_the_layout_checks_can_fail(tmp_path):
         "import os\ndef relmse(a, b):\n    return 0\nDATA = os.environ.get('COURSE_DATA')\n")
     (tmp_path / "tests" / "test_x.py").write_text("from benchmarks.crossval import run\n")
     (tmp_path / "denoise" / "cli.py").write_text("def main():\n    from benchmarks.denoise import write_video\n")
-    assert production_offenders(tmp_path) == ["denoise/cli.py"]
-    assert sorted(definitions(tmp_path)["relmse"]) == ["benchmarks/denoise.py", "validation/metrics.py"]
+    (tmp_path / "course" / "score.py").write_text("from validation.metrics import relmse\n")
+    assert upward_imports(tmp_path) == ["course/score.py: validation", "denoise/cli.py: benchmarks"]
+    assert sorted(definitions(tmp_path)["relmse"]) == ["benchmarks/denoise.py", "imaging/metrics.py"]
     assert environment_reads(tmp_path) == {"COURSE_DATA"}
     assert imported_packages(tmp_path / "tests" / "test_x.py",
                              ast.parse((tmp_path / "tests" / "test_x.py").read_text())) == {"benchmarks"}

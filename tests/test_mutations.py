@@ -202,9 +202,9 @@ def test_jitter_takes_16_samples(variant_rgb, tmp_path, monkeypatch):
     # 6.7-7.8 (4.7-7.0): the estimate runs low, its spread is +-15 %; the bound sits between
     lowest = 8.5 if SCALAR_FALLBACK else 11.0
     assert lowest <= jitter_sample_count(tmp_path) <= 24
-    import renderer.job
+    import converters.render_flags
 
-    monkeypatch.setattr(renderer.job, "JITTER_SPP", 8)
+    monkeypatch.setattr(converters.render_flags, "JITTER_SPP", 8)
     assert jitter_sample_count(tmp_path) < lowest
 
 

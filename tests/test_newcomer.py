@@ -146,7 +146,7 @@ def test_editable_install_prints_nothing(tmp_path):
 # -- scene headers ---------------------------------------------------------------
 
 def test_named_scenes_carry_their_render_flags():
-    from renderer.scene_flags import read_scene_flags
+    from converters.scene_flags import read_scene_flags
 
     assert read_scene_flags(ROOT / "scenes" / "showcase.txt") == {"bounces": 3, "shadows": True}
     assert read_scene_flags(ROOT / "scenes" / "mirrors.txt") == {"bounces": 4, "shadows": True}
@@ -169,7 +169,7 @@ def test_header_applies_where_no_flag_overrides():
 
 
 def test_bad_header_is_one_located_error(tmp_path):
-    from renderer.scene_flags import read_scene_flags
+    from converters.scene_flags import read_scene_flags
 
     scene = tmp_path / "s.txt"
     scene.write_text("# a scene\n# render: -bounces 2 -shadow\nPerspectiveCamera {\n")

@@ -12,8 +12,8 @@ from helpers import MAX_BAD_FRACTION, bad_fraction, encode, render_layers
 
 from converters.__main__ import main as convert_main
 from converters.course_scene import load_scene
+from converters.scene_flags import read_scene_flags
 from imaging import image_io
-from renderer.scene_flags import read_scene_flags
 
 ROOT = Path(__file__).resolve().parent.parent
 

@@ -26,8 +26,9 @@ from helpers import MAX_BAD_FRACTION, bad_fraction, encode
 
 from converters.course_scene import parse_scene
 from converters.description import RenderOptions, scene_dict
+from converters.render_flags import RenderJob
 from converters.to_mitsuba import load_scene_dict
-from renderer.job import RenderJob, render
+from renderer.job import render
 from renderer.launches import pixel_order, render_in_launches
 from validation.stress import scaled
 from validation.stress_cases import DEFAULTS, scene as scene_text

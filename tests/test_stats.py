@@ -8,7 +8,8 @@ import pytest
 
 from converters.course_scene import load_scene
 from converters.description import scene_dict
-from renderer.job import RenderJob, render
+from converters.render_flags import RenderJob
+from renderer.job import render
 
 ROOT = Path(__file__).resolve().parent.parent
 OWN = sorted((ROOT / "scenes").glob("*.txt"))

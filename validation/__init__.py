@@ -1,6 +1,7 @@
 """Validation: the checks the tests and the benchmarks share.
 
-- :mod:`validation.metrics`: relMSE, FLIP, the course's "pixels off by > N/255";
+- the metrics they use (relMSE, FLIP, the course's "pixels off by > N/255", the
+  temporal figures) are :mod:`imaging.metrics`, where the scoring commands take them too;
 - :mod:`validation.reference_tracer`: the course's semantics in NumPy (the tests' oracle);
 - :mod:`validation.crossval`: the phong BSDF's chi-square and furnace tests, whitted
   against Mitsuba's path tracer (z-scores per tile);

@@ -13,7 +13,7 @@ nothing, as in :mod:`validation.crossval`), computed two ways:
 
 Both are compared with **one common reference**: ``whitted`` converged
 (many jittered spp, another seed). Errors are relMSE and mean FLIP
-(:mod:`validation.metrics`).
+(:mod:`imaging.metrics`).
 
 Fitting rule (fixed before any data was taken, the same for every curve):
 ``slope`` is the least-squares slope of log relMSE over log seconds, and
@@ -43,7 +43,7 @@ from converters.scene_variants import (
     without_background,
     without_ray_epsilon,
 )
-from validation.metrics import flip_error, relmse
+from imaging.metrics import flip_error, relmse
 
 ROOT = Path(__file__).resolve().parent.parent
 

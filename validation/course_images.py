@@ -15,8 +15,8 @@ from pathlib import Path
 
 from course import course_runs, outputs_into
 from imaging.image_io import read_png
+from imaging.metrics import MAX_BAD_FRACTION, bad_pixels
 from renderer.cli import main
-from validation.metrics import MAX_BAD_FRACTION, bad_pixels
 
 ROOT = Path(__file__).resolve().parent.parent
 RECORD = ROOT / "docs" / "validation" / "course_images.json"

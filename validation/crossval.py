@@ -49,8 +49,8 @@ from converters.scene_variants import (
     without_background,
     without_ray_epsilon,
 )
+from imaging.metrics import relmse
 from renderer.variants import set_variant
-from validation.metrics import relmse
 
 ROOT = Path(__file__).resolve().parent.parent
 

@@ -24,7 +24,7 @@ from converters.model import PointLight
 from core.errors import SceneError
 from imaging.colour import to_course_8bit
 from imaging.image_io import CUBE_FACES
-from validation.metrics import TOLERANCE, bad_fraction
+from imaging.metrics import TOLERANCE, bad_fraction
 from validation.reference_tracer import ReferenceTracer
 from validation.stress_cases_inputs import contract_problems, run_render_cli
 from validation.stress_scene import DEFAULTS, Case, scene as base_scene

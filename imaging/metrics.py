@@ -1,7 +1,6 @@
-"""Image error metrics, each defined once: relMSE, mean FLIP (and its heat map),
-the course's "pixels off by more than N/255", and the denoiser's temporal figures
-(relMSE between an output and the previous one back-projected onto it, and the
-stability figure made of them).
+"""Image error metrics, each defined once: relMSE, mean FLIP (and its heat map)
+and the course's "pixels off by more than N/255" (the denoiser's temporal
+figures, which need its back projection, are :mod:`denoise.temporal_metrics`).
 
 Every check, benchmark, score command, notebook and test takes them from here.
 """
@@ -55,35 +54,3 @@ def bad_fraction(a: np.ndarray, b: np.ndarray, tolerance: int = TOLERANCE) -> fl
     """Fraction of pixels whose 8-bit values differ by more than ``tolerance`` in any channel."""
     a = np.asarray(a)
     return bad_pixels(a, b, tolerance) / float(a.shape[0] * a.shape[1])
-
-
-def back_projected(frames, images) -> list[tuple[np.ndarray, np.ndarray]]:
-    """For frames 1.., (image t at the pixels that keep history, image t-1 at
-    the pixels they came from), through the denoiser's back projection."""
-    # Dr.Jit loads only for the temporal figures: the image metrics above stay NumPy-only
-    import mitsuba as mi  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
-
-    from denoise.filters import reproject  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
-
-    def tensor(a):
-        return mi.TensorXf(np.ascontiguousarray(a, np.float32))
-
-    pairs = []
-    for before, after, previous, current in zip(frames, frames[1:], images, images[1:]):
-        index, valid = reproject(tensor(after.position), tensor(after.ids), tensor(before.ids),
-                                 after.object_to_world, before.object_to_world, before.world_to_screen)
-        index, valid = np.array(index), np.array(valid, bool)
-        pairs.append((current.reshape(-1, 3)[valid], previous.reshape(-1, 3)[index[valid]]))
-    return pairs
-
-
-def temporal_relmse(frames, images) -> list[float]:
-    """Per frame from 1: relMSE between an image and the previous one back-projected onto it
-    (``frames``: the :class:`denoise.frames.FrameData` the images belong to)."""
-    return [relmse(current, previous) if len(current) else 0.0 for current, previous in back_projected(frames, images)]
-
-
-def stability(temporal: list[float], reference_temporal: list[float]) -> float:
-    """Temporal stability: the mean of a method's :func:`temporal_relmse` over the
-    ground truth's (1 = as stable as the truth, lower is steadier)."""
-    return float(np.mean(temporal) / max(float(np.mean(reference_temporal)), 1e-12))
