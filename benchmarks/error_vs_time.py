@@ -35,7 +35,11 @@ from pathlib import Path
 if __name__ == "__main__" and not __package__:
     sys.path[0] = str(Path(__file__).resolve().parents[1])
 
-from benchmarks import check_json, stamp, write_json
+if __name__ == "__main__":  # first: ./.venv's Python, the libLLVM, then Dr.Jit (see core.launcher)
+    from core.launcher import start
+    start("python -m benchmarks.error_vs_time", "benchmarks.error_vs_time" if __package__ else None)
+
+from benchmarks.records import check_json, stamp, write_json
 from core.entry import ArgumentParser
 from course import root as course_root
 from imaging.image_io import atomic_path
@@ -111,7 +115,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     check_json(args.json)
 
-    set_variant(None, quiet=True)
+    set_variant(None)
     size, spps, reference = settings(args.quick)
     results = measure(scene_paths(args.course, args.quick), size, spps, reference,
                       progress=lambda line: print(line, file=sys.stderr))

@@ -42,7 +42,11 @@ from pathlib import Path
 if __name__ == "__main__" and not __package__:
     sys.path[0] = str(Path(__file__).resolve().parents[1])
 
-from benchmarks import check_json, machine, write_json
+if __name__ == "__main__":  # first: ./.venv's Python, the libLLVM, then Dr.Jit (see core.launcher)
+    from core.launcher import start
+    start("python -m benchmarks.render_speed", "benchmarks.render_speed" if __package__ else None)
+
+from benchmarks.records import check_json, machine, write_json
 from converters.course_scene import load_scene
 from converters.description import scene_dict
 from core.entry import ArgumentParser

@@ -21,9 +21,9 @@ if __name__ == "__main__":
     # first: Ctrl-C and SIGTERM during the imports are one line (core.entry is standard library only)
     from core.start_up import exit_on_signals
     exit_on_signals("python -m converters")
-    # started by a Python without the project's packages: use ./.venv's
-    from core.launcher import use_project_python
-    use_project_python("converters", "converters")
+    # then ./.venv's Python, the libLLVM and Dr.Jit (see core.launcher)
+    from core.launcher import start
+    start("python -m converters", "converters")
 
 import argparse
 import os

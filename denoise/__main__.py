@@ -10,9 +10,9 @@ import argparse
 import sys
 from pathlib import Path
 
-if __name__ == "__main__":  # started by a Python without the project's packages: use ./.venv's
-    from core.launcher import use_project_python
-    use_project_python("python -m denoise", "denoise")
+if __name__ == "__main__":  # first: ./.venv's Python, the libLLVM, then Dr.Jit (see core.launcher)
+    from core.launcher import start
+    start("python -m denoise", "denoise")
 
 import textwrap
 
@@ -152,7 +152,7 @@ def _main(argv: list[str] | None) -> int:
         raise UsageError(f"--video writes H.264 MP4: name it .mp4, got {args.video}")
     if args.reference is not None and not args.reference.is_dir():
         raise FrameError(f"{args.reference}: not a folder")
-    set_variant(args.variant, quiet=True)
+    set_variant(args.variant, jit=True)
     panels: list[list] = []
 
     def on_frame(index, frame, result):

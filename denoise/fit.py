@@ -43,9 +43,9 @@ import sys
 from dataclasses import dataclass
 from pathlib import Path
 
-if __name__ == "__main__":  # started by a Python without the project's packages: use ./.venv's
-    from core.launcher import use_project_python
-    use_project_python("python -m denoise.fit", "denoise.fit")
+if __name__ == "__main__":  # first: ./.venv's Python, the libLLVM, then Dr.Jit (see core.launcher)
+    from core.launcher import start
+    start("python -m denoise.fit", "denoise.fit")
 
 from dataclasses import replace
 
@@ -293,14 +293,14 @@ def _main(argv: list[str] | None) -> int:
             raise UsageError(f"{args.evaluate}: no ground truth for frame {missing[0]} "
                              f"(no {truth / f'beauty_{missing[0]}.exr'}; python -m denoise.export renders it)")
         check_switch_frame(args.switch_frame, len(indices))
-        set_variant("llvm_ad_rgb", quiet=True)
+        set_variant("llvm_ad_rgb", jit=True)
         print_evaluation(args.evaluate, args.switch_frame)
         return 0
 
     check_writable("--out", args.out)  # before minutes of fitting, not after
     loaded = [(path, Spec.load(path)) for path in specs]  # all checked before any work
     check_switch_frame(args.switch_frame, min(spec.frames for _, spec in loaded))
-    set_variant("llvm_ad_rgb", quiet=True)
+    set_variant("llvm_ad_rgb", jit=True)
 
     targets = []
     for path, spec in loaded:

@@ -24,9 +24,9 @@ import sys
 import time
 from pathlib import Path
 
-if __name__ == "__main__":  # started by a Python without the project's packages: use ./.venv's
-    from core.launcher import use_project_python
-    use_project_python("python -m notebooks.build", "notebooks.build")
+if __name__ == "__main__":  # first: ./.venv's Python, the libLLVM, then Dr.Jit (see core.launcher)
+    from core.launcher import start
+    start("python -m notebooks.build", "notebooks.build")
 
 import tempfile
 

@@ -20,7 +20,7 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
-from core.entry import ArgumentParser, hold_signals, native_start_up, one_line, run
+from core.entry import ArgumentParser, one_line, run
 from core.errors import ToolkitError, UsageError, describe
 from core.inputs import NotAnInputFile, read_input
 from core.numbers import ascii_int
@@ -28,7 +28,7 @@ from course import ENVIRONMENT as COURSE_ENVIRONMENT, data_dir, resolve_scene
 
 from . import checks
 from .scene_flags import with_scene_flags
-from .variants import prepare_libllvm, set_variant
+from .variants import set_variant
 
 DEFAULT_SCENE = "showcase"
 #: The course binary's default image size (its -size)
@@ -321,11 +321,6 @@ def _report(where: str, error: BaseException) -> str:
 
 
 def _run(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
-    prepare_libllvm(args.variant)  # first: the checks below import Mitsuba, which loads libLLVM
-    # a signal inside the import of Dr.Jit's extension aborts the process; --quiet: its start-up notices go
-    with hold_signals(), native_start_up(quiet=args.quiet):
-        import drjit  # noqa: F401, PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
-        import mitsuba  # noqa: F401, PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
     if args.batch:
         given = [flag for flag, value, default in (
             ("SCENE", args.scenes, []), ("-input", args.input, None), ("-size", args.size, list(DEFAULT_SIZE)),

@@ -5,6 +5,10 @@ from __future__ import annotations
 import argparse
 import sys
 
+if __name__ == "__main__":  # first: ./.venv's Python, the libLLVM, then Dr.Jit (see core.launcher)
+    from core.launcher import start
+    start("python -m denoise.methods", "denoise.methods")
+
 from core.entry import ArgumentParser, run
 
 from .listing import DOC, method_list, with_method_list
