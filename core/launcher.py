@@ -26,8 +26,6 @@ import os
 import sys
 from pathlib import Path
 
-from core.entry import hold_signals, native_start_up
-from core.libllvm import prepare_libllvm
 from core.start_up import exit_on_signals
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -70,7 +68,10 @@ def start(prog: str, module: str | None = None, quiet: bool = True) -> None:
     """The first call of every entry point: :func:`use_project_python`, then the
     libLLVM choice, then Dr.Jit's and Mitsuba's start-up (their own notices kept
     off stderr when ``quiet``, inside ``hold_signals``: see there)."""
-    use_project_python(prog, module)
+    use_project_python(prog, module)  # the stop signals' handlers first, then the rest imports
+    from core.entry import hold_signals, native_start_up  # noqa: PLC0415  after exit_on_signals (see above)
+    from core.libllvm import prepare_libllvm  # noqa: PLC0415  after exit_on_signals (see above)
+
     prepare_libllvm(prog)
     with hold_signals(), native_start_up(quiet=quiet):
         import mitsuba  # noqa: F401, PLC0415  the first import of Dr.Jit: after the libLLVM is chosen

@@ -191,6 +191,11 @@ class Choice:
 _CHOICE: list[Choice] = []
 
 
+def chosen() -> Choice | None:
+    """The choice :func:`prepare_libllvm` made in this process, ``None`` before it ran."""
+    return _CHOICE[0] if _CHOICE else None
+
+
 def prepare_libllvm(prog: str | None = None) -> Choice:
     """Chooses the libLLVM (once per process: later calls return the first
     choice) and points ``DRJIT_LIBLLVM_PATH`` at it, or removes a damaged one

@@ -6,15 +6,14 @@ and writes OUT_DIR/result_i.exr per frame.
 """
 from __future__ import annotations
 
-import argparse
-import sys
-from pathlib import Path
-
 if __name__ == "__main__":  # first: ./.venv's Python, the libLLVM, then Dr.Jit (see core.launcher)
     from core.launcher import start
     start("python -m denoise", "denoise")
 
+import argparse
+import sys
 import textwrap
+from pathlib import Path
 
 from core.entry import ArgumentParser, run
 from core.errors import FrameError, UsageError

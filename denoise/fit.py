@@ -34,20 +34,18 @@ metric's epsilon does not favour).
 """
 from __future__ import annotations
 
+if __name__ == "__main__":  # first: ./.venv's Python, the libLLVM, then Dr.Jit (see core.launcher)
+    from core.launcher import start
+    start("python -m denoise.fit", "denoise.fit")
+
 import argparse
 import json
 import math
 import multiprocessing
 import signal
 import sys
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
-
-if __name__ == "__main__":  # first: ./.venv's Python, the libLLVM, then Dr.Jit (see core.launcher)
-    from core.launcher import start
-    start("python -m denoise.fit", "denoise.fit")
-
-from dataclasses import replace
 
 import numpy as np
 

@@ -19,6 +19,10 @@ the same frames and scores them beside the results. Every number comes from
 """
 from __future__ import annotations
 
+if __name__ == "__main__":  # first: ./.venv's Python, the libLLVM, then Dr.Jit (see core.launcher)
+    from core.launcher import start
+    start("python -m denoise.score", "denoise.score")
+
 import argparse
 import json
 import os
@@ -27,10 +31,6 @@ import string
 import sys
 from dataclasses import dataclass
 from pathlib import Path
-
-if __name__ == "__main__":  # first: ./.venv's Python, the libLLVM, then Dr.Jit (see core.launcher)
-    from core.launcher import start
-    start("python -m denoise.score", "denoise.score")
 
 import numpy as np
 
