@@ -25,6 +25,8 @@ if __name__ == "__main__":  # first: ./.venv's Python, the libLLVM, then Dr.Jit 
     from core.launcher import start
     start("python -m benchmarks.course", "benchmarks.course" if __package__ else None)
 
+import mitsuba as mi
+
 from benchmarks.records import machine, write_json
 from core.entry import ArgumentParser
 from course import root as course_root
@@ -35,8 +37,6 @@ from validation.metrics import TOLERANCE
 
 def record(course: Path, variant: str | None, path: Path = RECORD) -> dict:
     """Renders the grading lines and writes their counts to ``path``."""
-    import mitsuba as mi  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
-
     variant = set_variant(variant)
     with tempfile.TemporaryDirectory() as tmp:
         render_grading_images(course, Path(tmp), mi.variant())

@@ -39,6 +39,8 @@ if __name__ == "__main__":  # first: ./.venv's Python, the libLLVM, then Dr.Jit 
     from core.launcher import start
     start("python -m benchmarks.error_vs_time", "benchmarks.error_vs_time" if __package__ else None)
 
+import mitsuba as mi
+
 from benchmarks.records import check_json, stamp, write_json
 from core.entry import ArgumentParser
 from course import root as course_root
@@ -121,7 +123,6 @@ def main(argv: list[str] | None = None) -> int:
                       progress=lambda line: print(line, file=sys.stderr))
     for path in write_outputs(results, args.out):
         print(path)
-    import mitsuba as mi  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
 
     results.update(variant=mi.variant(), **stamp(["python -m benchmarks.error_vs_time", *(argv or sys.argv[1:])]))
     if args.json:

@@ -46,9 +46,13 @@ if __name__ == "__main__":  # first: ./.venv's Python, the libLLVM, then Dr.Jit 
     from core.launcher import start
     start("python -m benchmarks.render_speed", "benchmarks.render_speed" if __package__ else None)
 
+import drjit as dr
+import mitsuba as mi
+
 from benchmarks.records import check_json, machine, write_json
 from converters.course_scene import load_scene
 from converters.description import scene_dict
+from converters.to_mitsuba import load_scene_dict
 from core.entry import ArgumentParser
 from course import course_runs, outputs_into, root as course_root
 from renderer.variants import set_variant
@@ -65,10 +69,7 @@ def _timed(fn) -> float:
 def measure(course: Path, repeat: int, variant: str | None, peer: Path | None = None,
             only: list[str] | None = None) -> dict:
     variant = set_variant(variant, quiet=True)
-    import drjit as dr  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
-    import mitsuba as mi  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
 
-    from converters.to_mitsuba import load_scene_dict  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
 
     def render(scene):
         image = mi.render(scene)

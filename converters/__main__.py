@@ -32,10 +32,13 @@ import sys
 import tempfile
 from pathlib import Path
 
-from core.entry import ArgumentParser, hold_signals, native_start_up, run
+import mitsuba as mi
+
+from core.entry import ArgumentParser, run
 from core.errors import OutputError, UsageError
 from core.numbers import ascii_int
 from renderer.checks import check_limits, check_numbers
+from renderer.job import RenderJob
 from renderer.scene_flags import DEFAULTS, with_scene_flags
 
 EXAMPLES = """examples:
@@ -109,8 +112,6 @@ def convert(source: Path, target: Path, root: Path | None = None, settings: dict
     ``settings``: render flags as in :func:`render_settings`; the scene's
     ``# render:`` header fills in the ones left out.
     """
-    from renderer.job import RenderJob  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
-
     from .course_scene import load_scene  # noqa: PLC0415  NumPy loads on use: --help stays quick
     from .description import scene_dict  # noqa: PLC0415  NumPy loads on use: --help stays quick
     from .xml_writer import write_xml  # noqa: PLC0415  NumPy loads on use: --help stays quick
@@ -174,11 +175,6 @@ def _main(argv: list[str] | None) -> int:
     if missing:
         raise UsageError(f"no scene file {', '.join(missing)}")
     pairs = plan_targets(args.scenes, args.output)
-    # a signal inside the import of Dr.Jit's extension aborts the process: held until it is done;
-    # no rendering here, so Dr.Jit's notices (an unusable HOME) do not concern it
-    with hold_signals(), native_start_up():
-        import mitsuba as mi  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
-
     if mi.variant() is None:
         mi.set_variant("scalar_rgb")  # only for the transform type; no rendering here
     if settings.get("filter"):

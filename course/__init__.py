@@ -115,7 +115,7 @@ class CourseRun:
     def job(self, course: Path | None = None, outputs: Path | None = None):
         """The line as a :class:`renderer.job.RenderJob`: the input relative to ``course``
         (the folder the line runs in), outputs moved into ``outputs`` if given."""
-        from renderer.job import DepthOutput, RenderJob  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
+        from renderer.job import DepthOutput, RenderJob  # noqa: PLC0415  `python -m course.score` imports this package before its launcher
 
         flags = self.flags()
         course = root() if course is None else course

@@ -47,10 +47,12 @@ import sys
 from dataclasses import dataclass, replace
 from pathlib import Path
 
+import drjit as dr
+import mitsuba as mi
 import numpy as np
 
 from core.entry import ArgumentParser, hold_signals, run
-from core.errors import UsageError  # noqa: E402
+from core.errors import UsageError
 from core.numbers import ascii_float, ascii_int
 from imaging.image_io import atomic_path, read_exr_rgb
 from renderer.bands import GROUP_SIGNALS
@@ -58,11 +60,13 @@ from renderer.checks import check_writable
 from renderer.variants import set_variant
 from validation.metrics import relmse
 
+from .asvgf import FilterValues, asvgf
 from .export import Spec, export, reference_folder
+from .filters import FrameArrays, demodulate, remodulate, reproject
 from .frames import frame_indices, read_frame
+from .methods import from_name, make
+from .methods.asvgf import FITTED_OPTIONS, fitted, hand_set
 
-# Dr.Jit, Mitsuba, NumPy and the denoiser's modules are imported inside the functions:
-# the variant is chosen first (llvm_ad_rgb), and --help and argument errors do not wait for them
 ROOT = Path(__file__).resolve().parent.parent
 TRAINING = sorted((ROOT / "scenes" / "sequences" / "training").glob("*.json"))
 #: what a light switch scales the frames after it by
@@ -84,11 +88,6 @@ def prepare(folder: Path, scale_from: int | None = None, scale: float = SWITCH_S
     """Every frame of ``folder`` with its ground truth from ``FOLDER_reference``,
     as the Denoiser would feed asvgf (usable values, albedo demodulation, back
     projection); beauty and truth of frames >= ``scale_from`` times ``scale``."""
-    import mitsuba as mi  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
-
-    from .filters import FrameArrays, demodulate, reproject  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
-    from .methods import make  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
-
     def tensor(a):
         return mi.TensorXf(np.ascontiguousarray(a, np.float32))
 
@@ -114,16 +113,11 @@ def prepare(folder: Path, scale_from: int | None = None, scale: float = SWITCH_S
 
 def relmse_loss(image, reference, epsilon: float = 1e-2):
     """validation.metrics.relmse's ``mean((x - ref)² / (ref² + ε))`` as a differentiable Dr.Jit Float."""
-    import drjit as dr  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
-
     return dr.mean(dr.square(image.array - reference.array) / (dr.square(reference.array) + epsilon))
 
 
 def run_sequence(frames: list[PreparedFrame], params, values=None) -> list:
     """asvgf over ``frames``: the remodulated results (TensorXf), history carried along."""
-    from .asvgf import asvgf  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
-    from .filters import remodulate  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
-
     history, results = None, []
     for f in frames:
         result, history = asvgf(f.buffers, params, history if f.index is not None else None, f.index, f.valid,
@@ -146,11 +140,6 @@ class Fit:
     """Adam on the logarithms of the continuous parameters, kept in range."""
 
     def __init__(self, params, rate: float):
-        import drjit as dr  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
-        import mitsuba as mi  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
-
-        from .methods.asvgf import FITTED_OPTIONS  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
-
         # the parameter vector, its names and bounds: asvgf's declarations of what is fitted
         self.params, self.ranges = params, {o.key: (o.low, o.high) for o in FITTED_OPTIONS}
         self.optimizer = mi.ad.Adam(lr=rate)
@@ -161,7 +150,6 @@ class Fit:
 
     def values(self):
 
-        from .asvgf import FilterValues  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
 
         dr = self.dr
         return FilterValues(**{name: dr.clip(dr.exp(self.optimizer[name]), max(low, 1e-6), high)
@@ -199,9 +187,6 @@ def write_parameters(path: Path, values: dict[str, float], loss: float, hand_set
 
 def evaluate(folder: Path, switch: int | None) -> dict[str, tuple[list[float], list[float]]]:
     """Per method: (relMSE per frame as rendered or dimmed, relMSE of the images divided by the dimming)."""
-    from .methods import from_name  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
-    from .methods.asvgf import fitted, hand_set  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
-
     indices = frame_indices(folder)
     factors = [SWITCH_SCALE if switch is not None and i >= switch else 1.0 for i in indices]
     truth = [read_exr_rgb(reference_folder(folder) / f"beauty_{i}.exr") * f for i, f in zip(indices, factors)]
@@ -313,8 +298,6 @@ def _main(argv: list[str] | None) -> int:
 
 def fit_steps(targets: list[Path], switch_frame: int, steps: int, rate: float, quiet: bool):
     """The gradient steps on the exported ``targets``; returns ((lowest loss, its values), the hand-set loss)."""
-    from .methods.asvgf import hand_set  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
-
     sequences = []
     for target in targets:
         sequences.append(prepare(target))

@@ -27,6 +27,8 @@ from core.numbers import ascii_int
 from course import ENVIRONMENT as COURSE_ENVIRONMENT, data_dir, resolve_scene
 
 from . import checks
+from .job import DepthOutput, RenderJob, render, with_outputs_in, write_outputs
+from .progress import RenderProgress
 from .scene_flags import with_scene_flags
 from .variants import set_variant
 
@@ -127,8 +129,6 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _depth(values: list[str] | None):
-    from .job import DepthOutput  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
-
     if values is None:
         return None
     try:
@@ -143,8 +143,6 @@ def _depth(values: list[str] | None):
 def jobs_from_args(args: argparse.Namespace) -> list:
     """The render jobs one command line asks for (checked: numbers here, limits
     and outputs in :func:`checked_jobs`)."""
-    from .job import RenderJob, with_outputs_in  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
-
     checks.check_numbers(args.size[0], args.size[1], args.bounces, args.spp)
     base = dict(width=args.size[0], height=args.size[1], bounces=args.bounces, shadows=args.shadows,
                 jitter=args.jitter, filter=args.filter, spp=args.spp, stats=args.stats)
@@ -307,7 +305,6 @@ def jobs_from_batch(parser: argparse.ArgumentParser, path: Path, memory: int | N
 def _write_and_report(result, preview: Preview | None, progress, variant: str) -> None:
     from imaging import colour, image_io  # noqa: PLC0415  NumPy loads on use: --help stays quick
 
-    from .job import write_outputs  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
 
     written = write_outputs(result)
     if preview is not None:
@@ -340,8 +337,6 @@ def _run(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
         raise UsageError(f"{args.batch}: no line can be rendered ({len(errors)} bad)")
 
     variant = set_variant(args.variant, quiet=args.quiet)
-    from .job import render  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
-    from .progress import RenderProgress  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
 
     failed = len(errors)
     batch = bool(args.batch)

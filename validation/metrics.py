@@ -7,7 +7,10 @@ Every check, benchmark, score command, notebook and test takes them from here.
 """
 from __future__ import annotations
 
+import mitsuba as mi
 import numpy as np
+
+from denoise.filters import reproject
 
 #: a pixel is bad when some 8-bit channel differs by more than this (the course's 2/255)
 TOLERANCE = 2
@@ -61,9 +64,7 @@ def back_projected(frames, images) -> list[tuple[np.ndarray, np.ndarray]]:
     """For frames 1.., (image t at the pixels that keep history, image t-1 at
     the pixels they came from), through the denoiser's back projection."""
     # Dr.Jit loads only for the temporal figures: the image metrics above stay NumPy-only
-    import mitsuba as mi  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
 
-    from denoise.filters import reproject  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
 
     def tensor(a):
         return mi.TensorXf(np.ascontiguousarray(a, np.float32))
