@@ -13,12 +13,6 @@ import time
 from collections import OrderedDict
 from pathlib import Path
 
-from core.libllvm import prepare_libllvm
-
-# A worker of a remote Dask scheduler imports this module before anything of ours ran in it: its
-# libLLVM is chosen here, before the imports below start Dr.Jit (a no-op where a command of ours chose it)
-prepare_libllvm()
-
 import drjit as dr
 import mitsuba as mi
 import numpy as np
