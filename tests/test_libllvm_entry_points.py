@@ -320,3 +320,15 @@ def test_every_documented_entry_point_runs_from_a_plain_shell(name, plain_shell)
     done = subprocess.run(["python", *command(name, python="python")[1:], "--help"], cwd=ROOT, env=plain_shell,
                           capture_output=True, text=True, timeout=300)
     assert done.returncode == 0 and done.stdout.startswith("usage:"), (name, done.stderr[-2000:])
+
+
+@pytest.mark.parametrize("name", ["denoise", "denoise.score", "denoise.live"])
+def test_a_command_without_a_scalar_form_refuses_scalar_rgb_in_one_line(name, inputs, tmp_path):
+    """``--variant scalar_rgb`` given to the denoiser was a RuntimeError traceback (dtype.unravel)."""
+    argv, _ = RUNS[name]
+    argv = [word.format(**inputs, tmp=tmp_path) for word in argv] + ["--variant", "scalar_rgb"]
+    done = subprocess.run(command(name) + argv, cwd=ROOT, capture_output=True, text=True, timeout=300)
+    lines = done.stderr.splitlines()
+    assert done.returncode == 2 and len(lines) == 1, (done.returncode, done.stderr[-2000:])
+    assert lines[0] == f"python -m {name}: error: --variant scalar_rgb: this command needs a JIT variant " \
+                       "(llvm_* or cuda_*)", lines
