@@ -10,8 +10,10 @@ from core.start_up import exit_on_signals  # first: standard library only, befor
 
 if __name__ == "__main__":  # started by a Python without the project's packages: use ./.venv's
     exit_on_signals("render.py")  # first, until main's core.entry.run takes over
-    from core.launcher import use_project_python
-    use_project_python("render.py")
+    from core.launcher import start
+    # then the libLLVM and Dr.Jit, whose start-up notices stay unless --quiet (read here: Dr.Jit
+    # starts before the arguments are parsed)
+    start("render.py", quiet="--quiet" in sys.argv[1:])
 
 from renderer.cli import main
 

@@ -33,12 +33,16 @@ from pathlib import Path
 if __name__ == "__main__" and not __package__:
     sys.path[0] = str(Path(__file__).resolve().parents[1])
 
+if __name__ == "__main__":  # first: ./.venv's Python, the libLLVM, then Dr.Jit (see core.launcher)
+    from core.launcher import start
+    start("python -m benchmarks.asvgf_bounds", "benchmarks.asvgf_bounds" if __package__ else None)
+
 import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from benchmarks import check_json, machine, write_json
 from benchmarks.denoise import ASVGF_RELMSE_BAR, BASELINE, QUALITY, QUALITY_FROM, REFERENCE_SPP, SEQUENCES
+from benchmarks.records import check_json, machine, write_json
 from core import entry
 from core.entry import ArgumentParser
 from core.errors import UsageError
@@ -150,7 +154,7 @@ def main(argv: list[str] | None = None) -> int:
         raise UsageError(f"--sequences: no sequence {unknown[0]!r}; choose from {', '.join(known)}")
     check_json(args.json)
     folders = {name: folder_of(args.work, name) for name in args.sequences or known}
-    set_variant("llvm_ad_rgb", quiet=True)
+    set_variant("llvm_ad_rgb", jit=True)
     results = {"date": datetime.date.today().isoformat(), "machine": machine(), "sequences": {}}
     for name, folder in folders.items():
         results["sequences"][name] = measure(folder)

@@ -21,7 +21,13 @@ from pathlib import Path
 if __name__ == "__main__" and not __package__:
     sys.path[0] = str(Path(__file__).resolve().parents[1])
 
-from benchmarks import machine, write_json
+if __name__ == "__main__":  # first: ./.venv's Python, the libLLVM, then Dr.Jit (see core.launcher)
+    from core.launcher import start
+    start("python -m benchmarks.course", "benchmarks.course" if __package__ else None)
+
+import mitsuba as mi
+
+from benchmarks.records import machine, write_json
 from core.entry import ArgumentParser
 from course import root as course_root
 from imaging.metrics import TOLERANCE
@@ -31,9 +37,7 @@ from validation.course_images import RECORD, ROOT, image_counts, render_grading_
 
 def record(course: Path, variant: str | None, path: Path = RECORD) -> dict:
     """Renders the grading lines and writes their counts to ``path``."""
-    import mitsuba as mi  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
-
-    variant = set_variant(variant, quiet=True)
+    variant = set_variant(variant)
     with tempfile.TemporaryDirectory() as tmp:
         render_grading_images(course, Path(tmp), mi.variant())
         counts = image_counts(course, Path(tmp))
@@ -53,7 +57,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.record:
         counts = record(args.course, args.variant)["images"]
     else:
-        variant = set_variant(args.variant, quiet=True)
+        variant = set_variant(args.variant)
         with tempfile.TemporaryDirectory() as tmp:
             render_grading_images(args.course, Path(tmp), variant)
             counts = image_counts(args.course, Path(tmp))

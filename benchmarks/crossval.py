@@ -20,9 +20,13 @@ from pathlib import Path
 if __name__ == "__main__" and not __package__:
     sys.path[0] = str(Path(__file__).resolve().parents[1])
 
+if __name__ == "__main__":  # first: ./.venv's Python, the libLLVM, then Dr.Jit (see core.launcher)
+    from core.launcher import start
+    start("python -m benchmarks.crossval", "benchmarks.crossval" if __package__ else None)
+
 import numpy as np
 
-from benchmarks import check_json, stamp, write_json
+from benchmarks.records import check_json, stamp, write_json
 from converters.scene_variants import with_mirror_sampling, with_path_tracer, without_ambient, without_background
 from core.entry import ArgumentParser
 from course import root as course_root
@@ -113,7 +117,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     check_json(args.json)
 
-    set_variant(None, quiet=True)
+    set_variant(None)
     if args.bias:
         with biased_whitted(args.bias):
             results = run(args.course, args.quick, bsdf=not args.agreement_only)

@@ -46,10 +46,14 @@ from pathlib import Path
 if __name__ == "__main__" and not __package__:
     sys.path[0] = str(Path(__file__).resolve().parents[1])
 
+if __name__ == "__main__":  # first: ./.venv's Python, the libLLVM, then Dr.Jit (see core.launcher)
+    from core.launcher import start
+    start("python -m benchmarks.denoise", "benchmarks.denoise" if __package__ else None)
+
 import drjit as dr
 import numpy as np
 
-from benchmarks import check_json, machine, write_json
+from benchmarks.records import check_json, machine, write_json
 from core import entry
 from core.entry import ArgumentParser
 from core.errors import OutputError, UsageError
@@ -450,7 +454,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.docs:
         args.json = args.json or docs / "denoise.json"
     check_work_and_json(args.work, args.json)
-    set_variant(None, quiet=True)
+    set_variant(None, jit=True)
     quality, timing_size = (QUICK, QUICK_TIMING) if args.quick else (QUALITY, TIMING)
     suffix = "_quick" if args.quick else ""
     start = time.perf_counter()

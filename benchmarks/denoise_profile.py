@@ -33,11 +33,13 @@ from pathlib import Path
 if __name__ == "__main__" and not __package__:
     sys.path[0] = str(Path(__file__).resolve().parents[1])
 
+if __name__ == "__main__":  # first: ./.venv's Python, the libLLVM, then Dr.Jit (see core.launcher)
+    from core.launcher import start
+    start("python -m benchmarks.denoise_profile", "benchmarks.denoise_profile" if __package__ else None)
+
 import drjit as dr
-import mitsuba as mi
 import numpy as np
 
-from benchmarks import machine, write_json
 from benchmarks.denoise import (
     QUICK_TIMING,
     RESULTS_PAGE,
@@ -47,9 +49,9 @@ from benchmarks.denoise import (
     make_method,
     timing_folder,
 )
+from benchmarks.records import machine, write_json
 from core import entry
 from core.entry import ArgumentParser
-from core.errors import UsageError
 from core.markdown import replace_section
 from denoise.export import Spec, export
 from denoise.frames import frame_indices, read_frame
@@ -181,10 +183,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.docs:
         args.json = args.json or ROOT / "docs" / "denoise" / "profile.json"
     check_work_and_json(args.work, args.json)
-    set_variant(None, quiet=True)
-    if mi.variant().startswith("scalar"):
-        raise UsageError("the profile reads Dr.Jit's kernel history: it needs a JIT variant (llvm_ad_rgb), "
-                         f"and {mi.variant()} is what this machine has")
+    set_variant(None, jit=True)  # it reads Dr.Jit's kernel history
     size = QUICK_TIMING if args.quick else TIMING
     folder = timing_folder(args.work, SEQUENCES[0].stem, size, args.quick)
     export(Spec.load(SEQUENCES[0], **size), folder)

@@ -35,7 +35,13 @@ from pathlib import Path
 if __name__ == "__main__" and not __package__:
     sys.path[0] = str(Path(__file__).resolve().parents[1])
 
-from benchmarks import check_json, stamp, write_json
+if __name__ == "__main__":  # first: ./.venv's Python, the libLLVM, then Dr.Jit (see core.launcher)
+    from core.launcher import start
+    start("python -m benchmarks.error_vs_time", "benchmarks.error_vs_time" if __package__ else None)
+
+import mitsuba as mi
+
+from benchmarks.records import check_json, stamp, write_json
 from core.entry import ArgumentParser
 from course import root as course_root
 from imaging.image_io import atomic_path
@@ -111,13 +117,12 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     check_json(args.json)
 
-    set_variant(None, quiet=True)
+    set_variant(None)
     size, spps, reference = settings(args.quick)
     results = measure(scene_paths(args.course, args.quick), size, spps, reference,
                       progress=lambda line: print(line, file=sys.stderr))
     for path in write_outputs(results, args.out):
         print(path)
-    import mitsuba as mi  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
 
     results.update(variant=mi.variant(), **stamp(["python -m benchmarks.error_vs_time", *(argv or sys.argv[1:])]))
     if args.json:

@@ -23,7 +23,15 @@ import sys
 import time
 from pathlib import Path
 
-from benchmarks import check_json, stamp, write_json
+# started as `python benchmarks/x.py`, this folder would shadow the course and denoise packages
+if __name__ == "__main__" and not __package__:
+    sys.path[0] = str(Path(__file__).resolve().parents[1])
+
+if __name__ == "__main__":  # first: ./.venv's Python, the libLLVM, then Dr.Jit (see core.launcher)
+    from core.launcher import start
+    start("python -m benchmarks.live", "benchmarks.live" if __package__ else None)
+
+from benchmarks.records import check_json, stamp, write_json
 from core.entry import ArgumentParser
 from core.errors import UsageError
 from core.numbers import ascii_int

@@ -42,11 +42,20 @@ from pathlib import Path
 if __name__ == "__main__" and not __package__:
     sys.path[0] = str(Path(__file__).resolve().parents[1])
 
-from benchmarks import check_json, machine, write_json
+if __name__ == "__main__":  # first: ./.venv's Python, the libLLVM, then Dr.Jit (see core.launcher)
+    from core.launcher import start
+    start("python -m benchmarks.render_speed", "benchmarks.render_speed" if __package__ else None)
+
+import drjit as dr
+import mitsuba as mi
+
+from benchmarks.records import check_json, machine, write_json
 from converters.course_scene import load_scene
 from converters.description import scene_dict
+from converters.to_mitsuba import load_scene_dict
 from core.entry import ArgumentParser
 from course import course_runs, outputs_into, root as course_root
+from renderer.job import course_job
 from renderer.variants import set_variant
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -61,11 +70,7 @@ def _timed(fn) -> float:
 def measure(course: Path, repeat: int, variant: str | None, peer: Path | None = None,
             only: list[str] | None = None) -> dict:
     variant = set_variant(variant, quiet=True)
-    import drjit as dr  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
-    import mitsuba as mi  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
 
-    from converters.to_mitsuba import load_scene_dict  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
-    from renderer.job import course_job  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
 
     def render(scene):
         image = mi.render(scene)

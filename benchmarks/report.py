@@ -37,10 +37,15 @@ from pathlib import Path
 if __name__ == "__main__" and not __package__:
     sys.path[0] = str(Path(__file__).resolve().parents[1])
 
+if __name__ == "__main__":  # first: ./.venv's Python, the libLLVM, then Dr.Jit (see core.launcher)
+    from core.launcher import start
+    start("python -m benchmarks.report", "benchmarks.report" if __package__ else None)
+
 import tempfile
 
-from benchmarks import crossval, error_vs_time, machine, render_speed, write_json
+from benchmarks import crossval, error_vs_time, render_speed
 from benchmarks.course import record
+from benchmarks.records import machine, write_json
 from core.entry import ArgumentParser
 from core.markdown import replace_section
 from course import root as course_root

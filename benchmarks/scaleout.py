@@ -41,7 +41,11 @@ from pathlib import Path
 if __name__ == "__main__" and not __package__:
     sys.path[0] = str(Path(__file__).resolve().parents[1])
 
-from benchmarks import check_json, write_json
+if __name__ == "__main__":  # first: ./.venv's Python, the libLLVM, then Dr.Jit (see core.launcher)
+    from core.launcher import start
+    start("python -m benchmarks.scaleout", "benchmarks.scaleout" if __package__ else None)
+
+from benchmarks.records import check_json, write_json
 from core import entry
 from core.entry import ArgumentParser
 from denoise.export.cluster import dask_client

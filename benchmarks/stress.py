@@ -23,7 +23,11 @@ from pathlib import Path
 if __name__ == "__main__" and not __package__:
     sys.path[0] = str(Path(__file__).resolve().parents[1])
 
-from benchmarks import check_json, write_json
+if __name__ == "__main__":  # first: ./.venv's Python, the libLLVM, then Dr.Jit (see core.launcher)
+    from core.launcher import start
+    start("python -m benchmarks.stress", "benchmarks.stress" if __package__ else None)
+
+from benchmarks.records import check_json, write_json
 from core.entry import ArgumentParser, native_start_up
 from core.errors import UsageError
 from core.numbers import ascii_int
@@ -36,7 +40,7 @@ from validation.stress_fuzz_commands import fuzz_commands
 
 def run(fuzz_examples: int, quick: bool, only: list[str] | None = None) -> dict:
     with native_start_up():
-        set_variant(None, quiet=True)
+        set_variant(None)
 
     def wanted(case) -> bool:
         return (case.fast or not quick) and (not only or case.name in only)

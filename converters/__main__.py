@@ -21,9 +21,9 @@ if __name__ == "__main__":
     # first: Ctrl-C and SIGTERM during the imports are one line (core.entry is standard library only)
     from core.start_up import exit_on_signals
     exit_on_signals("python -m converters")
-    # started by a Python without the project's packages: use ./.venv's
-    from core.launcher import use_project_python
-    use_project_python("converters", "converters")
+    # then ./.venv's Python, the libLLVM and Dr.Jit (see core.launcher)
+    from core.launcher import start
+    start("python -m converters", "converters")
 
 import argparse
 import os
@@ -32,9 +32,11 @@ import sys
 import tempfile
 from pathlib import Path
 
+import mitsuba as mi
+
 from converters.render_flags import RenderJob, check_numbers, check_samples
 from converters.scene_flags import DEFAULTS, with_scene_flags
-from core.entry import ArgumentParser, hold_signals, native_start_up, run
+from core.entry import ArgumentParser, run
 from core.errors import OutputError, UsageError
 from core.numbers import ascii_int
 
@@ -172,11 +174,6 @@ def _main(argv: list[str] | None) -> int:
     if missing:
         raise UsageError(f"no scene file {', '.join(missing)}")
     pairs = plan_targets(args.scenes, args.output)
-    # a signal inside the import of Dr.Jit's extension aborts the process: held until it is done;
-    # no rendering here, so Dr.Jit's notices (an unusable HOME) do not concern it
-    with hold_signals(), native_start_up():
-        import mitsuba as mi  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
-
     if mi.variant() is None:
         mi.set_variant("scalar_rgb")  # only for the transform type; no rendering here
     if settings.get("filter"):

@@ -24,7 +24,9 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import drjit as dr
 import numpy as np
+from drjit.scalar import Matrix3f64
 
 from .model import DirectionalLight, Plane, PointLight, Scene, Sphere, Triangle, TriangleMesh
 
@@ -273,9 +275,6 @@ def object_dict(scene: Scene, index: int) -> dict:
 
 def _quaternion_xyzw(r: np.ndarray) -> list[float]:
     """Unit quaternion (x, y, z, w) of a rotation matrix (Dr.Jit's conversion)."""
-    import drjit as dr  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
-    from drjit.scalar import Matrix3f64  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
-
     q = dr.matrix_to_quat(Matrix3f64(np.asarray(r, np.float64).tolist()))
     return [float(q[0]), float(q[1]), float(q[2]), float(q[3])]
 

@@ -11,7 +11,13 @@ one line saying to run ``./dev setup`` and exits 2. It first installs
 follow (Dr.Jit's native start-up among them) then stops the command with one
 line, until ``core.entry.run`` takes over.
 
-Standard library only: it runs before anything else is importable.
+:func:`start` is the first call of every entry point: the above, then the
+libLLVM choice (:mod:`core.libllvm`) and the first import of Mitsuba and
+Dr.Jit, after which any module may import them at its top, as Mitsuba's own
+Python does.
+
+Standard library only until the project's Python runs: it runs before
+anything else is importable.
 """
 from __future__ import annotations
 
@@ -56,3 +62,30 @@ def use_project_python(prog: str, module: str | None = None) -> None:
     print(f"{prog}: error: {sys.executable} cannot import {', '.join(missing)} and {where}; "
           f"run ./dev setup in {ROOT}", file=sys.stderr)
     raise SystemExit(2)
+
+
+def start(prog: str, module: str | None = None, quiet: bool = True) -> None:
+    """The first call of every entry point: :func:`use_project_python`, then the
+    libLLVM choice, then Dr.Jit's and Mitsuba's start-up (their own notices kept
+    off stderr when ``quiet``, inside ``hold_signals``: see there)."""
+    use_project_python(prog, module)  # the stop signals' handlers first, then the rest imports
+    from core.entry import hold_signals, native_start_up  # noqa: PLC0415  after exit_on_signals (see above)
+    from core.libllvm import prepare_libllvm  # noqa: PLC0415  after exit_on_signals (see above)
+
+    prepare_libllvm(prog)
+    with hold_signals(), native_start_up(quiet=quiet):
+        import mitsuba  # noqa: F401, PLC0415  the first import of Dr.Jit: after the libLLVM is chosen
+
+
+def start_before_package(package: str) -> None:
+    """:func:`start` for ``python -m PACKAGE``, called first by a package whose
+    ``__init__`` imports Dr.Jit: Python imports the package before it runs the
+    package's ``__main__``. Python sets ``sys.argv[0]`` to ``"-m"`` while it
+    looks for that module, so anything else (an ordinary import) returns at once."""
+    if sys.argv[:1] != ["-m"]:
+        return
+    words = sys.orig_argv
+    module = next((words[k + 1] if word == "-m" else word[2:] for k, word in enumerate(words[:-1])
+                   if k and word.startswith("-m")), None)
+    if module == package or (module or "").startswith(f"{package}."):
+        start(f"python -m {module}", module)

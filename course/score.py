@@ -14,14 +14,14 @@ and exit code 2.
 """
 from __future__ import annotations
 
+if __name__ == "__main__":  # first: ./.venv's Python, the libLLVM, then Dr.Jit (see core.launcher)
+    from core.launcher import start
+    start("python -m course.score", "course.score")
+
 import argparse
 import sys
 from dataclasses import dataclass
 from pathlib import Path
-
-if __name__ == "__main__":  # started by a Python without the project's packages: use ./.venv's
-    from core.launcher import use_project_python
-    use_project_python("python -m course.score", "course.score")
 
 import numpy as np
 from tqdm import tqdm

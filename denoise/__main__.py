@@ -6,15 +6,14 @@ and writes OUT_DIR/result_i.exr per frame.
 """
 from __future__ import annotations
 
+if __name__ == "__main__":  # first: ./.venv's Python, the libLLVM, then Dr.Jit (see core.launcher)
+    from core.launcher import start
+    start("python -m denoise", "denoise")
+
 import argparse
 import sys
-from pathlib import Path
-
-if __name__ == "__main__":  # started by a Python without the project's packages: use ./.venv's
-    from core.launcher import use_project_python
-    use_project_python("python -m denoise", "denoise")
-
 import textwrap
+from pathlib import Path
 
 from core.entry import ArgumentParser, run
 from core.errors import FrameError, UsageError
@@ -155,7 +154,7 @@ def _main(argv: list[str] | None) -> int:
         raise FrameError(f"{args.reference}: not a folder")
     if args.reference is not None:
         check_ground_truth("--reference", args.reference, args.source)
-    set_variant(args.variant, quiet=True)
+    set_variant(args.variant, jit=True)
     panels: list[list] = []
 
     def on_frame(index, frame, result):

@@ -34,36 +34,38 @@ metric's epsilon does not favour).
 """
 from __future__ import annotations
 
+if __name__ == "__main__":  # first: ./.venv's Python, the libLLVM, then Dr.Jit (see core.launcher)
+    from core.launcher import start
+    start("python -m denoise.fit", "denoise.fit")
+
 import argparse
 import json
 import math
 import multiprocessing
 import signal
 import sys
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
-if __name__ == "__main__":  # started by a Python without the project's packages: use ./.venv's
-    from core.launcher import use_project_python
-    use_project_python("python -m denoise.fit", "denoise.fit")
-
-from dataclasses import replace
-
+import drjit as dr
+import mitsuba as mi
 import numpy as np
 
 from core.entry import ArgumentParser, hold_signals, run
-from core.errors import UsageError  # noqa: E402
+from core.errors import UsageError
 from core.numbers import ascii_float, ascii_int
 from imaging.image_io import atomic_path, check_writable, read_exr_rgb
 from imaging.metrics import relmse
 from renderer.bands import GROUP_SIGNALS
 from renderer.variants import set_variant
 
+from .asvgf import FilterValues, asvgf
 from .export import Spec, export, reference_folder
+from .filters import FrameArrays, demodulate, remodulate, reproject
 from .frames import frame_indices, read_frame
+from .methods import from_name, make
+from .methods.asvgf import FITTED_OPTIONS, fitted, hand_set
 
-# Dr.Jit, Mitsuba, NumPy and the denoiser's modules are imported inside the functions:
-# the variant is chosen first (llvm_ad_rgb), and --help and argument errors do not wait for them
 ROOT = Path(__file__).resolve().parent.parent
 TRAINING = sorted((ROOT / "scenes" / "sequences" / "training").glob("*.json"))
 #: what a light switch scales the frames after it by
@@ -85,11 +87,6 @@ def prepare(folder: Path, scale_from: int | None = None, scale: float = SWITCH_S
     """Every frame of ``folder`` with its ground truth from ``FOLDER_reference``,
     as the Denoiser would feed asvgf (usable values, albedo demodulation, back
     projection); beauty and truth of frames >= ``scale_from`` times ``scale``."""
-    import mitsuba as mi  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
-
-    from .filters import FrameArrays, demodulate, reproject  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
-    from .methods import make  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
-
     def tensor(a):
         return mi.TensorXf(np.ascontiguousarray(a, np.float32))
 
@@ -115,16 +112,11 @@ def prepare(folder: Path, scale_from: int | None = None, scale: float = SWITCH_S
 
 def relmse_loss(image, reference, epsilon: float = 1e-2):
     """imaging.metrics.relmse's ``mean((x - ref)² / (ref² + ε))`` as a differentiable Dr.Jit Float."""
-    import drjit as dr  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
-
     return dr.mean(dr.square(image.array - reference.array) / (dr.square(reference.array) + epsilon))
 
 
 def run_sequence(frames: list[PreparedFrame], params, values=None) -> list:
     """asvgf over ``frames``: the remodulated results (TensorXf), history carried along."""
-    from .asvgf import asvgf  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
-    from .filters import remodulate  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
-
     history, results = None, []
     for f in frames:
         result, history = asvgf(f.buffers, params, history if f.index is not None else None, f.index, f.valid,
@@ -147,11 +139,6 @@ class Fit:
     """Adam on the logarithms of the continuous parameters, kept in range."""
 
     def __init__(self, params, rate: float):
-        import drjit as dr  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
-        import mitsuba as mi  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
-
-        from .methods.asvgf import FITTED_OPTIONS  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
-
         # the parameter vector, its names and bounds: asvgf's declarations of what is fitted
         self.params, self.ranges = params, {o.key: (o.low, o.high) for o in FITTED_OPTIONS}
         self.optimizer = mi.ad.Adam(lr=rate)
@@ -162,7 +149,6 @@ class Fit:
 
     def values(self):
 
-        from .asvgf import FilterValues  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
 
         dr = self.dr
         return FilterValues(**{name: dr.clip(dr.exp(self.optimizer[name]), max(low, 1e-6), high)
@@ -200,9 +186,6 @@ def write_parameters(path: Path, values: dict[str, float], loss: float, hand_set
 
 def evaluate(folder: Path, switch: int | None) -> dict[str, tuple[list[float], list[float]]]:
     """Per method: (relMSE per frame as rendered or dimmed, relMSE of the images divided by the dimming)."""
-    from .methods import from_name  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
-    from .methods.asvgf import fitted, hand_set  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
-
     indices = frame_indices(folder)
     factors = [SWITCH_SCALE if switch is not None and i >= switch else 1.0 for i in indices]
     truth = [read_exr_rgb(reference_folder(folder) / f"beauty_{i}.exr") * f for i, f in zip(indices, factors)]
@@ -292,14 +275,14 @@ def _main(argv: list[str] | None) -> int:
             raise UsageError(f"{args.evaluate}: no ground truth for frame {missing[0]} "
                              f"(no {truth / f'beauty_{missing[0]}.exr'}; python -m denoise.export renders it)")
         check_switch_frame(args.switch_frame, len(indices))
-        set_variant("llvm_ad_rgb", quiet=True)
+        set_variant("llvm_ad_rgb", jit=True)
         print_evaluation(args.evaluate, args.switch_frame)
         return 0
 
     check_writable("--out", args.out)  # before minutes of fitting, not after
     loaded = [(path, Spec.load(path)) for path in specs]  # all checked before any work
     check_switch_frame(args.switch_frame, min(spec.frames for _, spec in loaded))
-    set_variant("llvm_ad_rgb", quiet=True)
+    set_variant("llvm_ad_rgb", jit=True)
 
     targets = []
     for path, spec in loaded:
@@ -314,8 +297,6 @@ def _main(argv: list[str] | None) -> int:
 
 def fit_steps(targets: list[Path], switch_frame: int, steps: int, rate: float, quiet: bool):
     """The gradient steps on the exported ``targets``; returns ((lowest loss, its values), the hand-set loss)."""
-    from .methods.asvgf import hand_set  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
-
     sequences = []
     for target in targets:
         sequences.append(prepare(target))

@@ -21,6 +21,10 @@ the same frames and scores them beside the results. Every number comes from
 """
 from __future__ import annotations
 
+if __name__ == "__main__":  # first: ./.venv's Python, the libLLVM, then Dr.Jit (see core.launcher)
+    from core.launcher import start
+    start("python -m denoise.score", "denoise.score")
+
 import argparse
 import json
 import os
@@ -29,10 +33,6 @@ import string
 import sys
 from dataclasses import dataclass
 from pathlib import Path
-
-if __name__ == "__main__":  # started by a Python without the project's packages: use ./.venv's
-    from core.launcher import use_project_python
-    use_project_python("python -m denoise.score", "denoise.score")
 
 import numpy as np
 
@@ -322,7 +322,7 @@ def _main(argv: list[str] | None) -> int:
     check_methods(args.compare)
     if args.frames is not None:  # back projection and our methods run in Dr.Jit
 
-        set_variant(args.variant, quiet=True)
+        set_variant(args.variant, jit=True)
     report = score_sequence(args.results, args.reference, args.frames, args.pattern, tuple(args.compare))
     print("\n".join(tables(report)))
     if args.plot is not None:

@@ -34,10 +34,15 @@ _modules: dict[tuple[str, str], object] = {}
 _registered: set[str] = set()
 
 
-def _active_variant() -> str:
+def _mitsuba():
+    """Mitsuba, on first use: renderer.variants imports this package before the libLLVM is chosen."""
     import mitsuba as mi  # noqa: PLC0415  importing this package must not load Dr.Jit (see renderer.variants)
 
-    variant = mi.variant()
+    return mi
+
+
+def _active_variant() -> str:
+    variant = _mitsuba().variant()
     if variant is None:
         raise RuntimeError("mi_plugins: call mi.set_variant() first")
     return variant
@@ -62,8 +67,7 @@ def plugin_class(name: str) -> type:
 
 def register() -> None:
     """Registers every plugin for the active variant (once per variant)."""
-    import mitsuba as mi  # noqa: PLC0415  importing this package must not load Dr.Jit (see renderer.variants)
-
+    mi = _mitsuba()
     variant = _active_variant()
     if variant in _registered:
         return

@@ -17,18 +17,17 @@ metadata (``notebooks_build``), and is written atomically.
 """
 from __future__ import annotations
 
+if __name__ == "__main__":  # first: ./.venv's Python, the libLLVM, then Dr.Jit (see core.launcher)
+    from core.launcher import start
+    start("python -m notebooks.build", "notebooks.build")
+
 import argparse
 import os
 import re
 import sys
+import tempfile
 import time
 from pathlib import Path
-
-if __name__ == "__main__":  # started by a Python without the project's packages: use ./.venv's
-    from core.launcher import use_project_python
-    use_project_python("python -m notebooks.build", "notebooks.build")
-
-import tempfile
 
 import nbformat
 from nbformat.v4 import new_code_cell, new_markdown_cell, new_notebook

@@ -22,9 +22,11 @@ import pickle
 import signal
 from contextlib import ExitStack
 
+import mitsuba as mi
 import numpy as np
 from tqdm import tqdm
 
+from converters.to_mitsuba import load_scene_dict
 from core.entry import hold_signals, native_start_up
 from renderer.variants import set_variant
 
@@ -64,9 +66,7 @@ def _start(pickled_description: bytes, variant: str) -> None:
     with native_start_up():
         set_variant(variant, quiet=True)
         description = pickle.loads(pickled_description)
-    import mitsuba as mi  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
 
-    from converters.to_mitsuba import load_scene_dict  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
 
     mi.set_log_level(mi.LogLevel.Error)  # not the scalar-performance warning, once per worker
     _description = description
@@ -74,8 +74,6 @@ def _start(pickled_description: bytes, variant: str) -> None:
 
 
 def _render_band(rows: tuple[int, int]):
-    import mitsuba as mi  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
-
     y0, y1 = rows
     sensor = dict(_description["sensor"])
     film = sensor["film"]

@@ -22,14 +22,16 @@ from pathlib import Path
 
 from converters.render_flags import DepthOutput, RenderJob
 from converters.scene_flags import with_scene_flags
-from core.entry import ArgumentParser, hold_signals, native_start_up, one_line, run
+from core.entry import ArgumentParser, one_line, run
 from core.errors import ToolkitError, UsageError, describe
 from core.inputs import NotAnInputFile, read_input
 from core.numbers import ascii_int
 from course import ENVIRONMENT as COURSE_ENVIRONMENT, data_dir, resolve_scene
 
 from . import checks
-from .variants import prepare_libllvm, set_variant
+from .job import render, with_outputs_in, write_outputs
+from .progress import RenderProgress
+from .variants import set_variant
 
 DEFAULT_SCENE = "showcase"
 #: The course binary's default image size (its -size)
@@ -128,7 +130,6 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _depth(values: list[str] | None):
-
     if values is None:
         return None
     try:
@@ -143,8 +144,6 @@ def _depth(values: list[str] | None):
 def jobs_from_args(args: argparse.Namespace) -> list:
     """The render jobs one command line asks for (checked: numbers here, limits
     and outputs in :func:`checked_jobs`)."""
-    from .job import with_outputs_in  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
-
     checks.check_numbers(args.size[0], args.size[1], args.bounces, args.spp)
     base = dict(width=args.size[0], height=args.size[1], bounces=args.bounces, shadows=args.shadows,
                 jitter=args.jitter, filter=args.filter, spp=args.spp, stats=args.stats)
@@ -307,7 +306,6 @@ def jobs_from_batch(parser: argparse.ArgumentParser, path: Path, memory: int | N
 def _write_and_report(result, preview: Preview | None, progress, variant: str) -> None:
     from imaging import colour, image_io  # noqa: PLC0415  NumPy loads on use: --help stays quick
 
-    from .job import write_outputs  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
 
     written = write_outputs(result)
     if preview is not None:
@@ -321,11 +319,6 @@ def _report(where: str, error: BaseException) -> str:
 
 
 def _run(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
-    prepare_libllvm(args.variant)  # first: the checks below import Mitsuba, which loads libLLVM
-    # a signal inside the import of Dr.Jit's extension aborts the process; --quiet: its start-up notices go
-    with hold_signals(), native_start_up(quiet=args.quiet):
-        import drjit  # noqa: F401, PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
-        import mitsuba  # noqa: F401, PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
     if args.batch:
         given = [flag for flag, value, default in (
             ("SCENE", args.scenes, []), ("-input", args.input, None), ("-size", args.size, list(DEFAULT_SIZE)),
@@ -345,8 +338,6 @@ def _run(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
         raise UsageError(f"{args.batch}: no line can be rendered ({len(errors)} bad)")
 
     variant = set_variant(args.variant, quiet=args.quiet)
-    from .job import render  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
-    from .progress import RenderProgress  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
 
     failed = len(errors)
     batch = bool(args.batch)

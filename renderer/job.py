@@ -6,6 +6,7 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
+import drjit as dr
 import mitsuba as mi
 import numpy as np
 
@@ -52,8 +53,6 @@ def render(job: RenderJob) -> RenderResult:
     pixels, whose centre is the output pixel's. Only the beauty is averaged
     (and filtered).
     """
-    import drjit as dr  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
-
     seconds = {}
     start = time.perf_counter()
     options = job.options()

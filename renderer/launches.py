@@ -21,6 +21,8 @@ from __future__ import annotations
 import math
 import time
 
+import drjit as dr
+import mitsuba as mi
 import numpy as np
 
 from core.entry import hold_signals
@@ -84,9 +86,6 @@ def render_in_launches(scene, spp: int, jitter: bool, seed: int = 0, launch_samp
     camera than the scene's. The integrator gets the sensor's sampler seeded
     per launch; ``whitted`` draws nothing from it.
     """
-    import drjit as dr  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
-    import mitsuba as mi  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
-
     sensor = sensor or scene.sensors()[0]
     width, height = (int(v) for v in sensor.film().size())
     pixels = width * height
@@ -154,9 +153,6 @@ def trace(scene, sensor, width: int, spp: int, jitter: bool, seed: int, ids: np.
           each: int) -> list:
     """Samples ``first .. first + each - 1`` of each pixel in ``ids``, RGB then
     AOVs, traced (not yet evaluated: ``dr.eval`` of them launches one kernel)."""
-    import drjit as dr  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
-    import mitsuba as mi  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
-
     with dr.suspend_grad():
         count = len(ids) * each
         index = dr.arange(mi.UInt32, count)

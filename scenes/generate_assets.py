@@ -18,6 +18,10 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
+if __name__ == "__main__":  # first: ./.venv's Python, the libLLVM, then Dr.Jit (see core.launcher)
+    from core.launcher import start
+    start("python -m scenes.generate_assets", "scenes.generate_assets")
+
 import numpy as np
 
 from imaging.colour import to_course_8bit

@@ -31,14 +31,15 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 # (the venv's editable install may name another checkout of the project)
 os.environ["PYTHONPATH"] = os.pathsep.join([str(ROOT), *filter(None, [os.environ.get("PYTHONPATH")])])
 
+# The first import, as every entry point's (core.launcher.start): the libLLVM is chosen before
+# anything imports Dr.Jit, since test modules (and what they import) import it at their top
+from core.libllvm import MIN_LLVM, prepare_libllvm  # noqa: E402
+
+_LIBLLVM = prepare_libllvm("pytest").library
+
 from course import ENVIRONMENT as COURSE_ENVIRONMENT, root as course_root  # noqa: E402
 from denoise.export.tasks import forget_loaded_scenes  # noqa: E402
 from renderer import variants  # noqa: E402
-
-# Point Dr.Jit at a usable LLVM before anything initialises its LLVM backend
-_LIBLLVM = variants.find_libllvm()
-if _LIBLLVM:
-    os.environ["DRJIT_LIBLLVM_PATH"] = _LIBLLVM
 
 #: no usable LLVM: image tests run on scalar_rgb (Python plugins, one ray at a
 #: time), at the smaller sizes they choose with this flag
@@ -61,7 +62,7 @@ def _set(variant: str) -> str:
     """Sets ``variant`` exactly (a test comparing two variants needs both): an
     ``llvm_*`` one without a usable libLLVM skips, with the reason."""
     if variant.startswith("llvm_") and _LIBLLVM is None:
-        pytest.skip(f"no libLLVM >= {variants.MIN_LLVM} for {variant}")
+        pytest.skip(f"no libLLVM >= {MIN_LLVM} for {variant}")
     variants.set_variant(variant, quiet=True)
     return variant
 

@@ -121,7 +121,7 @@ def test_the_live_server_logs_nothing_but_its_stop_line(tmp_path):
     import signal
     import time
 
-    from renderer.variants import find_libllvm
+    from core.libllvm import find_libllvm
 
     if find_libllvm() is None:
         pytest.skip("no usable libLLVM: the live page needs a JIT variant")

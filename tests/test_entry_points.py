@@ -237,37 +237,37 @@ def test_damaged_libllvm_falls_back_to_scalar_with_one_line(tmp_path, damaged_ll
 
 
 def test_a_garbage_libllvm_in_a_searched_folder_is_passed_over(tmp_path, monkeypatch, damaged_llvm):
-    from renderer import variants
+    from core import libllvm
 
-    if variants.find_libllvm() is None:
+    if libllvm.find_libllvm() is None:
         pytest.skip("no working libLLVM to prefer")
     garbage = tmp_path / "libLLVM-99.so"  # newest by name: the one picked without a probe
     garbage.write_bytes(os.urandom(4096))
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
     monkeypatch.delenv("DRJIT_LIBLLVM_PATH", raising=False)
-    monkeypatch.setattr(variants, "_SEARCH", (str(tmp_path / "libLLVM*.so*"), *variants._SEARCH))
-    library, notes = variants.choose_libllvm()
+    monkeypatch.setattr(libllvm, "SEARCH", (str(tmp_path / "libLLVM*.so*"), *libllvm.SEARCH))
+    library, notes = libllvm.choose_libllvm()
     assert library is not None and Path(library).resolve() != garbage.resolve()
     assert any(str(garbage) in note and "damaged" in note for note in notes)
-    assert variants.find_libllvm() == library
+    assert libllvm.find_libllvm() == library
 
 
 def test_probe_verdicts_are_cached(tmp_path, monkeypatch, damaged_llvm):
-    from renderer import variants
+    from core import libllvm
 
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
-    first = variants.probe_libllvm(str(damaged_llvm))
+    first = libllvm.probe_libllvm(str(damaged_llvm))
     assert first is not None and ("SIG" in first or "cannot" in first)
 
     def no_probe(*args, **kwargs):
         raise AssertionError("probed again")
 
-    monkeypatch.setattr(variants.subprocess, "run", no_probe)
-    assert variants.probe_libllvm(str(damaged_llvm)) == first
+    monkeypatch.setattr(libllvm.subprocess, "run", no_probe)
+    assert libllvm.probe_libllvm(str(damaged_llvm)) == first
     with open(damaged_llvm, "ab") as library:  # another file: probed again
         library.write(b"\0")
     with pytest.raises(AssertionError, match="probed again"):
-        variants.probe_libllvm(str(damaged_llvm))
+        libllvm.probe_libllvm(str(damaged_llvm))
 
 
 # -- the fuzzer ------------------------------------------------------------------------

@@ -45,7 +45,7 @@ def uninterrupted(tmp_path_factory):
     """The tiny sequence exported in one go, in this process."""
     from renderer import variants
 
-    variants.set_variant("llvm_ad_rgb" if variants.find_libllvm() else "scalar_rgb", quiet=True)
+    variants.set_variant(None, quiet=True)  # llvm_ad_rgb where usable
     target = tmp_path_factory.mktemp("whole") / "seq"
     assert export_tiny(target) == [0, 1]
     return target

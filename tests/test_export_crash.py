@@ -26,7 +26,7 @@ ROOT = Path(__file__).resolve().parent.parent
 CHILD = r"""
 import json, os, signal, sys
 from renderer import variants
-variants.set_variant("llvm_ad_rgb" if variants.find_libllvm() else "scalar_rgb", quiet=True)
+variants.set_variant(None, quiet=True)  # llvm_ad_rgb where usable
 from denoise.export.cli import main
 
 out = os.path.dirname(os.path.abspath(sys.argv[2]))
@@ -83,7 +83,7 @@ def uninterrupted(tmp_path_factory):
     """(the files of an uninterrupted run, the file operations it made)."""
     from renderer import variants
 
-    variants.set_variant("llvm_ad_rgb" if variants.find_libllvm() else "scalar_rgb", quiet=True)
+    variants.set_variant(None, quiet=True)  # llvm_ad_rgb where usable
     work = tmp_path_factory.mktemp("whole")
     finished = run_child(work, events=work / "events.json")
     assert finished.returncode == 0, finished.stderr

@@ -137,7 +137,7 @@ def _notebook(path):
 
 
 def write_json(path, data):
-    """What benchmarks.write_json does (tests run benchmarks only by their commands)."""
+    """What benchmarks.records.write_json does (tests run benchmarks only by their commands)."""
     from imaging.image_io import atomic_path  # noqa: PLC0415  only this writer's check needs it
 
     with atomic_path(path, ".json") as tmp:
@@ -155,7 +155,7 @@ def _section(path):
 
 
 #: The writers every benchmark's --json and --docs and notebooks.build call, by the file they write
-WRITERS = {"atomic_path (benchmarks.write_json)": ("r.json", _json),
+WRITERS = {"atomic_path (benchmarks.records.write_json)": ("r.json", _json),
            "core.markdown.replace_section": ("page.md", _section), "notebooks.build.write": ("n.ipynb", _notebook)}
 
 

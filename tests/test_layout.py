@@ -34,7 +34,7 @@ HOMES = {"relmse": "imaging/metrics.py", "flip_error": "imaging/metrics.py",
          "resolve_scene": "course/__init__.py", "course_camera_basis": "mi_plugins/camera_basis.py",
          "tone_map": "imaging/colour.py", "write_video": "imaging/image_io.py", "read_exr": "imaging/image_io.py",
          "ascii_int": "core/numbers.py", "ascii_float": "core/numbers.py", "read_input": "core/inputs.py",
-         "pixel_coordinates": "denoise/filters.py", "check_json": "benchmarks/__init__.py",
+         "pixel_coordinates": "denoise/filters.py", "check_json": "benchmarks/records.py",
          "replace_section": "core/markdown.py", "temporal_relmse": "denoise/temporal_metrics.py",
          "back_projected": "denoise/temporal_metrics.py", "stability": "denoise/temporal_metrics.py",
          "flip_heat_map": "imaging/metrics.py"}

@@ -94,7 +94,7 @@ def test_every_method_is_built_with_its_sliders(variant_llvm_ad_rgb):
 
 # -- a real server ---------------------------------------------------------------------
 def _needs_llvm():
-    from renderer.variants import find_libllvm
+    from core.libllvm import find_libllvm
 
     if find_libllvm() is None:
         pytest.skip("no usable libLLVM: the live page needs a JIT variant")

@@ -31,6 +31,8 @@ import math
 import time
 from pathlib import Path
 
+import drjit as dr
+import mitsuba as mi
 import numpy as np
 
 from converters.course_scene import load_scene
@@ -43,6 +45,7 @@ from converters.scene_variants import (
     without_background,
     without_ray_epsilon,
 )
+from converters.to_mitsuba import load_scene_dict
 from imaging.metrics import flip_error, relmse
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -74,11 +77,6 @@ def method_options(method: str, path: Path) -> dict:
 
 
 def render_timed(path: Path, size: int, spp: int, seed: int, options: dict) -> tuple[np.ndarray, float]:
-    import drjit as dr  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
-    import mitsuba as mi  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
-
-    from converters.to_mitsuba import load_scene_dict  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
-
     fields = {name: value for name, value in options.items() if name != "variants"}
     scene = load_scene_dict(apply(scene_dict(load_scene(path), RenderOptions(width=size, height=size, spp=spp,
                                                                             seed=seed, **fields)),

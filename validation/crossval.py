@@ -37,7 +37,10 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from statistics import NormalDist
 
+import drjit as dr
+import mitsuba as mi
 import numpy as np
+from mitsuba.chi2 import BSDFAdapter, ChiSquareTest, SphericalDomain
 
 from converters.course_scene import load_scene
 from converters.description import RenderOptions, scene_dict
@@ -49,6 +52,7 @@ from converters.scene_variants import (
     without_background,
     without_ray_epsilon,
 )
+from converters.to_mitsuba import load_scene_dict
 from imaging.metrics import relmse
 from renderer.variants import set_variant
 
@@ -86,8 +90,6 @@ def _phong(kd, ks, s, sampling="phong") -> dict:
 
 def chi2_case(kd: float, ks: float, shininess: float, theta: float, sample_count: int = 1_000_000) -> dict:
     """Mitsuba's chi-square test of the phong BSDF's sampling against its pdf."""
-    from mitsuba.chi2 import BSDFAdapter, ChiSquareTest, SphericalDomain  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
-
     wi = [math.sin(math.radians(theta)), 0.0, math.cos(math.radians(theta))]
     sample_func, pdf_func = BSDFAdapter("phong", _phong(kd, ks, shininess), wi=wi)
     # narrow lobes need a fine histogram and pdf quadrature (with a coarse one
@@ -103,9 +105,6 @@ def chi2_case(kd: float, ks: float, shininess: float, theta: float, sample_count
 def furnace_albedo(kd: float, ks: float, shininess: float, theta: float, samples: int = 1 << 20,
                    seed: int = 7) -> tuple[float, float]:
     """Monte Carlo directional albedo (mean, standard error) from the BSDF's own sampling."""
-    import drjit as dr  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
-    import mitsuba as mi  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
-
     bsdf = mi.load_dict(_phong(kd, ks, shininess))
     u = np.random.default_rng(seed).random((3, samples))
     wi = mi.Vector3f(math.sin(math.radians(theta)), 0.0, math.cos(math.radians(theta)))
@@ -214,10 +213,6 @@ def scene_paths(course: Path | None, quick: bool = False) -> list[Path]:
 def render(path: Path, size: int, variants=(), **options) -> np.ndarray:
     """Renders with the active variant; ``options`` are :class:`RenderOptions` fields,
     ``variants`` :mod:`converters.scene_variants` functions applied in order."""
-    import mitsuba as mi  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
-
-    from converters.to_mitsuba import load_scene_dict  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
-
     description = apply(scene_dict(load_scene(path), RenderOptions(width=size, height=size, **options)), variants)
     return np.array(mi.render(load_scene_dict(description)), np.float32)[..., :3]
 
@@ -247,8 +242,6 @@ def agreement(path: Path, bounces: int, spp: int, size: int) -> Agreement:
 def biased_whitted(fraction: float):
     """Fault injection: whitted's local shading scaled by ``1 + fraction`` (for the
     active variant) while the context lasts. A check with power fails under it."""
-    import mitsuba as mi  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
-
     if mi.variant() is None:
         set_variant(None, quiet=True)
     cls = type(mi.load_dict({"type": "whitted"}))
@@ -269,8 +262,6 @@ def run(course: Path | None, quick: bool, size: int | None = None, spps: list[in
         variant: str | None = None) -> dict:
     """All checks; ``size``/``spps``/``bounce_list``/``paths`` override the agreement's
     settings, ``bsdf=False`` skips the chi-square and furnace checks."""
-    import mitsuba as mi  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
-
     if variant is not None or mi.variant() is None:
         set_variant(variant, quiet=True)
     materials, angles = (QUICK_MATERIALS, QUICK_ANGLES) if quick else (MATERIALS, ANGLES)

@@ -30,10 +30,13 @@ from __future__ import annotations
 
 import math
 
+import drjit as dr
+import mitsuba as mi
 import numpy as np
 
 from converters.course_scene import parse_scene
 from converters.description import RenderOptions, scene_dict, view_scale
+from converters.to_mitsuba import load_scene_dict
 
 #: the course scene; materials 1 (the sphere) and light 0 are fitted
 SCENE = """
@@ -88,8 +91,6 @@ def scene_size() -> float:
 def make_scene(size: int):
     """The Mitsuba scene of :data:`SCENE` at ``size`` x ``size`` pixels, pixel
     centres, ray casting with shadows (the active variant must be a ``*_ad_*`` one)."""
-    from converters.to_mitsuba import load_scene_dict  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
-
     options = RenderOptions(width=size, height=size, spp=1, shadows=True, bounces=0, jitter=False)
     return load_scene_dict(scene_dict(parse_scene(SCENE), options))
 
@@ -115,9 +116,6 @@ def read_parameters(scene, params) -> dict:
 
 def write_parameters(scene, params, values: dict) -> None:
     """Sets the fitted parameters in ``params`` (``mi.traverse(scene)``) to ``values``."""
-    import drjit as dr  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
-    import mitsuba as mi  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
-
     kinds = {"diffuse": mi.Color3f, "specular": mi.Color3f, "exponent": mi.Float, "light": mi.Point3f}
     keys = parameter_keys(scene, params)
     for name, value in values.items():
@@ -129,8 +127,6 @@ def write_parameters(scene, params, values: dict) -> None:
 
 def render(scene, params=None, seed: int = 0) -> np.ndarray:
     """The scene's image (H, W, 3) as float32."""
-    import mitsuba as mi  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
-
     return np.array(mi.render(scene, params, spp=1, seed=seed), np.float32)[..., :3]
 
 
@@ -160,9 +156,6 @@ def fit_material_and_light(scene, target: np.ndarray, start: dict = START, itera
     values and returns the history: for steps 0 (``start``) to ``iterations``
     (the fitted values) the parameter values rendered and their ``loss``.
     ``progress(step)`` is called after each step."""
-    import drjit as dr  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
-    import mitsuba as mi  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
-
     params = mi.traverse(scene)
     write_parameters(scene, params, start)
     keys = parameter_keys(scene, params)

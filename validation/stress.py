@@ -15,16 +15,19 @@ import re
 import tempfile
 from pathlib import Path
 
+import mitsuba as mi
 import numpy as np
 
 from converters import transforms
 from converters.course_scene import load_scene, parse_scene
 from converters.description import RenderOptions, scene_dict
 from converters.model import PointLight
+from converters.to_mitsuba import load_scene_dict
 from core.errors import SceneError
 from imaging.colour import to_course_8bit
 from imaging.image_io import CUBE_FACES
 from imaging.metrics import TOLERANCE, bad_fraction
+from renderer.job import split_layers
 from validation.reference_tracer import ReferenceTracer
 from validation.stress_cases_inputs import contract_problems, run_render_cli
 from validation.stress_scene import DEFAULTS, Case, scene as base_scene
@@ -63,11 +66,6 @@ def scaled(scene, scale: float, offset: float):
 
 
 def _layers(scene, flags: dict) -> dict:
-    import mitsuba as mi  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
-
-    from converters.to_mitsuba import load_scene_dict  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
-    from renderer.job import split_layers  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
-
     width, height = flags.get("size", SIZE)
     options = RenderOptions(width=width, height=height, bounces=flags["bounces"], shadows=flags["shadows"],
                             aovs=("depth", "normal", "position", "albedo", "id"))

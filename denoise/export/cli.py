@@ -46,7 +46,7 @@ def _main(argv: list[str] | None) -> int:
     overrides = dict(frames=args.frames, size=tuple(args.size) if args.size else None, spp=args.spp,
                      reference_spp=args.reference_spp)
     specs = [(path.stem, Spec.load(path, **overrides)) for path in spec_paths]  # all checked before any work
-    variant = set_variant(args.variant, quiet=True)
+    variant = set_variant(args.variant)
     sequences = sequences_for(specs, out, args.data, args.whitted, args.batch_spp, variant)
     manifest = out / "dataset.json"
     done = export_sequences(sequences, args.force, args.scheduler, args.workers, args.local, manifest)

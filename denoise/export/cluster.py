@@ -26,6 +26,7 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 
 from core.errors import UsageError
+from core.libllvm import prepare_libllvm
 
 from .recorder import Recorder, progress_bar
 from .tasks import Task, run_task
@@ -62,6 +63,9 @@ def dask_client(scheduler: str | None = None, workers: int | None = None) -> Ite
             client = Client(scheduler, timeout="15s")
         except (OSError, TimeoutError) as error:
             raise UsageError(f"--scheduler {scheduler}: cannot reach a Dask scheduler there ({error})") from None
+        # its workers ran no entry point of ours: each chooses its libLLVM before a task (whose
+        # module imports Dr.Jit) reaches it; our LocalCluster's workers inherit this process's choice
+        client.run(prepare_libllvm)
         threads = None
     else:
         cores = os.cpu_count() or 1

@@ -6,6 +6,8 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
+import mitsuba as mi
+
 from core.errors import SpecError, UsageError
 from course import data_dir, resolve_scene
 
@@ -35,9 +37,6 @@ def sequences_for(specs: list[tuple[str, Spec]], out: Path, data: Path | None = 
                   batch_spp: int = DEFAULT_BATCH_SPP, variant: str | None = None) -> list[Sequence]:
     """One :class:`Sequence` per (name, spec); one spec writes ``out`` itself,
     several write ``out/<name>``. Scenes are loaded and checked here, before any work."""
-    # Mitsuba loads on first use: the command chooses the libLLVM before Dr.Jit starts
-    import mitsuba as mi  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
-
     if batch_spp < 1 or batch_spp > MAX_SPP:
         raise SpecError(f"--batch-spp: expected 1..{MAX_SPP}, found {batch_spp}")
     names = [name for name, _ in specs]

@@ -13,13 +13,17 @@ import time
 from collections import OrderedDict
 from pathlib import Path
 
+import drjit as dr
+import mitsuba as mi
 import numpy as np
 
 from converters.course_scene import load_scene
 from converters.description import RenderOptions, scene_dict
 from converters.model import Scene
 from converters.scene_variants import with_path_tracer, without_ambient
+from converters.to_mitsuba import load_scene_dict
 from core.entry import hold_signals
+from renderer.job import split_layers
 from renderer.variants import set_variant
 
 from ..frames import FrameData, camera_matrices, depth_range
@@ -63,10 +67,6 @@ def forget_loaded_scenes() -> None:
 def prepare_process(variant: str, threads: int | None) -> None:
     """Sets this process's Mitsuba variant and Dr.Jit thread count (None: keep)
     for the tasks it runs (a Dask worker's start-up, or this process's)."""
-    # Dr.Jit loads on first use: the command chooses the libLLVM (set_variant) before it starts
-    import drjit as dr  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
-    import mitsuba as mi  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
-
     if mi.variant() != variant:
         set_variant(variant, quiet=True)
     # Mitsuba's own warnings go to stdout; a render that Ctrl-C cancels says "winding down" there
@@ -88,11 +88,6 @@ def loaded_frame(sequence: Sequence, frame: int):
     frame, loaded once: the G-buffer integrator (whitted with AOVs) is the
     scene's own, the sensor ``sensor`` shoots through pixel centres and
     ``sensor_jittered`` at sub-pixel positions."""
-    # Mitsuba loads on first use (see prepare_process)
-    import mitsuba as mi  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
-
-    from converters.to_mitsuba import load_scene_dict  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
-
     cache_key = (mi.variant(), sequence.key, sequence.scene_path, frame)
     if cache_key in _LOADED:
         _LOADED.move_to_end(cache_key)
@@ -124,9 +119,6 @@ def render_held(mi_scene, integrator, sensor, spp: int, seed: int) -> np.ndarray
     float32 array. Ctrl-C makes Mitsuba cancel a render and return what it
     has: the signal is held until the render is back and raised then, before
     that image can be used."""
-    # Mitsuba loads on first use (see prepare_process)
-    import mitsuba as mi  # noqa: PLC0415  Mitsuba/Dr.Jit load only after set_variant has chosen the libLLVM
-
     with hold_signals():
         image = mi.render(mi_scene, integrator=integrator, sensor=sensor, spp=spp, seed=seed)
     return np.array(image, np.float32)
@@ -164,8 +156,6 @@ def worker_address() -> str:
 def run_task(task: Task) -> tuple[object, dict]:
     """Renders one task on :data:`RENDER_THREADS` Dr.Jit threads (the
     process's count restored after); returns (its result, its timing)."""
-    import drjit as dr  # noqa: PLC0415  loads on first use (see prepare_process)
-
     prepare_process(task.sequence.variant, task.threads)
     threads = dr.thread_count()
     pinned = RENDER_THREADS is not None and threads != RENDER_THREADS
@@ -180,8 +170,6 @@ def run_task(task: Task) -> tuple[object, dict]:
 
 def _render_task(task: Task) -> tuple[object, dict]:
     """Renders one task; returns (its result, its timing)."""
-    from renderer.job import split_layers  # noqa: PLC0415  loads Mitsuba: on first use (see prepare_process)
-
     start = time.perf_counter()
     sequence = task.sequence
     prepare_process(sequence.variant, task.threads)

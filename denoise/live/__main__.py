@@ -7,11 +7,11 @@ pan, wheel to dolly, Alt+drag to move the first point light.
 """
 from __future__ import annotations
 
-import sys
+if __name__ == "__main__":  # first: ./.venv's Python, the libLLVM, then Dr.Jit (see core.launcher)
+    from core.launcher import start
+    start("python -m denoise.live", "denoise.live")
 
-if __name__ == "__main__":  # started by a Python without the project's packages: use ./.venv's
-    from core.launcher import use_project_python
-    use_project_python("python -m denoise.live", "denoise.live")
+import sys
 
 from .app import main
 

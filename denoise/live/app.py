@@ -61,9 +61,7 @@ def _main(argv: list[str] | None) -> int:
 
     check_port(args.host, args.port)
     scene_path = resolve_scene(args.scene, data_dir(args.data))
-    variant = set_variant(args.variant, quiet=True)
-    if variant.startswith("scalar"):
-        raise UsageError(f"the live page needs a JIT variant (llvm_* or cuda_*), not {variant}")
+    variant = set_variant(args.variant, jit=True)
 
     mi_plugins.register()
     from .server import LiveServer, hello_message  # noqa: PLC0415  aiohttp after the checks: --help and errors stay quick
@@ -97,7 +95,3 @@ def main(argv: list[str] | None = None) -> int:
         sys.stderr.flush()
         os._exit(code)
     return code
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -8,6 +8,12 @@ subclass, imported here and passed to :func:`register` below.
 """
 from __future__ import annotations
 
+import sys
+
+if sys.argv[:1] == ["-m"]:  # first: `python -m denoise.methods` imports this before its __main__
+    from core.launcher import start_before_package
+    start_before_package(__name__)
+
 from core.errors import UsageError
 
 from ..filters import OutlierParams

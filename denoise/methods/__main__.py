@@ -2,6 +2,10 @@
 or (``--write``) make that page's generated part anew."""
 from __future__ import annotations
 
+if __name__ == "__main__":  # first: ./.venv's Python, the libLLVM, then Dr.Jit (see core.launcher)
+    from core.launcher import start
+    start("python -m denoise.methods", "denoise.methods")
+
 import argparse
 import sys
 
