@@ -3,7 +3,7 @@
     python -m benchmarks.asvgf_bounds [--work DIR] [--sequences NAME ...] [--json PATH] [--docs]
 
 A-SVGF's temporal gradient λ says where the history is out of date. asvgf
-estimates it from the history (:func:`denoise.asvgf.temporal_gradient`); the
+estimates it from the history (:func:`denoise.methods.asvgf.temporal_gradient`); the
 paper re-renders gradient samples. Either way the best a gradient can do is
 to be exact, and the ground truth gives the exact one: the relative change of
 the 3x3 box mean of the demodulated truth's luminance between a frame and its
@@ -47,13 +47,12 @@ from core import entry
 from core.entry import ArgumentParser
 from core.errors import UsageError
 from core.markdown import replace_section
-from denoise.asvgf import GRADIENT_FLOOR, ASVGFParams, asvgf, box_statistics, to_ycocg
 from denoise.export import reference_folder
 from denoise.filters import demodulate, remodulate
 from denoise.fit import prepare
 from denoise.frames import frame_indices, read_frame
 from denoise.methods import from_name
-from denoise.methods.asvgf import fitted
+from denoise.methods.asvgf import GRADIENT_FLOOR, ASVGFParams, asvgf, box_statistics, fitted, to_ycocg
 from imaging.metrics import relmse
 from renderer.variants import set_variant
 

@@ -61,8 +61,8 @@ from core.markdown import replace_section
 from denoise.export import Spec, export, reference_folder
 from denoise.frames import frame_indices, read_frame
 from denoise.methods import benchmark_names, from_name, resolve
+from denoise.methods.oidn import QUALITIES, oidn_version
 from denoise.methods.user import add_method_file_option, load_method_files
-from denoise.oidn import QUALITIES, oidn_version
 from denoise.temporal_metrics import stability, temporal_relmse
 from imaging.colour import side_by_side
 from imaging.image_io import read_exr_rgb as read_rgb, write_image, write_video

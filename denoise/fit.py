@@ -6,7 +6,7 @@
 
 The training sequences (default ``scenes/sequences/training/*.json``, none of
 them the benchmark's) are exported into ``--work`` once (a rerun renders
-nothing). Each step runs :func:`denoise.asvgf.asvgf` over every frame of
+nothing). Each step runs :func:`denoise.methods.asvgf.asvgf` over every frame of
 every sequence in ``llvm_ad_rgb`` with gradients enabled on the continuous
 parameters (the edge-stopping sigmas, the history lengths, both clip widths,
 the anti-lag gain and threshold, the wide level's history length), the
@@ -59,12 +59,11 @@ from imaging.metrics import relmse
 from renderer.bands import GROUP_SIGNALS
 from renderer.variants import set_variant
 
-from .asvgf import FilterValues, asvgf
 from .export import Spec, export, reference_folder
 from .filters import FrameArrays, demodulate, remodulate, reproject
 from .frames import frame_indices, read_frame
 from .methods import from_name, make
-from .methods.asvgf import FITTED_OPTIONS, fitted, hand_set
+from .methods.asvgf import FITTED_OPTIONS, FilterValues, asvgf, fitted, hand_set
 
 ROOT = Path(__file__).resolve().parent.parent
 TRAINING = sorted((ROOT / "scenes" / "sequences" / "training").glob("*.json"))

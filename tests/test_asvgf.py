@@ -163,7 +163,7 @@ def random_history(seed: int):
 def dr_history(history):
     import mitsuba as mi
 
-    from denoise.asvgf import ASVGFHistory
+    from denoise.methods.asvgf import ASVGFHistory
 
     fast, slow, moments, length = history
     return ASVGFHistory(mi.Vector3f(*[mi.Float(a) for a in fast.reshape(-1, 3).T.astype(np.float32)]),
@@ -193,7 +193,7 @@ def frame_of(c, n, x):
 def test_temporal_accumulation_matches_numpy(variant_vectorised_rgb, changes):
     import mitsuba as mi
 
-    from denoise.asvgf import FilterValues, temporal_accumulation
+    from denoise.methods.asvgf import FilterValues, temporal_accumulation
 
     p = params(**changes)
     c, n, x = synthetic(1)
@@ -211,7 +211,7 @@ def test_temporal_accumulation_matches_numpy(variant_vectorised_rgb, changes):
 def test_variance_matches_numpy(variant_vectorised_rgb):
     import mitsuba as mi
 
-    from denoise.asvgf import FilterValues, variance
+    from denoise.methods.asvgf import FilterValues, variance
 
     p = params()
     c, n, x = synthetic(3)
@@ -228,8 +228,8 @@ def test_variance_matches_numpy(variant_vectorised_rgb):
 def test_atrous_level_matches_numpy(variant_vectorised_rgb, step):
     import mitsuba as mi
 
-    from denoise.asvgf import FilterValues
-    from denoise.atrous_level import atrous_level
+    from denoise.methods.asvgf import FilterValues
+    from denoise.svgf_common import atrous_level
 
     p = params(normal_exponent=20.0)  # not a power of two: dr.power's path
     c, n, x = synthetic(5)
@@ -244,7 +244,7 @@ def test_atrous_level_matches_numpy(variant_vectorised_rgb, step):
 def test_whole_frames_match_numpy(variant_vectorised_rgb):
     import mitsuba as mi
 
-    from denoise.asvgf import asvgf
+    from denoise.methods.asvgf import asvgf
 
     p = params()
     c0, n, x = synthetic(7)
@@ -304,7 +304,7 @@ def test_a_given_gradient_replaces_the_estimate(variant_vectorised_rgb, forget):
     the frame and history look like."""
     import mitsuba as mi
 
-    from denoise.asvgf import FilterValues, temporal_accumulation
+    from denoise.methods.asvgf import FilterValues, temporal_accumulation
 
     p = params()
     c, n, x = synthetic(1)

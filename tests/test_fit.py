@@ -49,9 +49,8 @@ def loss_of(frames, values: dict, grad: bool = False):
     import drjit as dr
     import mitsuba as mi
 
-    from denoise.asvgf import FilterValues
     from denoise.fit import sequence_loss
-    from denoise.methods.asvgf import hand_set
+    from denoise.methods.asvgf import FilterValues, hand_set
 
     p = hand_set(levels=2, box_radius=2)
     floats = {**p.continuous(), **values}

@@ -284,6 +284,18 @@ def test_no_dates_or_issue_numbers_in_comments():
     assert diary_comments(ROOT) == []
 
 
+def method_basename_pairs(root: Path) -> list[str]:
+    """Modules elsewhere in ``denoise/`` named as a method module (a method is one file, with its kernels)."""
+    methods = {path.name for path in (root / "denoise" / "methods").glob("*.py") if not path.name.startswith("__")}
+    return sorted(path.relative_to(root).as_posix() for path in (root / "denoise").rglob("*.py")
+                  if path.name in methods and path.parent != root / "denoise" / "methods")
+
+
+def test_a_method_is_one_file():
+    """No kernel module beside the method module of the same name (denoise/svgf.py and denoise/methods/svgf.py)."""
+    assert method_basename_pairs(ROOT) == []
+
+
 def test_the_checks_find_planted_faults(tmp_path):
     """A cycle through a function-level import, an underscore import, a long file and a dated comment."""
     for package in GRAPH_PACKAGES + ("tests",):
@@ -294,6 +306,10 @@ def test_the_checks_find_planted_faults(tmp_path):
     (tmp_path / "denoise" / "_mid.py").write_text('"""Chosen in issue 7."""\n_secret = 1  # measured 2026-11-29\n')
     (tmp_path / "renderer" / "big.py").write_text("x = 1\n" * (MAX_LINES + 1))
     (tmp_path / "render.py").write_text("from renderer import big  # see issue 12\n")
+    (tmp_path / "denoise" / "methods").mkdir()
+    (tmp_path / "denoise" / "methods" / "svgf.py").write_text("")
+    (tmp_path / "denoise" / "svgf.py").write_text("")
+    assert method_basename_pairs(tmp_path) == ["denoise/svgf.py"]
     graph, private = import_graph(tmp_path)
     assert cycles(graph) == [["core.low", "denoise.high"]]
     assert private == ["denoise/high.py:2: denoise._mid._secret"]

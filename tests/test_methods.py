@@ -162,7 +162,7 @@ def test_oidn_quality_reaches_its_parameters(tmp_path, capsys):
     """``--oidn-quality`` is OIDNParams.quality (default high); a bad one is one line."""
     from core.errors import UsageError
     from denoise.__main__ import main
-    from denoise.oidn import OIDNParams
+    from denoise.methods.oidn import OIDNParams
 
     assert make("oidn").params == OIDNParams(quality="high")
     assert make("oidn-guided", oidn_quality="fast").params.quality == "fast"

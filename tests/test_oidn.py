@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from core.errors import FrameError, UsageError
-from denoise.oidn import OIDN, QUALITIES, OIDNParams
+from denoise.methods.oidn import OIDN, QUALITIES, OIDNParams
 
 
 def hdr_image(seed=0, level=20.0, h=48, w=64):

@@ -105,7 +105,7 @@ def svgf_ours(c, n, x, p, history=None, index=None, valid=None):
     import mitsuba as mi
 
     from denoise.filters import FrameArrays
-    from denoise.svgf import svgf
+    from denoise.methods.svgf import svgf
 
     frame = FrameArrays(*tensors(c, n, x))
     if index is not None:
@@ -155,7 +155,7 @@ def test_demodulation_round_trip_and_guard(variant_llvm_ad_rgb):
 
 @pytest.mark.parametrize("levels", [1, 3])
 def test_svgf_first_frame_matches_numpy(variant_llvm_ad_rgb, buffers, levels):
-    from denoise.svgf import SVGFParams
+    from denoise.svgf_common import SVGFParams
 
     c, n, x, _ = buffers
     p = SVGFParams(levels=levels, sigma_plane=0.3)
@@ -168,7 +168,7 @@ def test_svgf_first_frame_matches_numpy(variant_llvm_ad_rgb, buffers, levels):
 def test_svgf_with_history_matches_numpy(variant_llvm_ad_rgb, buffers):
     """Three frames with a random back projection: accumulation, history length,
     the switch from spatial to temporal variance (at 4 frames here, made 2 for the test)."""
-    from denoise.svgf import SVGFParams
+    from denoise.svgf_common import SVGFParams
 
     c, n, x, _ = buffers
     p = SVGFParams(levels=2, sigma_plane=0.3, variance_frames=2)
@@ -193,8 +193,8 @@ def test_svgf_check_fails_on_a_skipped_step(variant_llvm_ad_rgb, buffers, monkey
     (the NumPy reference keeps it) changes the result by far more than 1e-4."""
     import drjit as dr
 
-    import denoise.svgf as svgf_module
-    from denoise.svgf import SVGFParams
+    import denoise.methods.svgf as svgf_module
+    from denoise.svgf_common import SVGFParams
 
     c, n, x, _ = buffers
     p = SVGFParams(levels=3, sigma_plane=0.3)
@@ -211,7 +211,7 @@ def test_svgf_check_fails_on_a_skipped_step(variant_llvm_ad_rgb, buffers, monkey
 
 
 def test_svgf_denoises(variant_llvm_ad_rgb, buffers):
-    from denoise.svgf import SVGFParams
+    from denoise.svgf_common import SVGFParams
 
     c, n, x, _ = buffers
     ours, _, _ = svgf_ours(c, n, x, SVGFParams())
@@ -222,7 +222,7 @@ def test_svgf_levels_follow_the_width(variant_llvm_ad_rgb, buffers):
     """By default the footprint is the paper's fraction of the image: 5 levels at
     1280 pixels wide, 3 at 320, at least 1; the default run is the run with
     those levels, and a fixed 5 gives another image."""
-    from denoise.svgf import SVGFParams, levels_for
+    from denoise.svgf_common import SVGFParams, levels_for
 
     assert [levels_for(w) for w in (1280, 1920, 640, 320, 160, 40, 8)] == [5, 6, 4, 3, 2, 1, 1]
     c, n, x, _ = buffers

@@ -241,7 +241,7 @@ def light_animation(folder: Path) -> list[str]:
 # -- OIDN ----------------------------------------------------------------------------
 def oidn_odd_inputs(folder: Path) -> list[str]:
     from core.entry import run  # noqa: PLC0415  OIDN loads on use
-    from denoise.oidn import OIDN  # noqa: PLC0415  as above
+    from denoise.methods.oidn import OIDN  # noqa: PLC0415  as above
 
     oidn, problems = OIDN(), []
     rng = np.random.default_rng(2)

@@ -22,7 +22,7 @@ from denoise.filters import OutlierParams, TemporalParams, clamp_box
 from denoise.frames import FrameData, read_matrices, write_frame
 from denoise.methods import METHODS, make
 from denoise.pipeline import denoise_folder
-from denoise.svgf import SVGFParams
+from denoise.svgf_common import SVGFParams
 from imaging.image_io import write_exr
 
 H, W = 12, 16

@@ -13,7 +13,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from denoise.methods import DenoisingMethod, benchmark_names, method_names, resolve
-from denoise.svgf import levels_for
+from denoise.svgf_common import levels_for
 
 RAW = "raw"
 

@@ -1,18 +1,182 @@
-"""Intel Open Image Denoise as a method, after our temporal accumulation."""
+"""Intel Open Image Denoise 2 through ``pyoidn``, set up as its users set it
+up, and the method that runs it after our temporal accumulation.
+
+- ``hdr`` on: our beauty is linear radiance, often above 1;
+- ``albedo`` and ``normal`` auxiliary images when the frame has them, with
+  ``cleanAux`` (they are noise-free: the first hit through the pixel centre);
+- ``quality``: OIDN 2's ``fast``, ``balanced`` or ``high`` network;
+- one filter per image size (and set of auxiliary images), created and
+  committed once; a frame only copies into the shared buffers and executes
+  (:meth:`OIDN.execute` is the part worth timing).
+
+Negative radiance is clamped to 0 here, as HDR mode requires, and NaN or
+infinite values of any input are set to 0 (as
+:meth:`denoise.methods.base.DenoisingMethod.usable_frame` does before the
+filters): OIDN passes an infinite colour through to its output. An image
+narrower or lower than :data:`MIN_SIDE` pixels is denoised edge-padded to
+that size and cropped back: OIDN's network darkens a constant 1x1 image to
+0.18 (2x2: 0.74, 16x16: 1.00).
+"""
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass
 
 import mitsuba as mi
 import numpy as np
+import pyoidn
+
+from core.errors import FrameError, UsageError
 
 from ..filters import TemporalParams, accumulate
-from ..oidn import OIDN, QUALITIES, OIDNParams
 from .base import DenoisingMethod, Option, temporal_options, temporal_params
+
+#: images smaller than this on a side are denoised edge-padded to it
+MIN_SIDE = 16
+#: OIDN 2's quality modes by the names the command line uses
+QUALITIES = {"fast": pyoidn.OIDN_QUALITY_FAST, "balanced": pyoidn.OIDN_QUALITY_BALANCED,
+             "high": pyoidn.OIDN_QUALITY_HIGH}
+
+
+def oidn_version() -> str:
+    """The version of the OIDN library that pyoidn wraps, e.g. ``2.5.1``."""
+    return pyoidn.version.oidn_version
+
+
+@dataclass(frozen=True)
+class OIDNParams:
+    """OIDN's ``RT`` filter settings.
+
+    - ``hdr``: HDR mode (off clips the input to [0, 1]);
+    - ``clean_aux``: the auxiliary images are noise-free;
+    - ``use_albedo``, ``use_normal``: pass the frame's albedo / normals when it has them;
+    - ``quality``: ``fast``, ``balanced`` or ``high`` (:data:`QUALITIES`).
+    """
+    hdr: bool = True
+    clean_aux: bool = True
+    use_albedo: bool = True
+    use_normal: bool = True
+    quality: str = "high"
+
+    def __post_init__(self):
+        if self.quality not in QUALITIES:
+            raise UsageError(f"unknown OIDN quality {self.quality!r}; choose from {', '.join(QUALITIES)}")
+
+
+class OIDN:
+    """One OIDN CPU device and one committed ``RT`` filter per image size.
+
+    The filter reads from and writes to NumPy buffers it shares with us;
+    :meth:`set_inputs` copies a frame into them (committing a new filter
+    only when the size or the set of auxiliary images changes),
+    :meth:`execute` runs the network, :meth:`output` is the result."""
+
+    def __init__(self, params: OIDNParams = OIDNParams()):
+        self.params = params
+        self.device = pyoidn.Device()
+        self.device.commit()
+        self.check("creating the device")
+        self.filter: pyoidn.Filter | None = None
+        self.key = None
+        self.buffers: dict[str, np.ndarray] = {}
+        self.size = (0, 0)  # the last input's height and width (the buffers may be padded beyond it)
+
+    def check(self, operation: str) -> None:
+        """Raises the device's pending error, if any (OIDN reports errors there)."""
+        message = self.device.get_error()
+        if message is not None:
+            raise RuntimeError(f"OIDN failed {operation}: {message}")
+
+    def prepare(self, height: int, width: int, albedo: bool, normal: bool) -> None:
+        """Creates and commits the filter, once per size and set of auxiliary images."""
+        key = (height, width, albedo and self.params.use_albedo, normal and self.params.use_normal)
+        if key == self.key:
+            return
+        self.release_filter()
+        shape = (height, width, 3)
+        buffers = {"color": np.zeros(shape, np.float32)}
+        if key[2]:
+            buffers["albedo"] = np.zeros(shape, np.float32)
+        if key[3]:  # OIDN takes normals only together with albedo
+            buffers.setdefault("albedo", np.ones(shape, np.float32))
+            buffers["normal"] = np.zeros(shape, np.float32)
+        buffers["output"] = np.zeros(shape, np.float32)
+        self.filter = pyoidn.Filter(self.device, pyoidn.OIDN_FILTER_TYPE_RT)
+        for name, image in buffers.items():
+            self.filter.set_image(name, image, pyoidn.OIDN_FORMAT_FLOAT3)
+        self.filter.set_bool("hdr", self.params.hdr)
+        if len(buffers) > 2:
+            self.filter.set_bool("cleanAux", self.params.clean_aux)
+        self.filter.set_quality(QUALITIES[self.params.quality])
+        self.filter.commit()
+        self.check("committing the filter")
+        self.buffers, self.key = buffers, key
+
+    @property
+    def hdr(self) -> bool:
+        """The filter's ``hdr`` setting, as the library reports it."""
+        return self.filter.get_bool("hdr")
+
+    @property
+    def quality(self) -> str:
+        """The filter's ``quality`` setting, as the library reports it."""
+        value = self.filter.get_int("quality")
+        return next((name for name, q in QUALITIES.items() if q == value), str(value))
+
+    def set_inputs(self, color: np.ndarray, albedo: np.ndarray | None = None,
+                   normal: np.ndarray | None = None) -> None:
+        """Copies a frame (``(H, W, 3)`` arrays) into the filter's buffers."""
+        if color.ndim != 3 or color.shape[2] != 3 or 0 in color.shape:
+            raise FrameError(f"OIDN needs a non-empty (height, width, 3) colour image, got shape {color.shape}")
+        for name, image in (("albedo", albedo), ("normal", normal)):
+            if image is not None and image.shape != color.shape:
+                raise FrameError(f"OIDN: the {name} image has shape {image.shape}, the colour {color.shape}")
+        height, width = color.shape[:2]
+        self.size = (height, width)
+        self.prepare(max(height, MIN_SIDE), max(width, MIN_SIDE), albedo is not None, normal is not None)
+
+        rows, columns = self.buffers["color"].shape[0] - height, self.buffers["color"].shape[1] - width
+
+        def padded(image: np.ndarray) -> np.ndarray:
+            if not np.isfinite(image).all():
+                image = np.where(np.isfinite(image), image, 0.0)
+            return np.pad(image, ((0, rows), (0, columns), (0, 0)), mode="edge") if rows or columns else image
+
+        np.maximum(padded(color), 0.0, out=self.buffers["color"])
+        if albedo is not None and self.key[2]:
+            np.clip(padded(albedo), 0.0, 1.0, out=self.buffers["albedo"])
+        if normal is not None and self.key[3]:
+            np.copyto(self.buffers["normal"], padded(normal))
+
+    def execute(self) -> None:
+        self.filter.execute()
+        self.check("executing the filter")
+
+    def output(self) -> np.ndarray:
+        height, width = self.size
+        return self.buffers["output"][:height, :width].copy()
+
+    def __call__(self, color: np.ndarray, albedo: np.ndarray | None = None,
+                 normal: np.ndarray | None = None) -> np.ndarray:
+        self.set_inputs(color, albedo, normal)
+        self.execute()
+        return self.output()
+
+    def release_filter(self) -> None:
+        if self.filter is not None:
+            self.filter.release()
+            self.filter, self.key = None, None
+
+    def __del__(self):
+        try:
+            self.release_filter()
+            self.device.release()
+        except Exception:
+            pass
 
 
 class OIDNMethod(DenoisingMethod):
-    """Intel Open Image Denoise (:mod:`denoise.oidn`; HDR, the frame's albedo and
+    """Intel Open Image Denoise (:class:`OIDN` above; HDR, the frame's albedo and
     normals as clean auxiliary images, one filter committed per image size).
     With ``temporal``, the input is first accumulated with the back-projected
     history clamped to its 7x7 mean ± k sigma, and OIDN denoises the

@@ -1,0 +1,197 @@
+"""What ``svgf`` and ``asvgf`` share: SVGF's parameters, the variance of a
+short history, the number of levels, and one edge-avoiding À-Trous level.
+
+A level filters colour and variance with the B3-spline kernel ``B3 x B3``
+with holes ``step`` (Schied et al. 2017, Eq. 1-5): each tap weighs by its
+luminance difference over the 3x3-blurred standard deviation at the centre
+(``sigma_luminance``), by ``max(0, n·n')^normal_exponent`` and by the distance
+of its position from the centre's tangent plane (``sigma_plane``); the
+variance is filtered with the squared weights. The parameters come from any
+object with those three attributes, as Python floats (``SVGFParams``, a
+method's options) or as Dr.Jit Floats whose gradients the fit tracks
+(``denoise.methods.asvgf.FilterValues``).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import drjit as dr
+import mitsuba as mi
+
+from core.errors import UsageError
+
+from .filters import (
+    B3,
+    FrameArrays,
+    check_positive,
+    check_whole,
+    inv_two_sigma_sq,
+    luminance,
+    neg_exp,
+    plane_distance_sq,
+)
+
+GAUSS3 = (0.25, 0.5, 0.25)
+EPSILON = 1e-10
+
+
+@dataclass(frozen=True)
+class SVGFParams:
+    """SVGF's parameters: the paper's, except ``alpha_color`` and ``levels`` (see there).
+    ``levels``, ``sigma_luminance`` and ``normal_exponent`` are the method's
+    options (:class:`denoise.methods.svgf.SVGF` declares and checks them)."""
+    levels: int | None = None  # None: levels_for(width), the paper's 5 at 1280 pixels wide
+    sigma_luminance: float = 4.0
+    normal_exponent: float = 128.0  # exponent of max(0, n·n')
+    sigma_plane: float = 0.1
+    # the current frame's weight in the colour history: 0.3, not the paper's 0.2, because
+    # our sequences move several pixels per frame and a moving shadow's history goes stale
+    # sooner (measured in docs/denoising_methods.md)
+    alpha_color: float = 0.3
+    alpha_moments: float = 0.2
+    variance_frames: int = 4  # below this history length the variance is estimated spatially
+    spatial_radius: int = 3  # 7x7
+    feedback_level: int = 0  # the level whose output becomes the next frame's history
+
+    def __post_init__(self):
+        check_positive("svgf", sigma_plane=self.sigma_plane)
+        for name in ("alpha_color", "alpha_moments"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and 0.0 < value <= 1.0):
+                raise UsageError(f"svgf: {name} must be in (0, 1], got {value!r}")
+        check_whole("svgf", "variance_frames", self.variance_frames, 1, 64)
+        check_whole("svgf", "spatial_radius", self.spatial_radius, 1, 16)
+        check_whole("svgf", "feedback_level", self.feedback_level, 0, (self.levels or 12) - 1)
+
+
+#: the paper's setting: 5 levels on 1280x720 frames
+PAPER_LEVELS, PAPER_WIDTH = 5, 1280
+
+
+def levels_for(width: int) -> int:
+    """À-Trous levels whose footprint is the same fraction of the image as the
+    paper's 5 levels at 1280 pixels wide: one level fewer per halving of the
+    width (3 at 320 wide). A footprint fixed in pixels reaches across a small
+    image's shadows and silhouettes (measured in docs/denoising_methods.md)."""
+    return max(1, min(12, PAPER_LEVELS + round(math.log2(width / PAPER_WIDTH))))
+
+
+def plane_log_weight(k_plane: float, normal_p: mi.Vector3f, position_p: mi.Vector3f,
+                     position_q: mi.Vector3f) -> mi.Float:
+    return plane_distance_sq(normal_p, position_p, position_q) * k_plane
+
+
+def estimate_variance(frame: FrameArrays, moments: mi.Vector2f, length: mi.Float, p: SVGFParams) -> mi.Float:
+    """Variance from the temporal moments, or from 7x7 spatial moments while
+    the history is short. The spatial estimate runs only on the pixels that
+    need it (compressed to a list: after the first frames, disocclusions)."""
+    temporal = dr.maximum(moments.y - moments.x * moments.x, 0.0)
+    packed = dr.ravel(moments)
+    dr.eval(packed, length, temporal)
+    short = dr.compress(length < p.variance_frames)
+    if dr.width(short) == 0:
+        return temporal
+    cx, cy = dr.gather(mi.Int32, frame.x, short), dr.gather(mi.Int32, frame.y, short)
+    normal = dr.gather(mi.Vector3f, frame.normal, short)
+    position = dr.gather(mi.Vector3f, frame.position, short)
+    k_plane = inv_two_sigma_sq(p.sigma_plane)
+    total, weights = mi.Vector2f(0.0), mi.Float(0.0)
+    r = p.spatial_radius
+    for dy in range(-r, r + 1):
+        for dx in range(-r, r + 1):
+            x, y = cx + dx, cy + dy
+            inside = (x >= 0) & (x < frame.width) & (y >= 0) & (y < frame.height)
+            j = mi.UInt32(dr.clip(y, 0, frame.height - 1) * frame.width + dr.clip(x, 0, frame.width - 1))
+            m = dr.gather(mi.Vector2f, packed, j)  # clamped, unmasked: outside taps weigh 0
+            if dx == 0 and dy == 0:
+                w = mi.Float(1.0)
+            else:
+                n_q, x_q = frame.gather_guides(x, y)
+                w = normal_power(dr.dot(normal, n_q), p.normal_exponent) * neg_exp(
+                    plane_log_weight(k_plane, normal, position, x_q))
+                w = dr.select(inside, w, 0.0)
+            total += w * m
+            weights += w
+    spatial_moments = total / weights
+    spatial = dr.maximum(spatial_moments.y - spatial_moments.x * spatial_moments.x, 0.0) * (
+        p.variance_frames / dr.gather(mi.Float, length, short))
+    spread = dr.zeros(mi.Float, dr.width(temporal))
+    dr.scatter(spread, spatial, short)
+    dr.eval(spread)
+    return dr.select(length < p.variance_frames, spread, temporal)
+
+
+def normal_power(cosine: mi.Float, exponent: float) -> mi.Float:
+    """``max(0, cosine)^exponent``; a power of two as repeated squaring (exact
+    enough and cheaper than exp/log)."""
+    x = dr.maximum(cosine, 0.0)
+    e = float(exponent)
+    if e >= 1 and e == int(e) and (int(e) & (int(e) - 1)) == 0:
+        for _ in range(int(e).bit_length() - 1):
+            x = x * x
+        return x
+    return dr.select(x > 0.0, dr.power(x, e), 0.0)
+
+
+def normal_weight(cosine: mi.Float, exponent) -> mi.Float:
+    """``max(0, cosine)^exponent``: :func:`normal_power` for a Python number, else ``dr.power``."""
+    if not dr.is_array_v(exponent):
+        return normal_power(cosine, exponent)
+    x = dr.maximum(cosine, 0.0)
+    return dr.select(x > 0.0, dr.power(dr.select(x > 0.0, x, 1.0), exponent), 0.0)
+
+
+def plane_factor(sigma_plane) -> object:
+    """``1 / (2 sigma²)`` of the plane weight, for a Python number or a Dr.Jit Float."""
+    if not dr.is_array_v(sigma_plane):
+        return inv_two_sigma_sq(sigma_plane)
+    return 1.0 / dr.maximum(2.0 * sigma_plane * sigma_plane, 1e-30)
+
+
+def blurred_variance(frame: FrameArrays, variance: mi.Float) -> mi.Float:
+    """The 3x3 Gaussian of the variance at each pixel (edges clamped)."""
+    blurred = GAUSS3[1] * GAUSS3[1] * variance  # the centre's own (no gather)
+    for dy in (-1, 0, 1):
+        for dx in (-1, 0, 1):
+            if dx == 0 and dy == 0:
+                continue
+            x = dr.clip(frame.x + dx, 0, frame.width - 1)
+            y = dr.clip(frame.y + dy, 0, frame.height - 1)
+            blurred += GAUSS3[dx + 1] * GAUSS3[dy + 1] * dr.gather(mi.Float, variance, mi.UInt32(y * frame.width + x))
+    return blurred
+
+
+def atrous_level(frame: FrameArrays, color: mi.Vector3f, variance: mi.Float, step: int, p
+                 ) -> tuple[mi.Vector3f, mi.Float]:
+    """One level with holes ``step``; ``p`` has ``sigma_luminance``,
+    ``normal_exponent`` and ``sigma_plane`` (see the module). Returns the
+    filtered colour and variance."""
+    packed = dr.ravel(mi.Vector4f(color.x, color.y, color.z, variance))
+    dr.eval(packed, variance)  # the 3x3 blur gathers the variance alone
+    k_plane = plane_factor(p.sigma_plane)
+    scale = -1.0 / (p.sigma_luminance * dr.sqrt(dr.maximum(blurred_variance(frame, variance), 0.0)) + EPSILON)
+    lum_p = luminance(color)
+    total, weights, total_var = mi.Vector3f(0.0), mi.Float(0.0), mi.Float(0.0)
+    for j, hy in enumerate(B3):
+        for i, hx in enumerate(B3):
+            dx, dy = (i - 2) * step, (j - 2) * step
+            if dx == 0 and dy == 0:  # the centre: weight 1 times the kernel's, its own values (no gather)
+                total += hx * hy * color
+                weights += hx * hy
+                total_var += hx * hy * hx * hy * variance
+                continue
+            x, y = frame.x + dx, frame.y + dy
+            inside = (x >= 0) & (x < frame.width) & (y >= 0) & (y < frame.height)
+            q = dr.gather(mi.Vector4f, packed, mi.UInt32(dr.clip(y, 0, frame.height - 1) * frame.width
+                                                         + dr.clip(x, 0, frame.width - 1)))
+            c_q = mi.Vector3f(q.x, q.y, q.z)
+            n_q, x_q = frame.gather_guides(x, y)
+            log_w = (dr.abs(lum_p - luminance(c_q)) * scale
+                     - plane_distance_sq(frame.normal, frame.position, x_q) * k_plane)
+            w = hx * hy * normal_weight(dr.dot(frame.normal, n_q), p.normal_exponent) * neg_exp(-log_w)
+            w = dr.select(inside, w, 0.0)
+            total += w * c_q
+            weights += w
+            total_var += w * w * q.w
+    return total / weights, total_var / (weights * weights)
