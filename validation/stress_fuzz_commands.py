@@ -4,7 +4,10 @@
 ``denoise.export``, ``denoise.score``, ``denoise.fit``, ``denoise.live``,
 ``denoise.methods`` and ``course.score`` from a vocabulary of their flags,
 numbers that are fine, odd or absurd, and paths that are fine, missing,
-damaged or of the wrong kind, and runs each command's ``main`` in-process in
+damaged or of the wrong kind (a method file among them, and a broken one).
+Besides the flags listed here, every flag a command's ``--help`` shows is
+drawn (:func:`help_flags`), so that an option added later is fuzzed too. It
+runs each command's ``main`` in-process in
 a scratch folder. Each must end in exit 0 (``course.score``: 0 or 1, its
 verdict), or exit 2 with one ``PROG: error:`` line; never a traceback or
 another exception. What a command would do for long is kept short:
@@ -18,6 +21,7 @@ import contextlib
 import io
 import json
 import os
+import re
 import socket
 import tempfile
 from pathlib import Path
@@ -30,7 +34,21 @@ TINY = {"scene": "lamps", "frames": 2, "size": [12, 8], "spp": 1, "reference_spp
 COMMON = ["0", "1", "2", "-1", "3", "1e9", "nan", "inf", "x", "", "-", "--", "--help", "10001", "4294967296",
           "seq", "seq_reference", "den", "missing", "dir", "file.txt", "tiny.json", "bad.json", "empty.json",
           "damaged", "pngs", "out", "new/out", "é", "s.json", "s.png", "r.md", "r.png", "p.json",
-          "--variant", "scalar_rgb", "nope_rgb"]
+          "--variant", "scalar_rgb", "nope_rgb", "mine.py", "broken.py", "cross-bilateral"]
+#: flags a command's --help shows that the fuzzer must not draw (they write into the checkout)
+NEVER = {"--write"}
+#: a method of one's own (docs/own_method.md's shape) and a file that is none
+METHOD_FILE = """from denoise.methods import DenoisingMethod, Option
+
+
+class CrossBilateral(DenoisingMethod):
+    name = "cross-bilateral"
+    description = "a method file of the fuzzer's"
+    options = (Option("window", 1, "half width", kind=int, low=1, high=3, step=1, group="cross-bilateral"),)
+
+    def filter(self, arrays, frame):
+        return arrays.color
+"""
 #: per command: its program name, its flags, and a valid start that the drawn words extend or override
 COMMANDS = {
     "denoise": ("python -m denoise", ["--method", "atrous", "svgf", "asvgf", "oidn", "oidn-guided", "bilateral",
@@ -71,6 +89,8 @@ def _scratch() -> tuple[Path, Path]:
     (folder / "file.txt").write_text("x")
     (folder / "damaged").mkdir()
     (folder / "damaged" / "beauty_0.exr").write_bytes(b"v/1\x01 not an EXR")
+    (folder / "mine.py").write_text(METHOD_FILE)
+    (folder / "broken.py").write_text("class A(:\n    pass\n")
     (folder / "pngs").mkdir()
     write_image(folder / "pngs" / "a01.png", np.zeros((6, 8, 3), np.uint8))
     with contextlib.redirect_stdout(io.StringIO()):
@@ -90,6 +110,17 @@ def _main_of(command: str):
     module = {"denoise": "denoise.__main__", "denoise.export": "denoise.export.cli",
               "denoise.live": "denoise.live.app", "denoise.methods": "denoise.methods.__main__"}.get(command, command)
     return importlib.import_module(module).main
+
+
+def help_flags(main) -> list[str]:
+    """Every ``--flag`` that ``main(["--help"])`` prints, less :data:`NEVER` and ``--help``."""
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(io.StringIO()):
+        try:
+            main(["--help"])
+        except SystemExit:
+            pass
+    return sorted(set(re.findall(r"(?<![\w-])--[a-z][a-z0-9-]*", out.getvalue())) - NEVER - {"--help"})
 
 
 def contract_problems(prog: str, code, stderr: str, verdicts=(0,)) -> list[str]:
@@ -141,11 +172,15 @@ def fuzz_commands(examples: int) -> int:
     runs = [0]
     common = settings(max_examples=examples, deadline=None, database=None, derandomize=True,
                       suppress_health_check=list(HealthCheck))
+    from denoise.live.methods import refresh  # noqa: PLC0415  as above
+    from denoise.methods import METHODS  # noqa: PLC0415  as above
+
+    registered = dict(METHODS)  # --method-file registers in this process: restored below
     try:
         for command, (prog, flags, first) in COMMANDS.items():
             last = ["--port", str(busy.getsockname()[1])] if command == "denoise.live" else []
             check = _checker(folder, command, prog, [*first, "{words}", *last], runs)
-            words = COMMON + flags
+            words = COMMON + flags + [f for f in help_flags(_main_of(command)) if f not in flags]
             options = [w for w in words if w.startswith("--") and w not in ("--", "--help")]
             values = [w for w in words if not w.startswith("--")]
             own = st.sampled_from([w for w in flags if not w.startswith("-")] or values)
@@ -157,4 +192,7 @@ def fuzz_commands(examples: int) -> int:
             common(given(draws.map(lambda d: [w for pair in d[0] for w in pair] + d[1]))(check))()
     finally:
         busy.close()
+        METHODS.clear()
+        METHODS.update(registered)
+        refresh()
     return runs[0]
