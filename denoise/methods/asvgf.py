@@ -1,17 +1,19 @@
 """A-SVGF-style filtering that does not lag, as a method, and its fitted parameters."""
 from __future__ import annotations
 
-import json
 from dataclasses import replace
 from pathlib import Path
 
 from core.errors import UsageError
+from core.json_input import JSONInputError, read_json
 
 from ..asvgf import ASVGFParams, asvgf
 from .base import DenoisingMethod, Option, edge_options, levels_option
 
 #: the fitted parameters (written by ``python -m denoise.fit``), asvgf's defaults where given
 PARAMETER_FILE = Path(__file__).resolve().parents[1] / "asvgf_params.json"
+#: the largest parameter file read, in bytes
+MAX_PARAMETER_BYTES = 64 << 10
 
 
 def _fitted(key: str, default: float, help: str, low: float, high: float, **more) -> Option:
@@ -48,9 +50,9 @@ def load_parameter_file(path: Path | None = None) -> dict[str, float]:
         return {}
     options = {o.key: o for o in FITTED_OPTIONS}
     try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, ValueError, RecursionError) as error:
-        raise UsageError(f"{path}: not a JSON parameter file ({str(error)[:200]})") from None
+        data = read_json(path, MAX_PARAMETER_BYTES)
+    except JSONInputError as error:
+        raise UsageError(f"{error} (a JSON parameter file)") from None
     values = data.get("parameters") if isinstance(data, dict) else None
     if not isinstance(values, dict) or set(values) - set(options):
         raise UsageError(f"{path}: expected {{\"parameters\": {{NAME: number}}}} with names from {', '.join(options)}")

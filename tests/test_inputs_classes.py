@@ -1,0 +1,88 @@
+"""The outside round's input classes (issue 30): every JSON input read by one
+reader with limits and one error shape."""
+from __future__ import annotations
+
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from core.errors import SpecError, UsageError
+from denoise.export.spec import Spec
+from denoise.methods.asvgf import load_parameter_file
+
+ROOT = Path(__file__).resolve().parents[1]
+GOOD = '{"scene": "box", "frames": 4, "lights": {"0": {"scale": 2}}}'
+
+#: name -> (the file's bytes, what the one-line error says)
+DAMAGED = {
+    "utf-16": (GOOD.encode("utf-16"), "UTF-16"),
+    "latin-1": (GOOD.replace("box", "b\u00f6x").encode("latin-1"), "not UTF-8"),
+    "5000 digits": (GOOD.replace('"frames": 4', '"frames": ' + "9" * 5000).encode(), "5000 digits"),
+    "deep": (GOOD.replace('"frames": 4', '"frames": ' + "[" * 100000 + "]" * 100000).encode(), "nested"),
+    "key twice": (GOOD.replace('"0": {"scale": 2}', '"0": {"scale": 2}, "0": {"scale": 3}').encode(),
+                  'key "0" given twice'),
+    "too large for a float": (GOOD.replace("2}", "1e999}").encode(), "too large for a float"),
+    "NaN": (GOOD.replace("2}", "NaN}").encode(), "NaN"),
+    "megabytes": (GOOD.replace("box", "x" * (2 << 20)).encode(), "larger than"),
+    "lone surrogate": (GOOD.replace("box", "\\ud800").encode(), "surrogate"),
+}
+
+
+@pytest.mark.parametrize("name", DAMAGED)
+def test_a_damaged_spec_is_one_spec_error_naming_the_file(tmp_path, name):
+    data, words = DAMAGED[name]
+    path = tmp_path / "spec.json"
+    path.write_bytes(data)
+    with pytest.raises(SpecError) as error:
+        Spec.load(path)
+    assert str(error.value).startswith(f"{path}: ") and words in str(error.value)
+    assert "\n" not in str(error.value)
+
+
+@pytest.mark.parametrize("name", DAMAGED)
+def test_a_damaged_parameter_file_is_one_usage_error(tmp_path, name):
+    data, words = DAMAGED[name]
+    text = data.replace(b'"scene": "box", ', b'"parameters": {"slow_frames": 4}, "scene": "box", ') \
+        if name not in ("utf-16",) else '{"parameters": {"slow_frames": 4}}'.encode("utf-16")
+    path = tmp_path / "asvgf_params.json"
+    path.write_bytes(text)
+    with pytest.raises(UsageError) as error:
+        load_parameter_file(path)
+    assert str(error.value).startswith(f"{path}: ") and "\n" not in str(error.value)
+
+
+WRONG_TYPES = {
+    "size of strings": ('{"scene": "box", "size": ["a", "b"]}', "size[0]"),
+    "light frames of a string": ('{"scene": "box", "lights": {"0": {"scale": 1, "frames": "ab"}}}',
+                                 "lights.0.frames"),
+    "objects a list": ('{"scene": "box", "objects": [1]}', "objects"),
+    "scale a string": ('{"scene": "box", "lights": {"0": {"scale": "2"}}}', "lights.0.scale"),
+}
+
+
+@pytest.mark.parametrize("name", WRONG_TYPES)
+def test_a_value_of_the_wrong_type_names_its_key(tmp_path, name):
+    text, key = WRONG_TYPES[name]
+    path = tmp_path / "spec.json"
+    path.write_text(text)
+    with pytest.raises(SpecError, match=re.escape(f"{path}: {key}")):
+        Spec.load(path)
+
+
+def test_a_damaged_parameter_file_leaves_other_methods_alone(tmp_path):
+    """`--method svgf` does not read asvgf_params.json; `--method asvgf` says the file in one line."""
+    params = ROOT / "denoise" / "asvgf_params.json"
+    saved = params.read_bytes()
+    try:
+        params.write_bytes(b'{"parameters": {"slow_frames": 4, "slow_frames": 5}}')
+        code = ("from denoise.methods import make; make('svgf'); "
+                "import denoise.methods.asvgf as a; print(a.ASVGF.name)")
+        done = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=120)
+        assert done.returncode == 0, done.stderr
+        with pytest.raises(UsageError, match="given twice"):
+            load_parameter_file()
+    finally:
+        params.write_bytes(saved)
