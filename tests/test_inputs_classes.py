@@ -1,4 +1,4 @@
-"""The outside round's input classes (issue 30): every JSON input read by one
+"""The outside round's input classes: every JSON input read by one
 reader with limits and one error shape."""
 from __future__ import annotations
 
