@@ -41,7 +41,7 @@ from renderer.checks import check_writable
 from renderer.variants import set_variant
 from validation.metrics import flip_error, relmse, stability, temporal_relmse
 
-from .frames import frame_indices, read_frame
+from .frames import frame_indices, missing_between, read_frame
 from .methods import from_name
 from .methods.user import add_method_file_option, load_method_files
 from .pipeline import check_folder
@@ -121,10 +121,10 @@ def reference_indices(reference: Path) -> list[int]:
 
 def check_consecutive(reference: Path, indices: list[int]) -> None:
     """The temporal figures compare each frame with the one before: no frame may be missing between."""
-    gaps = [i for i in range(indices[0], indices[-1]) if i not in set(indices)]
-    if gaps:
+    gap = missing_between(indices)
+    if gap:
         raise FrameError(f"--reference {reference}: frames {indices[0]}..{indices[-1]} without "
-                         f"beauty_{gaps[0]}.exr{f' (and {len(gaps) - 1} more)' if len(gaps) > 1 else ''}; "
+                         f"beauty_{gap[0]}.exr{f' (and {gap[1] - 1} more)' if gap[1] > 1 else ''}; "
                          "the temporal figures (--frames) need consecutive frames")
 
 

@@ -5,13 +5,17 @@ from __future__ import annotations
 import re
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
 
-from core.errors import SpecError, UsageError
+from core.errors import FrameError, SpecError, UsageError
 from denoise.export.spec import Spec
+from denoise.frames import frame_indices
 from denoise.methods.asvgf import load_parameter_file
+from denoise.pipeline import check_folder
+from denoise.score import check_consecutive
 
 ROOT = Path(__file__).resolve().parents[1]
 GOOD = '{"scene": "box", "frames": 4, "lights": {"0": {"scale": 2}}}'
@@ -86,3 +90,24 @@ def test_a_damaged_parameter_file_leaves_other_methods_alone(tmp_path):
             load_parameter_file()
     finally:
         params.write_bytes(saved)
+
+
+FAR_APART = (0, 10 ** 12)
+
+
+def test_frame_numbers_far_apart_are_read_sparse(tmp_path):
+    """beauty_0 and beauty_10^12: one line naming the first missing file, at once (no list of the gap)."""
+    for index in FAR_APART:
+        (tmp_path / f"beauty_{index}.exr").write_bytes(b"")
+    start = time.perf_counter()
+    with pytest.raises(FrameError, match=re.escape(f"without {tmp_path / 'beauty_1.exr'} (and {10 ** 12 - 2} more")):
+        check_folder(tmp_path)
+    with pytest.raises(FrameError, match=re.escape("without beauty_1.exr (and")):
+        check_consecutive(tmp_path, frame_indices(tmp_path))
+    assert time.perf_counter() - start < 1.0
+
+
+def test_a_frame_number_too_long_for_an_integer_is_one_line(tmp_path):
+    (tmp_path / f"beauty_{'1' * 200}.exr").write_bytes(b"")
+    with pytest.raises(FrameError, match="a frame number of 200 digits"):
+        frame_indices(tmp_path)
