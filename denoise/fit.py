@@ -61,7 +61,7 @@ from renderer.variants import set_variant
 from validation.metrics import relmse
 
 from .export import Spec, export, reference_folder
-from .frames import frame_indices, read_frame
+from .frames import frame_indices, read_frame, same_size
 
 # Dr.Jit, Mitsuba, NumPy and the denoiser's modules are imported inside the functions:
 # the variant is chosen first (llvm_ad_rgb), and --help and argument errors do not wait for them
@@ -95,10 +95,16 @@ def prepare(folder: Path, scale_from: int | None = None, scale: float = SWITCH_S
         return mi.TensorXf(np.ascontiguousarray(a, np.float32))
 
     usable = make("asvgf").usable_frame
-    prepared, previous, previous_ids = [], None, None
+    prepared, previous, previous_ids, prepared_indices = [], None, None, []
     for i in frame_indices(folder):
         frame = usable(read_frame(folder, i))
-        truth = read_exr_rgb(reference_folder(folder) / f"beauty_{i}.exr")
+        truth_path = reference_folder(folder) / f"beauty_{i}.exr"
+        truth = read_exr_rgb(truth_path)
+        same_size(folder / f"beauty_{i}.exr", frame.beauty.shape, truth_path, truth.shape)
+        if previous is not None:
+            same_size(folder / f"beauty_{i}.exr", frame.beauty.shape, folder / f"beauty_{prepared_indices[-1]}.exr",
+                      previous.beauty.shape)
+        prepared_indices.append(i)
         factor = scale if scale_from is not None and i >= scale_from else 1.0
         color, ids, position = tensor(frame.beauty * factor), tensor(frame.ids), tensor(frame.position)
         albedo = tensor(frame.albedo) if frame.albedo is not None else None

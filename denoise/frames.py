@@ -86,6 +86,14 @@ def missing_between(indices: list[int]) -> tuple[int, int] | None:
     return None if first is None else (first, count)
 
 
+
+def same_size(path: Path, shape: tuple, other: Path, other_shape: tuple) -> None:
+    """Raises :class:`FrameError` naming both files and their sizes unless two
+    images (shapes ``(H, W, ...)``) have one size: checked before any arithmetic."""
+    if tuple(shape[:2]) != tuple(other_shape[:2]):
+        raise FrameError(f"{path}: {shape[1]}x{shape[0]} pixels, but {other} has {other_shape[1]}x{other_shape[0]}")
+
+
 def read_matrices(path: Path) -> tuple[list[np.ndarray], np.ndarray, np.ndarray]:
     data = path.read_bytes()
     if len(data) < 4:

@@ -41,7 +41,7 @@ from renderer.checks import check_writable
 from renderer.variants import set_variant
 from validation.metrics import flip_error, relmse, stability, temporal_relmse
 
-from .frames import frame_indices, missing_between, read_frame
+from .frames import frame_indices, missing_between, read_frame, same_size
 from .methods import from_name
 from .methods.user import add_method_file_option, load_method_files
 from .pipeline import check_folder
@@ -151,28 +151,36 @@ def result_paths(results: Path, pattern: str, indices: list[int]) -> list[Path]:
     return paths
 
 
-def read_sized(paths: list[Path], truth: list[np.ndarray], what: str) -> list[np.ndarray]:
+def read_sized(paths: list[Path], truth: dict[Path, np.ndarray]) -> list[np.ndarray]:
+    """The images of ``paths``, each sized like its ``truth`` (reference file -> image)."""
     images = []
-    for path, expected in zip(paths, truth):
+    for path, (truth_path, expected) in zip(paths, truth.items()):
         image = read_rgb(path)
-        if image.shape != expected.shape:
-            raise FrameError(f"{path}: {image.shape[1]}x{image.shape[0]} pixels, but the {what} has "
-                             f"{expected.shape[1]}x{expected.shape[0]}")
+        same_size(path, image.shape, truth_path, expected.shape)
         images.append(image)
     return images
 
 
-def read_frames(folder: Path, indices: list[int], truth: list[np.ndarray]):
+def read_truth(reference: Path, indices: list[int]) -> dict[Path, np.ndarray]:
+    """The reference's frames (file -> image), all of one size."""
+    truth = {}
+    for i in indices:
+        path = reference / f"beauty_{i}.exr"
+        truth[path] = read_rgb(path)
+        first = next(iter(truth))
+        same_size(path, truth[path].shape, first, truth[first].shape)
+    return truth
+
+
+def read_frames(folder: Path, indices: list[int], truth: dict[Path, np.ndarray]):
     """The frame folder's frames at ``indices`` (each checked, and sized like the truth)."""
     have = set(check_folder(folder))
     lacking = [i for i in indices if i not in have]
     if lacking:
         raise FrameError(f"--frames {folder}: no frame {lacking[0]}, which the reference has")
     frames = [read_frame(folder, i) for i in indices]
-    for index, frame, expected in zip(indices, frames, truth):
-        if frame.beauty.shape != expected.shape:
-            raise FrameError(f"{folder / f'beauty_{index}.exr'}: {frame.beauty.shape[1]}x{frame.beauty.shape[0]} "
-                             f"pixels, but the reference has {expected.shape[1]}x{expected.shape[0]}")
+    for index, frame, (truth_path, expected) in zip(indices, frames, truth.items()):
+        same_size(folder / f"beauty_{index}.exr", frame.beauty.shape, truth_path, expected.shape)
     return frames
 
 
@@ -218,11 +226,12 @@ def score_sequence(results: Path, reference: Path, frames_folder: Path | None = 
     if frames_folder is not None:
         check_consecutive(reference, indices)
     paths = result_paths(results, pattern, indices)
-    truth = [read_rgb(reference / f"beauty_{i}.exr") for i in indices]
-    images = read_sized(paths, truth, "reference")
+    named_truth = read_truth(reference, indices)
+    images = read_sized(paths, named_truth)
+    truth = list(named_truth.values())
     frames = reference_temporal = None
     if frames_folder is not None:
-        frames = read_frames(frames_folder, indices, truth)
+        frames = read_frames(frames_folder, indices, named_truth)
         reference_temporal = temporal_relmse(frames, truth)
     label = results.name or str(results)
     label = f"{label} (results)" if label in compare else label
