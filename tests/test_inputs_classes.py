@@ -1,14 +1,18 @@
-"""The outside round's input classes: every JSON input read by one
-reader with limits and one error shape."""
+"""The outside round's input classes: every JSON input read by one reader with
+limits and one error shape; frame numbers far apart; every PNG mode read as its pixels."""
 from __future__ import annotations
 
 import re
+import struct
 import subprocess
 import sys
 import time
+import zlib
 from pathlib import Path
 
+import numpy as np
 import pytest
+from PIL import Image
 
 from core.errors import FrameError, SpecError, UsageError
 from denoise.export.spec import Spec
@@ -16,6 +20,7 @@ from denoise.frames import frame_indices
 from denoise.methods.asvgf import load_parameter_file
 from denoise.pipeline import check_folder
 from denoise.score import check_consecutive
+from imaging.image_io import read_png
 
 ROOT = Path(__file__).resolve().parents[1]
 GOOD = '{"scene": "box", "frames": 4, "lights": {"0": {"scale": 2}}}'
@@ -111,3 +116,51 @@ def test_a_frame_number_too_long_for_an_integer_is_one_line(tmp_path):
     (tmp_path / f"beauty_{'1' * 200}.exr").write_bytes(b"")
     with pytest.raises(FrameError, match="a frame number of 200 digits"):
         frame_indices(tmp_path)
+
+
+# Every PNG mode and bit depth Pillow reads is read as its pixels (read_png, which the course scorer uses)
+RNG = np.random.default_rng(3)
+RGB = RNG.integers(0, 256, (6, 9, 3), dtype=np.uint8)
+GREY = RGB[..., 1]
+
+
+def png16_rgb(path, rgb8: np.ndarray) -> None:
+    """A 16-bit-per-channel RGB PNG (Pillow writes none), each value v as v * 257."""
+    height, width, _ = rgb8.shape
+    rows = (rgb8.astype(">u2") * 257).reshape(height, width * 3)
+    raw = b"".join(b"\0" + row.tobytes() for row in rows)
+
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+
+    header = struct.pack(">IIBBBBB", width, height, 16, 2, 0, 0, 0)
+    path.write_bytes(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", header) + chunk(b"IDAT", zlib.compress(raw))
+                     + chunk(b"IEND", b""))
+
+
+#: mode -> (how it is written, the RGB it must read as)
+MODES = {
+    "RGB": (lambda p: Image.fromarray(RGB).save(p), RGB),
+    "RGBA": (lambda p: Image.fromarray(np.dstack([RGB, np.full(GREY.shape, 255, np.uint8)])).save(p), RGB),
+    "P": (lambda p: Image.fromarray(RGB).quantize(256, method=Image.Quantize.MAXCOVERAGE).save(p), None),
+    "L": (lambda p: Image.fromarray(GREY).save(p), np.dstack([GREY] * 3)),
+    "LA": (lambda p: Image.fromarray(np.dstack([GREY, np.full(GREY.shape, 255, np.uint8)]), "LA").save(p),
+           np.dstack([GREY] * 3)),
+    "I;16": (lambda p: Image.fromarray(GREY.astype(np.uint16) * 257).save(p), np.dstack([GREY] * 3)),
+    "1": (lambda p: Image.fromarray(GREY > 127).save(p), np.dstack([np.where(GREY > 127, 255, 0)] * 3)),
+    "16-bit RGB": (lambda p: png16_rgb(p, RGB), RGB),
+}
+
+
+@pytest.mark.parametrize("mode", MODES)
+def test_every_png_mode_reads_as_its_pixels(tmp_path, mode):
+    write, expected = MODES[mode]
+    path = tmp_path / f"{mode.replace(';', '_').replace(' ', '_')}.png"
+    write(path)
+    image = read_png(path)
+    assert image.shape == RGB.shape and image.dtype == np.uint8
+    if expected is None:  # a palette: its colours are the image's up to quantisation
+        with Image.open(path) as palette:
+            expected = np.asarray(palette.convert("RGB"))
+        assert np.abs(expected.astype(int) - RGB).mean() < 16
+    assert np.abs(image.astype(int) - expected).max() <= 1
