@@ -36,6 +36,7 @@ import numpy as np
 
 from core.entry import ArgumentParser, run
 from core.errors import FrameError, OutputError, UsageError
+from core.inputs import check_outside
 from imaging.image_io import atomic_path, read_exr_rgb
 from renderer.checks import check_writable
 from renderer.variants import set_variant
@@ -321,6 +322,8 @@ def _main(argv: list[str] | None) -> int:
             if path.is_dir():
                 raise OutputError(f"{flag} {path}: a folder, not a file")
             check_writable(flag, path)
+    check_outside({"--plot": args.plot, "--json": args.json},
+                  {"RESULTS": args.results, "--reference": args.reference, "--frames": args.frames})
     check_pattern(args.pattern)  # the cheap checks before Dr.Jit starts
     if args.compare and args.frames is None:
         raise UsageError("--compare runs our methods on the frames: give --frames FRAME_DIR")

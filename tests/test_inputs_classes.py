@@ -164,3 +164,36 @@ def test_every_png_mode_reads_as_its_pixels(tmp_path, mode):
             expected = np.asarray(palette.convert("RGB"))
         assert np.abs(expected.astype(int) - RGB).mean() < 16
     assert np.abs(image.astype(int) - expected).max() <= 1
+
+
+# No output path inside an input folder: one line naming both, exit 2, before any work
+@pytest.mark.parametrize("flag, inside", [("--plot", "reference"), ("--json", "results"), ("--plot", "frames"),
+                                          ("--json", "reference/sub")])
+def test_a_score_never_writes_into_its_inputs(tmp_path, capsys, flag, inside):
+    from denoise.score import main
+
+    for name in ("results", "reference", "frames"):
+        (tmp_path / name).mkdir()
+    output = tmp_path / inside / ("p.png" if flag == "--plot" else "s.json")
+    before = sorted(tmp_path.rglob("*"))
+    status = main([str(tmp_path / "results"), "--reference", str(tmp_path / "reference"),
+                   "--frames", str(tmp_path / "frames"), flag, str(output)])
+    err = capsys.readouterr().err
+    assert status == 2 and err.count("\n") == 1, err
+    assert f"{flag} {output} is inside the input folder" in err and str(tmp_path / inside.split("/")[0]) in err
+    assert sorted(tmp_path.rglob("*")) == before
+
+
+@pytest.mark.parametrize("case", ["results into the frames", "results inside the frames", "video in the reference"])
+def test_denoise_never_writes_into_its_inputs(tmp_path, capsys, case):
+    from denoise.__main__ import main
+
+    source, reference = tmp_path / "frames", tmp_path / "reference"
+    source.mkdir()
+    reference.mkdir()
+    target = {"results into the frames": source, "results inside the frames": source / "out"}.get(case, tmp_path / "o")
+    extra = ["--video", str(reference / "v.mp4"), "--reference", str(reference)] if case.startswith("video") else []
+    status = main([str(source), str(target), "--method", "svgf", *extra])
+    err = capsys.readouterr().err
+    assert status == 2 and err.count("\n") == 1 and "is inside the input folder" in err, err
+    assert not (source / "out").exists() and not (reference / "v.mp4").exists()
