@@ -21,6 +21,7 @@ from denoise.methods.asvgf import load_parameter_file
 from denoise.pipeline import check_folder
 from denoise.score import check_consecutive
 from imaging.image_io import read_png
+from validation.stress_cases_inputs_denoiser import denoiser_input_cases
 
 ROOT = Path(__file__).resolve().parents[1]
 GOOD = '{"scene": "box", "frames": 4, "lights": {"0": {"scale": 2}}}'
@@ -197,3 +198,9 @@ def test_denoise_never_writes_into_its_inputs(tmp_path, capsys, case):
     err = capsys.readouterr().err
     assert status == 2 and err.count("\n") == 1 and "is inside the input folder" in err, err
     assert not (source / "out").exists() and not (reference / "v.mp4").exists()
+
+
+@pytest.mark.parametrize("case", denoiser_input_cases(), ids=lambda case: case.name)
+def test_the_stress_cases_of_these_classes_pass(variant_vectorised_rgb, case):
+    passed, detail = case.check()
+    assert passed, detail

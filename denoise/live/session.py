@@ -54,7 +54,7 @@ def parse_message(text: str | bytes, method: str) -> dict:
     try:
         message = parse_json(text, MESSAGE_LIMIT)
     except JSONInputError as error:
-        raise MessageError(f"not an acceptable JSON message: {error}") from None
+        raise MessageError(f"not JSON: {error}") from None
     if not isinstance(message, dict):
         raise MessageError(f"expected a JSON object, got {type(message).__name__}")
     kind = message.get("type")
