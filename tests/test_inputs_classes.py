@@ -88,10 +88,13 @@ def test_a_damaged_parameter_file_leaves_other_methods_alone(tmp_path):
     saved = params.read_bytes()
     try:
         params.write_bytes(b'{"parameters": {"slow_frames": 4, "slow_frames": 5}}')
-        code = ("from denoise.methods import make; make('svgf'); "
-                "import denoise.methods.asvgf as a; print(a.ASVGF.name)")
-        done = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=120)
-        assert done.returncode == 0, done.stderr
+        done = {method: subprocess.run([sys.executable, "-m", "denoise", str(tmp_path / "none"), str(tmp_path / "o"),
+                                        "--method", method], cwd=ROOT, capture_output=True, text=True, timeout=120)
+                for method in ("svgf", "asvgf")}
+        # svgf is made and goes on to the folder; asvgf names the damaged file
+        assert done["svgf"].stderr.strip().endswith("none: not a folder"), done["svgf"].stderr
+        assert f"{params}: key \"slow_frames\" given twice" in done["asvgf"].stderr, done["asvgf"].stderr
+        assert {d.returncode for d in done.values()} == {2}
         with pytest.raises(UsageError, match="given twice"):
             load_parameter_file()
     finally:
