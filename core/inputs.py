@@ -48,6 +48,8 @@ def check_outside(outputs: dict[str, Path | None], inputs: dict[str, Path | None
         where = Path(output).resolve()
         for in_label, folder in inputs.items():
             base = None if folder is None else Path(folder).resolve()
-            if base is not None and (where == base or base in where.parents):
+            if base is not None and where == base:
+                raise UsageError(f"{out_label} {output} is the input {in_label} {folder}; write outputs elsewhere")
+            if base is not None and base in where.parents:
                 raise UsageError(f"{out_label} {output} is inside the input folder {in_label} {folder}; "
                                  f"write outputs elsewhere")

@@ -53,6 +53,7 @@ import numpy as np
 
 from core.entry import ArgumentParser, hold_signals, run
 from core.errors import UsageError  # noqa: E402
+from core.inputs import check_outside
 from core.numbers import ascii_float, ascii_int
 from imaging.image_io import atomic_path, read_exr_rgb
 from renderer.bands import GROUP_SIGNALS
@@ -287,6 +288,8 @@ def _main(argv: list[str] | None) -> int:
     if not (0.0 < args.rate <= 10.0):
         raise UsageError(f"--rate must be in (0, 10], got {args.rate}")
 
+    for spec in specs:  # a fit never writes onto a spec it reads
+        check_outside({"--out": args.out, "--work": args.work}, {"SPEC.json": spec})
     if args.out.suffix.lower() != ".json":
         raise UsageError(f"--out {args.out}: the parameter file is JSON; give a name ending in .json")
     if args.evaluate is not None:

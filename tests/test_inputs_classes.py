@@ -199,7 +199,8 @@ def test_denoise_never_writes_into_its_inputs(tmp_path, capsys, case):
     extra = ["--video", str(reference / "v.mp4"), "--reference", str(reference)] if case.startswith("video") else []
     status = main([str(source), str(target), "--method", "svgf", *extra])
     err = capsys.readouterr().err
-    assert status == 2 and err.count("\n") == 1 and "is inside the input folder" in err, err
+    words = "is the input IN_DIR" if case == "results into the frames" else "is inside the input folder"
+    assert status == 2 and err.count("\n") == 1 and words in err, err
     assert not (source / "out").exists() and not (reference / "v.mp4").exists()
 
 
@@ -207,3 +208,24 @@ def test_denoise_never_writes_into_its_inputs(tmp_path, capsys, case):
 def test_the_stress_cases_of_these_classes_pass(variant_vectorised_rgb, case):
     passed, detail = case.check()
     assert passed, detail
+
+
+@pytest.mark.parametrize("command", ["export", "fit"])
+def test_export_and_fit_never_write_onto_their_inputs(tmp_path, capsys, command):
+    from denoise.export.cli import main as export
+    from denoise.fit import main as fit
+
+    spec, data = tmp_path / "seq.json", tmp_path / "data"
+    spec.write_text('{"scene": "lamps", "frames": 2}')
+    data.mkdir()
+    if command == "export":
+        cases = {"OUT is the spec": [spec, spec, "--local"], "OUT inside --data": [spec, data / "o", "--data", data]}
+        main, words = export, {"OUT is the spec": "OUT", "OUT inside --data": "OUT"}
+    else:
+        cases = {"--out is the spec": [spec, "--out", spec], "--work is the spec": [spec, "--work", spec]}
+        main, words = fit, {name: name.split()[0] for name in cases}
+    for name, argv in cases.items():
+        status = main([str(a) for a in argv])
+        err = capsys.readouterr().err
+        assert status == 2 and err.count("\n") == 1 and f"{words[name]} " in err and "the input" in err, (name, err)
+    assert spec.read_text() == '{"scene": "lamps", "frames": 2}' and list(data.iterdir()) == []

@@ -64,7 +64,7 @@ def sizes_gaps_and_outputs(folder: Path) -> list[str]:
                                       "is inside the input folder --reference"),
     }) + refusals("python -m denoise", denoise, {
         "frames 0 and 10^12": ([far, folder / "o", "--method", "svgf"], f"without {far / 'beauty_1.exr'}"),
-        "results into the frames": ([far, far, "--method", "svgf"], "is inside the input folder IN_DIR"),
+        "results into the frames": ([far, far, "--method", "svgf"], "is the input IN_DIR"),
     })
     if time.perf_counter() - start > 30:
         problems.append(f"took {time.perf_counter() - start:.0f} s")
