@@ -93,7 +93,8 @@ def test_a_damaged_parameter_file_leaves_other_methods_alone(tmp_path):
                 for method in ("svgf", "asvgf")}
         # svgf is made and goes on to the folder; asvgf names the damaged file
         assert done["svgf"].stderr.strip().endswith("none: not a folder"), done["svgf"].stderr
-        assert f"{params}: key \"slow_frames\" given twice" in done["asvgf"].stderr, done["asvgf"].stderr
+        assert f"{params}: not a JSON parameter file (key \"slow_frames\" given twice" in done["asvgf"].stderr, \
+            done["asvgf"].stderr
         assert {d.returncode for d in done.values()} == {2}
         with pytest.raises(UsageError, match="given twice"):
             load_parameter_file()

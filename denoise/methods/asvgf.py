@@ -52,7 +52,7 @@ def load_parameter_file(path: Path | None = None) -> dict[str, float]:
     try:
         data = read_json(path, MAX_PARAMETER_BYTES)
     except JSONInputError as error:
-        raise UsageError(f"{error} (a JSON parameter file)") from None
+        raise UsageError(f"{path}: not a JSON parameter file ({str(error).removeprefix(f'{path}: ')})") from None
     values = data.get("parameters") if isinstance(data, dict) else None
     if not isinstance(values, dict) or set(values) - set(options):
         raise UsageError(f"{path}: expected {{\"parameters\": {{NAME: number}}}} with names from {', '.join(options)}")
