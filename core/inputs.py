@@ -10,6 +10,8 @@ from __future__ import annotations
 import stat
 from pathlib import Path
 
+from .errors import UsageError
+
 #: no scene, mesh or batch file is larger (the course's largest mesh is a few MB)
 MAX_INPUT_BYTES = 1 << 30
 
@@ -34,3 +36,20 @@ def read_input(path: Path, limit: int = MAX_INPUT_BYTES, allow_pipe: bool = Fals
     if len(data) > limit:
         raise NotAnInputFile(f"larger than {limit} bytes")
     return data
+
+
+def check_outside(outputs: dict[str, Path | None], inputs: dict[str, Path | None]) -> None:
+    """Raises :class:`UsageError` when an output (label -> path) is an input
+    folder (label -> folder) or lies inside one, before any work: a command
+    never writes into what it reads (a second run would read its own outputs)."""
+    for out_label, output in outputs.items():
+        if output is None:
+            continue
+        where = Path(output).resolve()
+        for in_label, folder in inputs.items():
+            base = None if folder is None else Path(folder).resolve()
+            if base is not None and where == base:
+                raise UsageError(f"{out_label} {output} is the input {in_label} {folder}; write outputs elsewhere")
+            if base is not None and base in where.parents:
+                raise UsageError(f"{out_label} {output} is inside the input folder {in_label} {folder}; "
+                                 f"write outputs elsewhere")

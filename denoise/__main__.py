@@ -17,6 +17,7 @@ from pathlib import Path
 
 from core.entry import ArgumentParser, run
 from core.errors import FrameError, UsageError
+from core.inputs import check_outside
 from core.numbers import ascii_int
 from imaging.colour import side_by_side, tone_map
 from imaging.image_io import read_exr_rgb, write_image, write_video
@@ -150,6 +151,8 @@ def _main(argv: list[str] | None) -> int:
         raise UsageError("--reference is used by --video only")
     if args.video is not None and args.video.suffix.lower() != ".mp4":
         raise UsageError(f"--video writes H.264 MP4: name it .mp4, got {args.video}")
+    check_outside({"OUT_DIR": args.target, "--video": args.video},
+                  {"IN_DIR": args.source, "--reference": args.reference})
     if args.reference is not None and not args.reference.is_dir():
         raise FrameError(f"{args.reference}: not a folder")
     if args.reference is not None:

@@ -53,6 +53,7 @@ import numpy as np
 
 from core.entry import ArgumentParser, hold_signals, run
 from core.errors import UsageError
+from core.inputs import check_outside
 from core.numbers import ascii_float, ascii_int
 from imaging.image_io import atomic_path, check_writable, read_exr_rgb
 from imaging.metrics import relmse
@@ -61,7 +62,7 @@ from renderer.variants import set_variant
 
 from .export import Spec, export, reference_folder
 from .filters import FrameArrays, demodulate, remodulate, reproject
-from .frames import frame_indices, read_frame
+from .frames import frame_indices, read_frame, same_size
 from .methods import from_name, make
 from .methods.asvgf import FITTED_OPTIONS, FilterValues, asvgf, fitted, hand_set
 
@@ -90,10 +91,16 @@ def prepare(folder: Path, scale_from: int | None = None, scale: float = SWITCH_S
         return mi.TensorXf(np.ascontiguousarray(a, np.float32))
 
     usable = make("asvgf").usable_frame
-    prepared, previous, previous_ids = [], None, None
+    prepared, previous, previous_ids, prepared_indices = [], None, None, []
     for i in frame_indices(folder):
         frame = usable(read_frame(folder, i))
-        truth = read_exr_rgb(reference_folder(folder) / f"beauty_{i}.exr")
+        truth_path = reference_folder(folder) / f"beauty_{i}.exr"
+        truth = read_exr_rgb(truth_path)
+        same_size(folder / f"beauty_{i}.exr", frame.beauty.shape, truth_path, truth.shape)
+        if previous is not None:
+            same_size(folder / f"beauty_{i}.exr", frame.beauty.shape, folder / f"beauty_{prepared_indices[-1]}.exr",
+                      previous.beauty.shape)
+        prepared_indices.append(i)
         factor = scale if scale_from is not None and i >= scale_from else 1.0
         color, ids, position = tensor(frame.beauty * factor), tensor(frame.ids), tensor(frame.position)
         albedo = tensor(frame.albedo) if frame.albedo is not None else None
@@ -262,6 +269,8 @@ def _main(argv: list[str] | None) -> int:
     if not (0.0 < args.rate <= 10.0):
         raise UsageError(f"--rate must be in (0, 10], got {args.rate}")
 
+    for spec in specs:  # a fit never writes onto a spec it reads
+        check_outside({"--out": args.out, "--work": args.work}, {"SPEC.json": spec})
     if args.out.suffix.lower() != ".json":
         raise UsageError(f"--out {args.out}: the parameter file is JSON; give a name ending in .json")
     if args.evaluate is not None:

@@ -60,10 +60,38 @@ class FrameData:
     albedo: np.ndarray | None = None  # (H, W, 3), optional albedo_i.exr (an extra beside the layout)
 
 
+#: the longest frame number read, in digits (a frame index is an int64)
+MAX_INDEX_DIGITS = 18
+
+
 def frame_indices(folder: Path) -> list[int]:
     """Indices of the frames in ``folder`` (by their beauty files), sorted."""
-    found = (re.fullmatch(r"beauty_(\d+)\.exr", p.name) for p in folder.iterdir())
-    return sorted(int(m.group(1)) for m in found if m)
+    found = [m for m in (re.fullmatch(r"beauty_(\d+)\.exr", p.name) for p in folder.iterdir()) if m]
+    for m in found:
+        if len(m.group(1)) > MAX_INDEX_DIGITS:
+            raise FrameError(f"{folder / m.group(0)}: a frame number of {len(m.group(1))} digits "
+                             f"(at most {MAX_INDEX_DIGITS})")
+    return sorted(int(m.group(1)) for m in found)
+
+
+def missing_between(indices: list[int]) -> tuple[int, int] | None:
+    """(the first missing index, how many are missing) between the first and
+    the last of the sorted ``indices``, or None when they are consecutive.
+    Counted from neighbours, never listed: indices may be far apart."""
+    first, count = None, 0
+    for a, b in zip(indices, indices[1:]):
+        if b > a + 1:
+            first = a + 1 if first is None else first
+            count += b - a - 1
+    return None if first is None else (first, count)
+
+
+
+def same_size(path: Path, shape: tuple, other: Path, other_shape: tuple) -> None:
+    """Raises :class:`FrameError` naming both files and their sizes unless two
+    images (shapes ``(H, W, ...)``) have one size: checked before any arithmetic."""
+    if tuple(shape[:2]) != tuple(other_shape[:2]):
+        raise FrameError(f"{path}: {shape[1]}x{shape[0]} pixels, but {other} has {other_shape[1]}x{other_shape[0]}")
 
 
 def read_matrices(path: Path) -> tuple[list[np.ndarray], np.ndarray, np.ndarray]:

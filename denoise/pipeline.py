@@ -12,7 +12,7 @@ from tqdm import tqdm
 from core.errors import FrameError, OutputError
 from imaging.image_io import write_exr
 
-from .frames import frame_indices, missing_files, read_frame
+from .frames import frame_indices, missing_between, missing_files, read_frame
 from .methods.base import DenoisingMethod
 
 
@@ -25,9 +25,11 @@ def check_folder(source: Path, require_albedo: bool = False) -> list[int]:
     indices = frame_indices(source)
     if not indices:
         raise FrameError(f"{source}: no beauty_<i>.exr frames")
-    if indices != list(range(indices[0], indices[0] + len(indices))):
-        missing = sorted(set(range(indices[0], indices[-1] + 1)) - set(indices))
-        raise FrameError(f"{source}: frames {missing} are missing")
+    gap = missing_between(indices)
+    if gap:
+        more = f" (and {gap[1] - 1} more frames)" if gap[1] > 1 else ""
+        raise FrameError(f"{source}: frames {indices[0]}..{indices[-1]} without {source / f'beauty_{gap[0]}.exr'}"
+                         f"{more}; frames must be consecutive")
     for index in indices:
         missing = missing_files(source, index)
         if missing:

@@ -38,11 +38,12 @@ import numpy as np
 
 from core.entry import ArgumentParser, run
 from core.errors import FrameError, OutputError, UsageError
+from core.inputs import check_outside
 from imaging.image_io import atomic_path, check_writable, read_exr_rgb
 from imaging.metrics import flip_error, relmse
 from renderer.variants import set_variant
 
-from .frames import frame_indices, read_frame
+from .frames import frame_indices, missing_between, read_frame, same_size
 from .ground_truth import check_ground_truth
 from .methods import from_name
 from .methods.user import add_method_file_option, load_method_files
@@ -124,10 +125,10 @@ def reference_indices(reference: Path) -> list[int]:
 
 def check_consecutive(reference: Path, indices: list[int]) -> None:
     """The temporal figures compare each frame with the one before: no frame may be missing between."""
-    gaps = [i for i in range(indices[0], indices[-1]) if i not in set(indices)]
-    if gaps:
+    gap = missing_between(indices)
+    if gap:
         raise FrameError(f"--reference {reference}: frames {indices[0]}..{indices[-1]} without "
-                         f"beauty_{gaps[0]}.exr{f' (and {len(gaps) - 1} more)' if len(gaps) > 1 else ''}; "
+                         f"beauty_{gap[0]}.exr{f' (and {gap[1] - 1} more)' if gap[1] > 1 else ''}; "
                          "the temporal figures (--frames) need consecutive frames")
 
 
@@ -154,28 +155,36 @@ def result_paths(results: Path, pattern: str, indices: list[int]) -> list[Path]:
     return paths
 
 
-def read_sized(paths: list[Path], truth: list[np.ndarray], what: str) -> list[np.ndarray]:
+def read_sized(paths: list[Path], truth: dict[Path, np.ndarray]) -> list[np.ndarray]:
+    """The images of ``paths``, each sized like its ``truth`` (reference file -> image)."""
     images = []
-    for path, expected in zip(paths, truth):
+    for path, (truth_path, expected) in zip(paths, truth.items()):
         image = read_rgb(path)
-        if image.shape != expected.shape:
-            raise FrameError(f"{path}: {image.shape[1]}x{image.shape[0]} pixels, but the {what} has "
-                             f"{expected.shape[1]}x{expected.shape[0]}")
+        same_size(path, image.shape, truth_path, expected.shape)
         images.append(image)
     return images
 
 
-def read_frames(folder: Path, indices: list[int], truth: list[np.ndarray]):
+def read_truth(reference: Path, indices: list[int]) -> dict[Path, np.ndarray]:
+    """The reference's frames (file -> image), all of one size."""
+    truth = {}
+    for i in indices:
+        path = reference / f"beauty_{i}.exr"
+        truth[path] = read_rgb(path)
+        first = next(iter(truth))
+        same_size(path, truth[path].shape, first, truth[first].shape)
+    return truth
+
+
+def read_frames(folder: Path, indices: list[int], truth: dict[Path, np.ndarray]):
     """The frame folder's frames at ``indices`` (each checked, and sized like the truth)."""
     have = set(check_folder(folder))
     lacking = [i for i in indices if i not in have]
     if lacking:
         raise FrameError(f"--frames {folder}: no frame {lacking[0]}, which the reference has")
     frames = [read_frame(folder, i) for i in indices]
-    for index, frame, expected in zip(indices, frames, truth):
-        if frame.beauty.shape != expected.shape:
-            raise FrameError(f"{folder / f'beauty_{index}.exr'}: {frame.beauty.shape[1]}x{frame.beauty.shape[0]} "
-                             f"pixels, but the reference has {expected.shape[1]}x{expected.shape[0]}")
+    for index, frame, (truth_path, expected) in zip(indices, frames, truth.items()):
+        same_size(folder / f"beauty_{index}.exr", frame.beauty.shape, truth_path, expected.shape)
     return frames
 
 
@@ -222,11 +231,12 @@ def score_sequence(results: Path, reference: Path, frames_folder: Path | None = 
     if frames_folder is not None:
         check_consecutive(reference, indices)
     paths = result_paths(results, pattern, indices)
-    truth = [read_rgb(reference / f"beauty_{i}.exr") for i in indices]
-    images = read_sized(paths, truth, "reference")
+    named_truth = read_truth(reference, indices)
+    images = read_sized(paths, named_truth)
+    truth = list(named_truth.values())
     frames = reference_temporal = None
     if frames_folder is not None:
-        frames = read_frames(frames_folder, indices, truth)
+        frames = read_frames(frames_folder, indices, named_truth)
         reference_temporal = temporal_relmse(frames, truth)
     label = results.name or str(results)
     label = f"{label} (results)" if label in compare else label
@@ -316,6 +326,8 @@ def _main(argv: list[str] | None) -> int:
             if path.is_dir():
                 raise OutputError(f"{flag} {path}: a folder, not a file")
             check_writable(flag, path)
+    check_outside({"--plot": args.plot, "--json": args.json},
+                  {"RESULTS": args.results, "--reference": args.reference, "--frames": args.frames})
     check_pattern(args.pattern)  # the cheap checks before Dr.Jit starts
     if args.compare and args.frames is None:
         raise UsageError("--compare runs our methods on the frames: give --frames FRAME_DIR")

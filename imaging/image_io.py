@@ -177,14 +177,18 @@ def write_video(path: str | Path, frames: list[np.ndarray], fps: int = 2) -> Non
 
 
 def read_png(path: str | Path) -> np.ndarray:
-    """Reads a PNG as uint8 RGB (H, W, 3). Pillow's warning about images of more
+    """Reads a PNG of any mode and bit depth Pillow reads as uint8 RGB (H, W, 3)
+    (16 bits per channel rounded to 8, grey repeated, a palette looked up). Pillow's warning about images of more
     than 89 million pixels stays off stderr (the size goes into the caller's
     error, e.g. a score's "10000x10000 pixels, but the reference has 800x800");
     beyond twice that Pillow refuses it, a :data:`IMAGE_DECODE_ERRORS` error."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", Image.DecompressionBombWarning)
         with Image.open(path) as image:
-            return np.asarray(image.convert("RGB"))
+            if image.mode.startswith("I"):  # 16-bit grey (I;16, I): converting clips it to 255, so scale it
+                grey = np.rint(np.asarray(image, np.float64) * (255 / 65535)).clip(0, 255).astype(np.uint8)
+                return np.repeat(grey[..., None], 3, -1)
+            return np.asarray(image.convert("RGB"))  # every other mode: its colour (alpha is no colour)
 
 
 #: What Pillow raises on damaged, truncated or hostile image files: OSError

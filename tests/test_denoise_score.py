@@ -5,6 +5,7 @@ exported sequence (run as its command), and the temporal figure against
 NumPy on frames whose back projection is known."""
 from __future__ import annotations
 
+import dataclasses
 import json
 import re
 import subprocess
@@ -70,6 +71,8 @@ def test_matches_the_benchmark_on_an_exported_sequence(variant_vectorised_rgb, t
 
 # -- frames whose back projection is known ---------------------------------------------
 H, W = 12, 16
+#: a frame's per-pixel buffers
+CROPPED = ("beauty", "normal", "position", "depth", "ids")
 
 
 def plane_frames(count=3):
@@ -148,7 +151,9 @@ def test_a_pattern_names_the_results(sequence, capsys):
     ("no reference", r"--reference .*nowhere: not a folder"),
     ("empty reference", r"--reference .*frames: no beauty_<i>\.exr frames"),
     ("missing result", r"results/result_1\.exr: missing$"),
-    ("smaller result", r"results/result_2\.exr: 8x12 pixels, but the reference has 16x12"),
+    ("smaller result", r"results/result_2\.exr: 8x12 pixels, but .*reference/beauty_2\.exr has 16x12"),
+    ("smaller reference frame", r"reference/beauty_1\.exr: 8x12 pixels, but .*reference/beauty_0\.exr has 16x12"),
+    ("smaller frame", r"frames/beauty_2\.exr: 8x12 pixels, but .*reference/beauty_2\.exr has 16x12"),
     ("damaged result", r"results/result_0\.exr: not a readable EXR \("),
     ("no channels", r"results/result_0\.exr: no R channel \(expected R, G, B\)"),
     ("pattern", r"--pattern 'result\.exr': a file name with exactly one \{i\}"),
@@ -176,6 +181,14 @@ def test_bad_inputs_are_one_line_and_exit_2(sequence, tmp_path, capsys, case, me
         (results / "result_1.exr").unlink()
     elif case == "smaller result":
         write_exr(results / "result_2.exr", {"": images[2][:, :8]})
+    elif case == "smaller reference frame":
+        write_exr(reference / "beauty_1.exr", {"": images[1][:, :8]})
+        write_exr(results / "result_1.exr", {"": images[1][:, :8]})
+    elif case == "smaller frame":
+        frame = plane_frames()[2]
+        fields = {f.name: getattr(frame, f.name) for f in dataclasses.fields(FrameData)}
+        write_frame(frames, 2, FrameData(**{k: v[:, :8] if k in CROPPED else v for k, v in fields.items()}))
+        arguments += ["--frames", frames]
     elif case == "damaged result":
         path = results / "result_0.exr"
         path.write_bytes(path.read_bytes()[:300])

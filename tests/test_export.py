@@ -166,6 +166,12 @@ def test_folder_made_with_other_settings_is_refused(tmp_path, uninterrupted, cap
     assert main(common) == 0 and "0 frames rendered" in capsys.readouterr().out
     (target / "sequence.json").write_text(json.dumps(dict(record, scene_sha256="0" * 64)))
     assert main(common) == 2 and "scene_sha256" in capsys.readouterr().err
+    # a damaged record (not an object, a key twice, UTF-16) is one line, as other settings are
+    for damaged in (b"[1]", json.dumps(record)[:-1].encode() + b', "spp": 1}', json.dumps(record).encode("utf-16")):
+        (target / "sequence.json").write_bytes(damaged)
+        assert main(common) == 2
+        err = capsys.readouterr().err
+        assert "made with other settings" in err and len(err.splitlines()) == 1, err
     (target / "sequence.json").write_text(json.dumps(record))
     # a folder of frames without a record (an older export) is refused too
     (target / "sequence.json").unlink()

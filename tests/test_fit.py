@@ -157,3 +157,29 @@ def test_a_signal_during_the_fit_stops_it_within_two_seconds(tmp_path, signum):
     assert not out.exists()
     _, alive = psutil.wait_procs(children, timeout=10)
     assert not alive, alive
+
+
+@pytest.mark.parametrize("smaller", ["truth", "next frame"])
+def test_sizes_that_disagree_are_one_line_naming_both_files(variant_vectorised_rgb, tmp_path, smaller):
+    """prepare checks each frame against its ground truth and the frame before, before any arithmetic."""
+    import dataclasses
+
+    from test_denoise_score import CROPPED, plane_frames
+
+    from core.errors import FrameError
+    from denoise.fit import prepare
+    from denoise.frames import write_frame
+    from imaging.image_io import write_exr
+
+    folder = tmp_path / "seq"
+    for i, frame in enumerate(plane_frames(2)):
+        if i == 1 and smaller == "next frame":
+            fields = {f.name: getattr(frame, f.name) for f in dataclasses.fields(frame)}
+            frame = type(frame)(**{k: v[:, :8] if k in CROPPED else v for k, v in fields.items()})
+        write_frame(folder, i, frame)
+        truth = frame.beauty[:, :8] if i == 1 and smaller == "truth" else frame.beauty
+        write_exr(tmp_path / "seq_reference" / f"beauty_{i}.exr", {"": truth})
+    other = "seq_reference/beauty_1.exr" if smaller == "truth" else "seq/beauty_0.exr"
+    mine = "16x12" if smaller == "truth" else "8x12"
+    with pytest.raises(FrameError, match=f"seq/beauty_1.exr: {mine} pixels, but .*{other} has "):
+        prepare(folder)

@@ -53,6 +53,11 @@ BAD = {
     "fractional whole slider": '{"type": "param", "name": "levels", "value": 2.5}',
     "negative frame": '{"type": "ack", "frame": -1}',
     "deeply nested": "[" * 900 + "]" * 900,
+    "a key twice": '{"type": "orbit", "dx": 1, "dy": 0, "dx": 2}',
+    "a number too large for a float": '{"type": "dolly", "amount": 1e999}',
+    "a long integer": '{"type": "ack", "frame": ' + "1" * 1500 + "}",
+    "a lone surrogate": '{"type": "method", "name": "\\ud800"}',
+    "megabytes": '{"type": "step", "pad": "' + "x" * (4 << 20) + '"}',
 }
 
 

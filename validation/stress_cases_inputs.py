@@ -30,6 +30,7 @@ from PIL import Image
 
 from imaging.image_io import CUBE_FACES
 from renderer.cli import main
+from validation.stress_cases_inputs_denoiser import denoiser_input_cases
 from validation.stress_scene import Case, material, scene
 
 
@@ -364,4 +365,4 @@ def cli_cases() -> list[CliCase]:
 
 
 def all_input_cases() -> list:
-    return scene_cases() + cli_cases()
+    return scene_cases() + cli_cases() + denoiser_input_cases()

@@ -67,11 +67,14 @@ LIVE_BAD = {
     '{"type": "method", "name": "best"}': "unknown method 'best'; known: raw",
     '{"type": "param", "name": "sigma_luminance", "value": 1000}': "expected a number in",
     '{"type": "param", "name": "levels", "value": 2.5}': "whole number",
-    '{"type": "orbit", "dx": NaN, "dy": 0}': "expected a number in",
-    '{"type": "dolly", "amount": 1e309}': "expected a number in",
+    '{"type": "orbit", "dx": NaN, "dy": 0}': "NaN is not a JSON number",
+    '{"type": "dolly", "amount": 1e309}': "too large for a float",
     '{"type": "ack", "frame": -1}': "expected a number in",
-    json.dumps({"type": "step", "pad": "x" * 100_000}): "longer than",
-    "[" * 100_000: "longer than",
+    '{"type": "orbit", "dx": 1, "dy": 0, "dx": 2}': 'key "dx" given twice',
+    '{"type": "ack", "frame": ' + "1" * 1500 + "}": "an integer of 1500 digits",
+    json.dumps({"type": "step", "pad": "x" * 100_000}): "larger than 2048 bytes",
+    "[" * 100_000: "larger than 2048 bytes",
+    "[" * 1000 + "]" * 1000: "nested 1000 levels deep",
 }
 
 

@@ -6,6 +6,7 @@ from pathlib import Path
 
 from core.entry import ArgumentParser, run
 from core.errors import UsageError
+from core.inputs import check_outside
 from core.numbers import ascii_int
 from renderer.variants import set_variant
 
@@ -41,6 +42,9 @@ def _main(argv: list[str] | None) -> int:
     if len(args.paths) < 2:
         raise UsageError("expected one or more SPEC.json files, then the output folder")
     *spec_paths, out = args.paths
+    check_outside({"OUT": out}, {"--data": args.data})
+    for path in spec_paths:
+        check_outside({"OUT": out}, {"SPEC.json": path})
     if args.workers is not None and not 1 <= args.workers <= 1024:
         raise UsageError(f"--workers: expected 1..1024, found {args.workers}")
     overrides = dict(frames=args.frames, size=tuple(args.size) if args.size else None, spp=args.spp,

@@ -2,7 +2,6 @@
 (``dataset.json``: per frame its status, seeds and the timings of its tasks)."""
 from __future__ import annotations
 
-import json
 import sys
 import time
 from pathlib import Path
@@ -10,8 +9,11 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+from core.json_input import JSONInputError, read_json
+
 from .sequence import EXPORT_FORMAT, Sequence, seed
 from .store import (
+    MAX_RECORD_BYTES,
     assemble_reference,
     batch_path,
     frame_done,
@@ -37,12 +39,12 @@ class Recorder:
                          if frame_done(Path(s.target), i) and reference_done(Path(s.target), i)}
         if manifest is not None and manifest.exists():  # keep the timings of an interrupted run
             try:
-                old = json.loads(manifest.read_text())
+                old = read_json(manifest, MAX_RECORD_BYTES)
                 for entry in old.get("sequences", []):
                     if entry.get("name") in self.sequences and entry.get("key") == self.sequences[entry["name"]].key:
                         for frame in entry.get("frames", []):
                             self.timings[(entry["name"], frame["index"])] = frame.get("tasks", [])
-            except (json.JSONDecodeError, KeyError, TypeError, AttributeError):
+            except (JSONInputError, KeyError, TypeError, AttributeError):
                 pass
 
     def record(self, task: Task, result, timing: dict) -> None:

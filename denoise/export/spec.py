@@ -6,13 +6,13 @@ Every problem is a :class:`SpecError` naming the file and the key
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
 import re
 from pathlib import Path
 
 from converters.model import DirectionalLight, PointLight, Scene
 from core.errors import SpecError
+from core.json_input import JSONInputError, read_json
 
 # Limits: Mitsuba indexes one render's samples with 32-bit integers
 MAX_SIDE = 16384
@@ -20,6 +20,8 @@ MAX_SAMPLES_PER_RENDER = 2 ** 31
 MAX_FRAMES = 100_000
 MAX_SPP = 1 << 20
 MAX_BOUNCES = 64
+#: the largest spec file read, in bytes
+MAX_SPEC_BYTES = 1 << 20
 
 
 def _key_in(source: str, key: str) -> str:
@@ -111,9 +113,9 @@ class Spec:
         """The spec in ``path`` with ``overrides`` (None: keep), checked (:class:`SpecError`)."""
         path = Path(path)
         try:
-            data = json.loads(path.read_text())
-        except json.JSONDecodeError as error:
-            raise SpecError(f"{path}:{error.lineno}:{error.colno}: {error.msg}") from None
+            data = read_json(path, MAX_SPEC_BYTES)
+        except JSONInputError as error:
+            raise SpecError(str(error)) from None
         if not isinstance(data, dict):
             raise SpecError(f"{path}: expected a JSON object, found {type(data).__name__}")
         data.update({k: v for k, v in overrides.items() if v is not None})

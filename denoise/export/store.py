@@ -27,6 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from core.errors import SpecError
+from core.json_input import JSONInputError, read_json
 from imaging.image_io import write_exr
 
 from ..frames import BUFFERS, FrameData, write_matrices
@@ -34,6 +35,9 @@ from ..ground_truth import GROUND_TRUTH_RECORD, SEQUENCE_RECORD
 from .files import publish, remove_staging
 from .sequence import EXPORT_FORMAT, Sequence, reference_folder, seed
 from .tasks import Task
+
+#: the largest record or manifest read back, in bytes (a manifest grows by a few hundred per frame)
+MAX_RECORD_BYTES = 256 << 20
 
 
 def batch_path(sequence: Sequence, frame: int, batch: int) -> Path:
@@ -129,8 +133,10 @@ def check_folder(sequence: Sequence) -> None:
     settings = sequence.settings()
     if record.exists():
         try:
-            old = json.loads(record.read_text())
-        except json.JSONDecodeError:
+            old = read_json(record, MAX_RECORD_BYTES)
+        except JSONInputError:
+            old = None
+        if not isinstance(old, dict):  # damaged: other settings than any
             old = {"unreadable": True}
         if _comparable(old, settings) != _comparable(settings, old):
             changed = _differences(_comparable(old, settings), _comparable(settings, old))

@@ -10,13 +10,13 @@ page) and changes nothing.
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
 import threading
 
 import numpy as np
 
 from converters.model import Camera
+from core.json_input import JSONInputError, parse_json
 
 from .methods import METHOD_NAMES, SLIDERS
 
@@ -51,11 +51,9 @@ def parse_message(text: str | bytes, method: str) -> dict:
     sliders are the names ``param`` accepts)."""
     if isinstance(text, bytes):
         raise MessageError("expected a text message (JSON), got binary data")
-    if len(text.encode("utf-8", "surrogatepass")) > MESSAGE_LIMIT:
-        raise MessageError(f"message longer than {MESSAGE_LIMIT} bytes")
     try:
-        message = json.loads(text, parse_constant=lambda name: math.nan)
-    except (json.JSONDecodeError, RecursionError) as error:
+        message = parse_json(text, MESSAGE_LIMIT)
+    except JSONInputError as error:
         raise MessageError(f"not JSON: {error}") from None
     if not isinstance(message, dict):
         raise MessageError(f"expected a JSON object, got {type(message).__name__}")

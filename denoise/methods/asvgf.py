@@ -40,7 +40,6 @@ The fitted values, ``denoise/asvgf_params.json``, are the method's defaults
 """
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, fields, replace
 from pathlib import Path
 
@@ -48,6 +47,7 @@ import drjit as dr
 import mitsuba as mi
 
 from core.errors import UsageError
+from core.json_input import JSONInputError, read_json
 
 from ..filters import FrameArrays, clamp_box, luminance
 from ..svgf_common import SVGFParams, atrous_level, estimate_variance, levels_for
@@ -275,6 +275,8 @@ def asvgf(frame: FrameArrays, p: ASVGFParams, history: ASVGFHistory | None = Non
 
 #: the fitted parameters (written by ``python -m denoise.fit``), asvgf's defaults where given
 PARAMETER_FILE = Path(__file__).resolve().parents[1] / "asvgf_params.json"
+#: the largest parameter file read, in bytes
+MAX_PARAMETER_BYTES = 64 << 10
 
 
 def _fitted(key: str, default: float, help: str, low: float, high: float, **more) -> Option:
@@ -311,9 +313,9 @@ def load_parameter_file(path: Path | None = None) -> dict[str, float]:
         return {}
     options = {o.key: o for o in FITTED_OPTIONS}
     try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, ValueError, RecursionError) as error:
-        raise UsageError(f"{path}: not a JSON parameter file ({str(error)[:200]})") from None
+        data = read_json(path, MAX_PARAMETER_BYTES)
+    except JSONInputError as error:
+        raise UsageError(f"{path}: not a JSON parameter file ({str(error).removeprefix(f'{path}: ')})") from None
     values = data.get("parameters") if isinstance(data, dict) else None
     if not isinstance(values, dict) or set(values) - set(options):
         raise UsageError(f"{path}: expected {{\"parameters\": {{NAME: number}}}} with names from {', '.join(options)}")

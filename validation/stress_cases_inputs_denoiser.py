@@ -1,0 +1,95 @@
+"""Stress cases for the denoiser's commands' inputs (the outside round's classes):
+every JSON input one line through one reader, sizes that disagree, frame numbers
+far apart, outputs into input folders, every PNG mode read as its pixels."""
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+from PIL import Image
+
+from validation.stress_cases_surfaces import refusals
+from validation.stress_cases_system import SystemCase
+
+#: a spec's damage -> the words of its one line (the reader's limits and error shape)
+DAMAGED_SPECS = {
+    "UTF-16": ('{"scene": "lamps"}'.encode("utf-16"), "UTF-16"),
+    "Latin-1": ('{"scene": "l\u00e4mps"}'.encode("latin-1"), "not UTF-8"),
+    "5000 digits": (b'{"scene": "lamps", "seed": ' + b"9" * 5000 + b"}", "5000 digits"),
+    "100000 deep": (b'{"scene": "lamps", "seed": ' + b"[" * 100000 + b"]" * 100000 + b"}", "nested"),
+    "a light key twice": (b'{"scene": "lamps", "lights": {"0": {"scale": 2}, "0": {"scale": 3}}}',
+                          'key "0" given twice'),
+    "1e999": (b'{"scene": "lamps", "camera": {"dolly": 1e999}}', "too large for a float"),
+    "NaN": (b'{"scene": "lamps", "camera": {"dolly": NaN}}', "NaN is not a JSON number"),
+    "megabytes": (b'{"scene": "' + b"x" * (2 << 20) + b'"}', "larger than"),
+    "a string for a number": (b'{"scene": "lamps", "camera": {"dolly": "1"}}', "camera.dolly: expected a finite"),
+}
+
+
+def damaged_json(folder: Path) -> list[str]:
+    from denoise.export.cli import main as export  # noqa: PLC0415  Dr.Jit loads after the suite chose its variant
+
+    cases = {}
+    for k, (name, (data, words)) in enumerate(DAMAGED_SPECS.items()):
+        (folder / f"spec{k}.json").write_bytes(data)
+        cases[name] = ([folder / f"spec{k}.json", folder / "out", "--local"], words)
+    return refusals("python -m denoise.export", export, cases)
+
+
+def _exr_folder(folder: Path, sizes: list[tuple[int, int]], name: str = "beauty") -> Path:
+    from imaging.image_io import write_exr  # noqa: PLC0415  as above
+
+    folder.mkdir()
+    for i, (height, width) in enumerate(sizes):
+        write_exr(folder / f"{name}_{i}.exr", {"": np.ones((height, width, 3), np.float32)})
+    return folder
+
+
+def sizes_gaps_and_outputs(folder: Path) -> list[str]:
+    """Sizes that disagree, frame numbers far apart, outputs into inputs: one line each, at once."""
+    from denoise.__main__ import main as denoise  # noqa: PLC0415  as above
+    from denoise.score import main as score  # noqa: PLC0415  as above
+
+    reference = _exr_folder(folder / "ref", [(6, 8), (6, 4)])
+    results = _exr_folder(folder / "res", [(6, 8), (6, 4)], "result")
+    far = folder / "far"
+    far.mkdir()
+    for index in (0, 10 ** 12):
+        (far / f"beauty_{index}.exr").write_bytes(b"")
+    start = time.perf_counter()
+    problems = refusals("python -m denoise.score", score, {
+        "reference frames of two sizes": ([results, "--reference", reference], "ref/beauty_0.exr has 8x6"),
+        "--plot into the reference": ([results, "--reference", reference, "--plot", reference / "p.png"],
+                                      "is inside the input folder --reference"),
+    }) + refusals("python -m denoise", denoise, {
+        "frames 0 and 10^12": ([far, folder / "o", "--method", "svgf"], f"without {far / 'beauty_1.exr'}"),
+        "results into the frames": ([far, far, "--method", "svgf"], "is the input IN_DIR"),
+    })
+    if time.perf_counter() - start > 30:
+        problems.append(f"took {time.perf_counter() - start:.0f} s")
+    return problems
+
+
+def png_modes(folder: Path) -> list[str]:
+    """Every PNG mode Pillow writes, from the same pixels, reads as those pixels."""
+    from imaging.image_io import read_png  # noqa: PLC0415  as above
+
+    grey = np.random.default_rng(1).integers(0, 256, (5, 7), np.uint8)
+    writes = {"L": Image.fromarray(grey), "I;16": Image.fromarray(grey.astype(np.uint16) * 257),
+              "LA": Image.fromarray(np.dstack([grey, grey]), "LA"), "RGB": Image.fromarray(np.dstack([grey] * 3)),
+              "P": Image.fromarray(np.dstack([grey] * 3)).quantize(256)}
+    problems = []
+    for mode, image in writes.items():
+        image.save(folder / "a.png")
+        error = np.abs(read_png(folder / "a.png")[..., 1].astype(int) - grey).max()
+        if error > (4 if mode == "P" else 1):
+            problems.append(f"{mode}: off by {error}")
+    return problems
+
+
+def denoiser_input_cases() -> list[SystemCase]:
+    return [SystemCase("every JSON input: damaged specs are one line", damaged_json, fast=True, kind="inputs"),
+            SystemCase("sizes, frame gaps, outputs into inputs: one line", sizes_gaps_and_outputs, fast=True,
+                       kind="inputs"),
+            SystemCase("every PNG mode reads as its pixels", png_modes, fast=True, kind="inputs")]
