@@ -11,15 +11,17 @@ Folders without records (a truth rendered elsewhere) are taken as they are.
 """
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 from core.errors import UsageError
+from core.json_input import JSONInputError, read_json
 
 #: a frame folder's settings, written by the export
 SEQUENCE_RECORD = "sequence.json"
 #: a reference folder's contents, written by the export
 GROUND_TRUTH_RECORD = "ground_truth.json"
+#: the largest record read (they are a few kilobytes)
+RECORD_LIMIT = 1 << 20
 
 
 def reference_folder(target: Path) -> Path:
@@ -31,8 +33,8 @@ def reference_folder(target: Path) -> Path:
 def read_record(path: Path) -> dict | None:
     """An export's record, or None where there is none that can be read (no evidence either way)."""
     try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, ValueError, RecursionError):
+        data = read_json(path, RECORD_LIMIT)
+    except (OSError, JSONInputError):
         return None
     return data if isinstance(data, dict) else None
 
