@@ -47,12 +47,12 @@ from core import entry
 from core.entry import ArgumentParser
 from core.errors import UsageError
 from core.markdown import replace_section
-from denoise.export import reference_folder
 from denoise.filters import demodulate, remodulate
 from denoise.fit import prepare
-from denoise.frames import frame_indices, read_frame
 from denoise.methods import from_name
 from denoise.methods.asvgf import GRADIENT_FLOOR, ASVGFParams, asvgf, box_statistics, fitted, to_ycocg
+from export import reference_folder
+from export.frames import frame_indices, read_frame
 from imaging.metrics import relmse
 from renderer.variants import set_variant
 

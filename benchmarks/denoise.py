@@ -58,12 +58,12 @@ from core import entry
 from core.entry import ArgumentParser
 from core.errors import OutputError, UsageError
 from core.markdown import replace_section
-from denoise.export import Spec, export, reference_folder
-from denoise.frames import frame_indices, read_frame
 from denoise.methods import benchmark_names, from_name, resolve
 from denoise.methods.oidn import QUALITIES, oidn_version
 from denoise.methods.user import add_method_file_option, load_method_files
 from denoise.temporal_metrics import stability, temporal_relmse
+from export import Spec, export, reference_folder
+from export.frames import frame_indices, read_frame
 from imaging.colour import side_by_side
 from imaging.image_io import read_exr_rgb as read_rgb, write_image, write_video
 from imaging.metrics import flip_error, relmse
@@ -477,7 +477,7 @@ def main(argv: list[str] | None = None) -> int:
         # the folder names its settings: other settings render beside it, never into it
         folder = args.work / f"{spec_path.stem}_{spec.size[0]}x{spec.size[1]}_{spec.reference_spp}spp{suffix}"
         # one Dask worker per core (each render is single-threaded so that bytes do not
-        # depend on thread counts; see denoise/export.py); the quick CI size stays in-process
+        # depend on thread counts; see export.py); the quick CI size stays in-process
         export(spec, folder, **({} if args.quick else {"workers": os.cpu_count() or 1}))
         outputs = {} if spec_path.stem == HARD else None
         rows, figures = run_sequence(folder, spec_path.stem, methods, outputs=outputs)

@@ -53,8 +53,8 @@ from benchmarks.records import machine, write_json
 from core import entry
 from core.entry import ArgumentParser
 from core.markdown import replace_section
-from denoise.export import Spec, export
-from denoise.frames import frame_indices, read_frame
+from export import Spec, export
+from export.frames import frame_indices, read_frame
 from renderer.variants import set_variant
 
 ROOT = Path(__file__).resolve().parent.parent

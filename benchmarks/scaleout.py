@@ -6,7 +6,7 @@
 The same small dataset (the sequences in ``scenes/sequences/``, shortened) is
 exported twice: in this process without Dask, and through a ``LocalCluster``
 of ``--workers`` processes with one task each. Every render runs on one Dr.Jit
-thread (:data:`denoise.export.sequence.RENDER_THREADS`: Dr.Jit's sums follow the
+thread (:data:`export.sequence.RENDER_THREADS`: Dr.Jit's sums follow the
 thread count, and the bytes must not), so the in-process export uses one core
 and the cluster's ideal is ``workers`` times faster. Prints and writes (``--json``)::
 
@@ -48,11 +48,11 @@ if __name__ == "__main__":  # first: ./.venv's Python, the libLLVM, then Dr.Jit 
 from benchmarks.records import check_json, write_json
 from core import entry
 from core.entry import ArgumentParser
-from denoise.export.cluster import dask_client
-from denoise.export.runners import export_sequences, sequences_for
-from denoise.export.sequence import RENDER_THREADS
-from denoise.export.spec import Spec
-from denoise.export.tasks import prepare_process
+from export.cluster import dask_client
+from export.runners import export_sequences, sequences_for
+from export.sequence import RENDER_THREADS
+from export.spec import Spec
+from export.tasks import prepare_process
 from renderer.variants import set_variant
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -1,7 +1,7 @@
 """The error types a user can see, one per failure class.
 
 Every entry point (``render.py``, ``--batch``, ``python -m converters``,
-``python -m denoise``, ``python -m denoise.export``) turns a
+``python -m denoise``, ``python -m export``) turns a
 :class:`ToolkitError` into exactly one line on stderr and exit code 2 (see
 :func:`core.entry.run`). ``str(error)`` is that line without the program
 name, so a message must say what was wrong and where (a file, a line, a flag).

@@ -2,7 +2,7 @@
 
 The course folder (``data/`` with the scenes, ``sample_out/`` with the reference
 images, ``README.md`` with the grading command lines) is ``$COURSE_ROOT``, else
-``../shared/course`` beside this checkout. ``render.py``, ``denoise.export``, the
+``../shared/course`` beside this checkout. ``render.py``, ``export``, the
 benchmarks and the tests all find it through :func:`root`.
 
 Imports only the standard library and :mod:`core.errors` (``render.py --help``

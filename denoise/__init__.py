@@ -3,6 +3,6 @@
 The course's real-time denoising assignment: a joint bilateral filter on the
 G-buffers, its À-Trous wavelet speed-up, back projection to the previous frame
 and temporal accumulation with clamping. :mod:`denoise.filters` holds the
-kernels, :mod:`denoise.frames` the frame folders, :mod:`denoise.export` renders
+kernels, :mod:`export.frames` the frame folders, :mod:`export` renders
 sequences, ``python -m denoise`` runs the denoiser on a folder.
 """

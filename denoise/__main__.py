@@ -19,11 +19,11 @@ from core.entry import ArgumentParser, run
 from core.errors import FrameError, UsageError
 from core.inputs import check_outside
 from core.numbers import ascii_int
+from export.ground_truth import check_ground_truth
 from imaging.colour import side_by_side, tone_map
 from imaging.image_io import read_exr_rgb, write_image, write_video
 from renderer.variants import set_variant
 
-from .ground_truth import check_ground_truth
 from .methods import METHODS, Option, declared_options, from_name, method_names, resolve
 from .methods.base import RADIANCE_LIMIT
 from .methods.user import add_method_file_option, load_method_files

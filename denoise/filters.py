@@ -169,7 +169,7 @@ def pixel_coordinates(width: int, height: int) -> tuple[mi.Int32, mi.Int32]:
 
 class FrameArrays:
     """One frame's buffers as flat Dr.Jit arrays (colour, normal, position),
-    uploaded once per frame; :class:`denoise.frames.FrameData` is the same
+    uploaded once per frame; :class:`export.frames.FrameData` is the same
     frame as NumPy arrays, as read from its folder.
 
     Non-finite colours become 0 and normals are normalised (zero-length ones

@@ -55,14 +55,14 @@ from core.entry import ArgumentParser, hold_signals, run
 from core.errors import UsageError
 from core.inputs import check_outside
 from core.numbers import ascii_float, ascii_int
+from export import Spec, export, reference_folder
+from export.frames import frame_indices, read_frame, same_size
 from imaging.image_io import atomic_path, check_writable, read_exr_rgb
 from imaging.metrics import relmse
 from renderer.bands import GROUP_SIGNALS
 from renderer.variants import set_variant
 
-from .export import Spec, export, reference_folder
 from .filters import FrameArrays, demodulate, remodulate, reproject
-from .frames import frame_indices, read_frame, same_size
 from .methods import from_name, make
 from .methods.asvgf import FITTED_OPTIONS, FilterValues, asvgf, fitted, hand_set
 
@@ -281,7 +281,7 @@ def _main(argv: list[str] | None) -> int:
         missing = [i for i in indices if not (truth / f"beauty_{i}.exr").is_file()]
         if missing:
             raise UsageError(f"{args.evaluate}: no ground truth for frame {missing[0]} "
-                             f"(no {truth / f'beauty_{missing[0]}.exr'}; python -m denoise.export renders it)")
+                             f"(no {truth / f'beauty_{missing[0]}.exr'}; python -m export renders it)")
         check_switch_frame(args.switch_frame, len(indices))
         set_variant("llvm_ad_rgb", jit=True)
         print_evaluation(args.evaluate, args.switch_frame)

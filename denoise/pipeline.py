@@ -10,9 +10,9 @@ from pathlib import Path
 from tqdm import tqdm
 
 from core.errors import FrameError, OutputError
+from export.frames import frame_indices, missing_between, missing_files, read_frame
 from imaging.image_io import write_exr
 
-from .frames import frame_indices, missing_between, missing_files, read_frame
 from .methods.base import DenoisingMethod
 
 

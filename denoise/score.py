@@ -6,14 +6,14 @@
 
 RESULTS holds one EXR per frame (the GAMES202 framework's ``result_i.exr``,
 or ``--pattern``); REF_DIR the ground truth ``beauty_i.exr`` of each frame
-scored (``python -m denoise.export`` writes it as ``OUT_reference``). Per
+scored (``python -m export`` writes it as ``OUT_reference``). Per
 frame: relMSE and mean FLIP against the truth. With ``--frames`` (the frame
 folder the results were made from: its positions, ids and matrices) also
 ``temporal``, the relMSE between a result and the previous one
 back-projected onto it, and the stability figure: its mean over the
 ground truth's (1 = as steady as the truth). A reference that is no ground
 truth (a frame folder, or an export's truth of no more samples than the
-frames) is refused (:mod:`denoise.ground_truth`). ``--compare METHOD ...`` runs
+frames) is refused (:mod:`export.ground_truth`). ``--compare METHOD ...`` runs
 our methods (``python -m denoise``'s, named as in ``benchmarks.denoise``:
 ``svgf``, ``atrous+temporal``, ``oidn``, ...; ``raw`` is the noisy input) on
 the same frames and scores them beside the results. Every number comes from
@@ -39,12 +39,12 @@ import numpy as np
 from core.entry import ArgumentParser, run
 from core.errors import FrameError, OutputError, UsageError
 from core.inputs import check_outside
+from export.frames import frame_indices, missing_between, read_frame, same_size
+from export.ground_truth import check_ground_truth
 from imaging.image_io import atomic_path, check_writable, read_exr_rgb
 from imaging.metrics import flip_error, relmse
 from renderer.variants import set_variant
 
-from .frames import frame_indices, missing_between, read_frame, same_size
-from .ground_truth import check_ground_truth
 from .methods import from_name
 from .methods.user import add_method_file_option, load_method_files
 from .pipeline import check_folder

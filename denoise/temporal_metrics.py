@@ -29,7 +29,7 @@ def back_projected(frames, images) -> list[tuple[np.ndarray, np.ndarray]]:
 
 def temporal_relmse(frames, images) -> list[float]:
     """Per frame from 1: relMSE between an image and the previous one back-projected onto it
-    (``frames``: the :class:`denoise.frames.FrameData` the images belong to)."""
+    (``frames``: the :class:`export.frames.FrameData` the images belong to)."""
     return [relmse(current, previous) if len(current) else 0.0 for current, previous in back_projected(frames, images)]
 
 

@@ -10,7 +10,7 @@ The course's camera shoots the ray through normalised image coordinates
   ``direction``, as in the course's solution.
 
 The ``course_camera`` sensor (``mi_plugins/course_camera.py``) traces these
-rays and the denoiser's frame matrices (``denoise/frames.py``) invert them.
+rays and the denoiser's frame matrices (``export/frames.py``) invert them.
 """
 from __future__ import annotations
 

@@ -38,7 +38,7 @@ from core.libllvm import MIN_LLVM, prepare_libllvm  # noqa: E402
 _LIBLLVM = prepare_libllvm("pytest").library
 
 from course import ENVIRONMENT as COURSE_ENVIRONMENT, root as course_root  # noqa: E402
-from denoise.export.tasks import forget_loaded_scenes  # noqa: E402
+from export.tasks import forget_loaded_scenes  # noqa: E402
 from renderer import variants  # noqa: E402
 
 #: no usable LLVM: image tests run on scalar_rgb (Python plugins, one ray at a
@@ -187,8 +187,8 @@ def pytest_sessionfinish(session, exitstatus):
 
 @pytest.fixture
 def exported(variant_llvm_ad_rgb, tmp_path):
-    """A small sequence exported by ``denoise.export`` (32x18, 2 frames), checked to be lit."""
-    from denoise.export import Spec, export
+    """A small sequence exported by ``export`` (32x18, 2 frames), checked to be lit."""
+    from export import Spec, export
     from imaging.image_io import read_exr_rgb
 
     folder = tmp_path / "glossy_shadow"

@@ -74,8 +74,8 @@ def test_a_failure_is_exactly_its_error_line(tmp_path):
 # -- the denoiser's commands, on a tiny exported sequence ------------------------------------
 TINY = {"scene": "lamps", "frames": 2, "size": [32, 18], "spp": 1, "reference_spp": 4, "bounces": 1}
 SEQUENCE_COMMANDS = {
-    "python -m denoise.export": ["-m", "denoise.export", "{spec}", "seq2", "--local"],
-    "python -m denoise.export, Dask workers": ["-m", "denoise.export", "{spec}", "seq3", "--workers", 1],
+    "python -m export": ["-m", "export", "{spec}", "seq2", "--local"],
+    "python -m export, Dask workers": ["-m", "export", "{spec}", "seq3", "--workers", 1],
     "python -m denoise": ["-m", "denoise", "{seq}", "den", "--png", "--video", "v.mp4", "--reference",
                           "{seq}_reference"],
     "python -m denoise --method svgf": ["-m", "denoise", "{seq}", "den", "--method", "svgf"],
@@ -99,7 +99,7 @@ def sequence(tmp_path_factory):
 
     folder = tmp_path_factory.mktemp("sequence")
     (folder / "seq.json").write_text(json.dumps(TINY))
-    for argv in (["-m", "denoise.export", folder / "seq.json", folder / "seq", "--local"],
+    for argv in (["-m", "export", folder / "seq.json", folder / "seq", "--local"],
                  ["-m", "denoise", folder / "seq", folder / "den"]):
         done = subprocess.run(python(*argv), cwd=folder, capture_output=True, text=True, timeout=300)
         assert done.returncode == 0, done.stderr

@@ -167,7 +167,7 @@ def test_screen_matrix_and_static_reprojection(variant_llvm_ad_rgb, buffers):
     """The world-to-screen matrix sends each pixel's surface point to that pixel;
     so in a static scene every hit reprojects onto itself and the background is invalid."""
     from denoise.filters import reproject
-    from denoise.frames import camera_matrices, depth_range
+    from export.frames import camera_matrices, depth_range
 
     _, _, x, ids = buffers
     h, w = ids.shape
@@ -191,7 +191,7 @@ def test_screen_matrix_and_static_reprojection(variant_llvm_ad_rgb, buffers):
 
 def test_frame_folder_round_trip(tmp_path):
     from core.errors import FrameError
-    from denoise.frames import FrameData, read_frame, write_frame
+    from export.frames import FrameData, read_frame, write_frame
 
     rng = np.random.default_rng(2)
     frame = FrameData(rng.random((4, 5, 3)), rng.random((4, 5, 3)), rng.random((4, 5, 3)), rng.random((4, 5)),
@@ -217,12 +217,12 @@ def course_z_over_w(screen, points):
 @pytest.mark.skipif(not GAMES202_BOX.is_dir(), reason="the course's example frames are not beside the checkout")
 def test_course_example_frames_read_and_reproject(variant_llvm_ad_rgb):
     """The course framework's own frames (GAMES202 box): our reader takes them,
-    their world-to-screen follows the convention of denoise/frames.py (pixel
+    their world-to-screen follows the convention of export/frames.py (pixel
     centres at i + 0.5, w = camera depth, z/w in (0, 1)), and our back
     projection keeps >= 99 % of the visible pixels' history between
     consecutive frames."""
     from denoise.filters import reproject
-    from denoise.frames import read_frame
+    from export.frames import read_frame
 
     frames = [read_frame(GAMES202_BOX, i) for i in range(4)]
     for f in frames:
@@ -244,7 +244,7 @@ def test_course_example_frames_read_and_reproject(variant_llvm_ad_rgb):
 def test_the_convention_check_fails_on_the_old_matrices(variant_llvm_ad_rgb, buffers):
     """The z/w check above catches the old export, whose depth row copied the w
     row (z/w = 1 everywhere, which the course's solutions reject)."""
-    from denoise.frames import camera_matrices, depth_range
+    from export.frames import camera_matrices, depth_range
 
     _, _, x, ids = buffers
     scene = load_scene(ROOT / "scenes" / "showcase.txt")
@@ -276,9 +276,9 @@ def test_reprojection_of_the_ground_truth(variant_llvm_ad_rgb, tmp_path, motion)
     (Ground truth here: whitted through the pixel centres, the points the
     G-buffers describe, on a diffuse scene, so only geometry can differ.)"""
 
-    from denoise.export import Spec, export, reference_folder
     from denoise.filters import reproject
-    from denoise.frames import read_frame
+    from export import Spec, export, reference_folder
+    from export.frames import read_frame
     from imaging.image_io import read_exr
     from imaging.metrics import relmse
 
@@ -424,7 +424,7 @@ def test_denoise_rejects_bad_parameters(tmp_path, capsys, flags, message):
 
 
 def _small_folder(folder, count=2, size=(5, 4), objects=1):
-    from denoise.frames import FrameData, write_frame
+    from export.frames import FrameData, write_frame
 
     rng = np.random.default_rng(4)
     h, w = size[1], size[0]
@@ -456,7 +456,7 @@ def test_denoise_rejects_bad_frames(variant_llvm_ad_rgb, tmp_path, capsys, damag
 
 
 def _small_folder_one(folder, index, size):
-    from denoise.frames import FrameData, write_frame
+    from export.frames import FrameData, write_frame
 
     h, w = size[1], size[0]
     write_frame(folder, index, FrameData(np.ones((h, w, 3)), np.ones((h, w, 3)), np.ones((h, w, 3)), np.ones((h, w)),

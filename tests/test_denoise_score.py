@@ -15,8 +15,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from denoise.frames import FrameData, write_frame
 from denoise.score import main
+from export.frames import FrameData, write_frame
 from imaging.image_io import read_exr_rgb, write_exr
 from imaging.metrics import relmse
 
@@ -261,7 +261,7 @@ def test_a_reference_that_is_not_a_ground_truth_is_refused(exported, tmp_path, c
     import shutil
 
     from denoise.__main__ import main as denoise_main
-    from denoise.ground_truth import GROUND_TRUTH_RECORD, SEQUENCE_RECORD, reference_folder
+    from export.ground_truth import GROUND_TRUTH_RECORD, SEQUENCE_RECORD, reference_folder
 
     truth = reference_folder(exported)
     record = json.loads((truth / GROUND_TRUTH_RECORD).read_text())

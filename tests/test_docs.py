@@ -33,7 +33,7 @@ PENDING_PAGES = {
     "docs/asvgf.md": "the A-SVGF method",
     "docs/oidn.md": "OIDN 2 as the baseline",
     "docs/scores.md": "python -m course.score and python -m denoise.score",
-    "docs/export.md": "python -m denoise.export",
+    "docs/export.md": "python -m export",
 }
 
 #: Fenced blocks whose lines are shell commands (an unlabelled block may be a diagram)
@@ -304,12 +304,12 @@ def test_a_misspelt_flag_and_a_missing_argument_are_found(tmp_path):
                     "python -m denoise out/seq/lamps\n"
                     "./dev tests -x\n"
                     "./dev test -x --no-such-pytest-flag\n"
-                    "python -m denoise.export [--frames 2] scenes/sequences/dolly_lamps.json out/seq/lamps\n"
+                    "python -m export [--frames 2] scenes/sequences/dolly_lamps.json out/seq/lamps\n"
                     "```\n")
     found = commands(page)
     assert [(c["kind"], c["name"]) for c in found] == [
         ("script", "render.py"), ("dev", "render"), ("module", "converters"), ("module", "denoise"),
-        ("dev", "tests"), ("dev", "test"), ("module", "denoise.export")]
+        ("dev", "tests"), ("dev", "test"), ("module", "export")]
     failures = check(found)
     assert len(failures) == 5, "\n".join(failures)
     assert "--varient" in failures[0] and failures[0].startswith("page.md:2:")
@@ -370,7 +370,7 @@ def child() -> None:
             if spec.submodule_search_locations:  # a package: python -m runs its __main__
                 spec = importlib.util.find_spec(check["name"] + ".__main__")
             source = Path(spec.origin).read_text() if spec and spec.origin else ""
-            # a thin __main__ hands over to a module of its package (denoise.export.cli)
+            # a thin __main__ hands over to a module of its package (export.cli)
             for imported in re.findall(r"^\s*from ([\w.]+) import main\b", source, re.M):
                 found = importlib.util.find_spec(imported, package=check["name"])
                 if found is not None and found.origin:

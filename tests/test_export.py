@@ -1,4 +1,4 @@
-"""denoise.export in one process: the reference's halves, seeds, spec checks,
+"""export in one process: the reference's halves, seeds, spec checks,
 folders that refuse other settings, and an interrupted export that resumes."""
 from __future__ import annotations
 
@@ -24,7 +24,7 @@ def rgb(path: Path) -> np.ndarray:
 
 def folder_bytes(target: Path) -> dict[str, bytes]:
     """Every image and matrix file of a sequence and its reference."""
-    from denoise.export import reference_folder
+    from export import reference_folder
 
     files = {}
     for folder in (target, reference_folder(target)):
@@ -35,7 +35,7 @@ def folder_bytes(target: Path) -> dict[str, bytes]:
 
 
 def export_tiny(target: Path, **kwargs):
-    from denoise.export import Spec, export
+    from export import Spec, export
 
     return export(Spec.from_dict(dict(TINY)), target, batch_spp=BATCH_SPP, **kwargs)
 
@@ -52,7 +52,7 @@ def uninterrupted(tmp_path_factory):
 
 
 def test_reference_is_the_mean_of_two_independent_halves(uninterrupted):
-    from denoise.export import reference_folder
+    from export import reference_folder
 
     reference = reference_folder(uninterrupted)
     for frame in (0, 1):
@@ -71,8 +71,8 @@ def halves_look_independent(a: np.ndarray, b: np.ndarray) -> bool:
 
 def test_halves_check_fails_when_seeds_repeat(tmp_path, uninterrupted, monkeypatch):
     """The check above on purpose-broken seeds (batch ignored): the halves come out equal."""
-    import denoise.export.store as export_module
-    from denoise.export import reference_folder
+    import export.store as export_module
+    from export import reference_folder
 
     monkeypatch.setattr(export_module, "seed", lambda key, frame, stream, batch=0: 7 + frame)
     target = tmp_path / "seq"
@@ -82,7 +82,7 @@ def test_halves_check_fails_when_seeds_repeat(tmp_path, uninterrupted, monkeypat
 
 
 def test_seeds_depend_on_sequence_frame_pass_and_batch_only():
-    from denoise.export import seed
+    from export import seed
 
     seeds = {seed(key, frame, stream, batch) for key in ("k1", "k2") for frame in range(3)
              for stream in ("noisy", "reference") for batch in range(4)}
@@ -92,7 +92,7 @@ def test_seeds_depend_on_sequence_frame_pass_and_batch_only():
 
 
 def test_batches_split_each_half_exactly():
-    from denoise.export import Sequence, Spec
+    from export import Sequence, Spec
 
     for reference_spp, batch_spp in ((8, 2), (256, 64), (10, 4), (2, 64), (1024, 1000)):
         spec = Spec.from_dict(dict(TINY, reference_spp=reference_spp))
@@ -120,7 +120,7 @@ def test_batches_split_each_half_exactly():
     ({"size": [16384, 16384], "spp": 64}, "samples in one render"),
 ])
 def test_bad_specs_are_refused_before_any_work(change, message):
-    from denoise.export import Spec
+    from export import Spec
 
     with pytest.raises(SpecError, match=message.replace("[", r"\[").replace("]", r"\]")):
         Spec.from_dict(dict(TINY, **change))
@@ -129,7 +129,7 @@ def test_bad_specs_are_refused_before_any_work(change, message):
 def test_cli_refuses_bad_specs_with_one_line(tmp_path, capsys):
     """spp 0 once ended in SIGFPE; a missing object index after loading the scene;
     both are one line and exit 2, and nothing is written."""
-    from denoise.export import main
+    from export import main
 
     for change, message in (({"spp": 0}, "spp: expected 1..1048576, found 0"),
                             ({"objects": {"99": {"translate": [1, 0, 0]}}}, "object 99 does not exist")):
@@ -137,14 +137,14 @@ def test_cli_refuses_bad_specs_with_one_line(tmp_path, capsys):
         spec.write_text(json.dumps(dict(TINY, **change)))
         assert main([str(spec), str(tmp_path / "out"), "--local"]) == 2
         err = capsys.readouterr().err
-        assert err.count("\n") == 1 and err.startswith("python -m denoise.export: error: ") and message in err
+        assert err.count("\n") == 1 and err.startswith("python -m export: error: ") and message in err
         assert not (tmp_path / "out").exists()
 
 
 def test_folder_made_with_other_settings_is_refused(tmp_path, uninterrupted, capsys):
     import shutil
 
-    from denoise.export import main, reference_folder
+    from export import main, reference_folder
 
     target = tmp_path / "seq"
     shutil.copytree(uninterrupted, target)
@@ -207,7 +207,7 @@ def export_interrupted_after(target: Path, count: int) -> list:
 def test_interrupted_export_resumes_with_only_the_missing_tasks(tmp_path, uninterrupted):
     """Ctrl-C after 3 of the 10 tasks (between a frame's batches); the rerun
     renders only the 7 missing tasks, and the files equal an uninterrupted run's."""
-    from denoise.export import Spec, plan, sequences_for
+    from export import Spec, plan, sequences_for
 
     target = tmp_path / "seq"
     done = export_interrupted_after(target, 3)
@@ -231,8 +231,8 @@ def test_interrupted_export_resumes_with_only_the_missing_tasks(tmp_path, uninte
 def test_resume_check_fails_when_finished_batches_are_ignored(tmp_path, monkeypatch):
     """The resume test's count on purpose-broken resuming (every batch redone):
     more than the missing tasks are planned."""
-    import denoise.export.store as export_module
-    from denoise.export import Spec, plan, sequences_for
+    import export.store as export_module
+    from export import Spec, plan, sequences_for
 
     target = tmp_path / "seq"
     export_interrupted_after(target, 3)
@@ -244,7 +244,7 @@ def test_resume_check_fails_when_finished_batches_are_ignored(tmp_path, monkeypa
 def passes_on(threads: int, spp: int, batch_spp: int) -> list[bytes]:
     """The frame and batch results of frame 0 at 160x120 (more than one Dr.Jit
     block, so 2 threads split each image) rendered on ``threads`` Dr.Jit threads."""
-    from denoise.export import Spec, plan, run_task, sequences_for
+    from export import Spec, plan, run_task, sequences_for
 
     spec = Spec.from_dict(dict(TINY, size=[160, 120], spp=spp, reference_spp=2 * batch_spp))
     [sequence] = sequences_for([("big", spec)], Path("/nonexistent/big"), batch_spp=batch_spp)
@@ -280,7 +280,7 @@ def test_thread_check_fails_without_single_threaded_passes(uninterrupted, monkey
     import drjit as dr
     import mitsuba as mi
 
-    import denoise.export.tasks as export_module
+    import export.tasks as export_module
 
     if not dr.is_jit_v(mi.Float):
         pytest.skip("scalar_rgb renders on one thread whatever the thread count: the mutation cannot show")

@@ -27,7 +27,7 @@ CHILD = r"""
 import json, os, signal, sys
 from renderer import variants
 variants.set_variant(None, quiet=True)  # llvm_ad_rgb where usable
-from denoise.export.cli import main
+from export.cli import main
 
 out = os.path.dirname(os.path.abspath(sys.argv[2]))
 kill_at = int(os.environ.get("EXPORT_KILL_AT", "0"))
@@ -73,7 +73,7 @@ def run_child(work: Path, kill_at: int = 0, events: Path | None = None) -> subpr
 
 
 def rerun(work: Path) -> None:
-    from denoise.export import main
+    from export import main
 
     assert main([str(work / "seq.json"), str(work / "out" / "seq"), "--local", "--batch-spp", str(BATCH_SPP)]) == 0
 
@@ -157,13 +157,13 @@ def test_the_uninterrupted_run_leaves_no_staging_or_batches(uninterrupted):
 def test_second_export_into_a_busy_folder_is_refused(tmp_path, capsys):
     """An export runs in another process; one more into its folder is one line
     and exit 2, writes nothing there, and the first one's files are whole."""
-    from denoise.export import main
+    from export import main
 
     big = dict(TINY, size=[64, 48], reference_spp=64)
     spec = tmp_path / "seq.json"
     spec.write_text(json.dumps(big))
     target = tmp_path / "out" / "seq"
-    first = subprocess.Popen([sys.executable, "-m", "denoise.export", str(spec), str(target), "--local",
+    first = subprocess.Popen([sys.executable, "-m", "export", str(spec), str(target), "--local",
                               "--batch-spp", "4"], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                              text=True)
     try:
@@ -185,7 +185,7 @@ def test_second_export_into_a_busy_folder_is_refused(tmp_path, capsys):
 
 
 def test_colliding_dataset_folders_are_refused_before_anything_is_written(tmp_path, capsys):
-    from denoise.export import main
+    from export import main
 
     paths = []
     for name in ("a", "a_reference"):
@@ -200,7 +200,7 @@ def test_colliding_dataset_folders_are_refused_before_anything_is_written(tmp_pa
 def test_ground_truth_without_its_frame_folder_names_the_ground_truth(tmp_path, capsys):
     """A reference folder left behind (its frame folder deleted) is what is
     in the way, and the message names it, not the frame folder."""
-    from denoise.export import main
+    from export import main
 
     spec = tmp_path / "seq.json"
     spec.write_text(json.dumps(TINY))

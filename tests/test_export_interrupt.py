@@ -26,7 +26,7 @@ def test_ctrl_c_during_an_export_is_one_line_and_leaves_no_worker(tmp_path, wher
     spec.write_text(json.dumps(dict(TINY, size=[64, 48], frames=3, reference_spp=256)))
     target = tmp_path / "out" / "seq"
     # its own session: the test's SIGINT to the group is what a terminal's Ctrl-C sends
-    export = subprocess.Popen([sys.executable, "-m", "denoise.export", str(spec), str(target), *where,
+    export = subprocess.Popen([sys.executable, "-m", "export", str(spec), str(target), *where,
                                "--batch-spp", "4"], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                               text=True, start_new_session=True)
     try:
@@ -44,7 +44,7 @@ def test_ctrl_c_during_an_export_is_one_line_and_leaves_no_worker(tmp_path, wher
             os.killpg(export.pid, signal.SIGKILL)
     assert export.returncode == 130, err
     assert out == ""
-    assert err.count("\n") == 1 and err.startswith("python -m denoise.export: interrupted"), err
+    assert err.count("\n") == 1 and err.startswith("python -m export: interrupted"), err
     gone, alive = psutil.wait_procs(workers, timeout=10)
     assert not alive, alive
     assert not (target / ".export.lock").exists()

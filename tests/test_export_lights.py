@@ -14,14 +14,14 @@ from core.errors import SpecError
 
 def course_scene(name: str):
     from course import data_dir, resolve_scene
-    from denoise.export.tasks import course_scene
+    from export.tasks import course_scene
 
     return course_scene(str(resolve_scene(name, data_dir(None)).resolve()))
 
 
 def lights_at(scene_name: str, lights: dict, frame: int, frames: int = 8):
-    from denoise.export.animation import animate
-    from denoise.export.spec import Spec
+    from export.animation import animate
+    from export.spec import Spec
 
     spec = Spec.from_dict({"scene": scene_name, "frames": frames, "lights": lights})
     return animate(course_scene(scene_name), spec, frame / (frames - 1)).lights
@@ -59,7 +59,7 @@ def test_directional_light_turns_about_its_axis():
 def test_a_switched_off_light_renders_dark(tmp_path):
     """End to end: every lamp scaled to 0 on the last frame leaves it black
     (the path tracer has no ambient term), the first frame lit."""
-    from denoise.export import Spec, export, reference_folder
+    from export import Spec, export, reference_folder
     from renderer import variants
 
     variants.set_variant(None, quiet=True)  # llvm_ad_rgb where usable
@@ -74,7 +74,7 @@ def test_a_switched_off_light_renders_dark(tmp_path):
 def test_specs_without_lights_keep_their_seeds():
     """``lights`` is left out of the recorded spec when empty: the folders made
     before lights could change keep their key (and so their bytes)."""
-    from denoise.export import Spec
+    from export import Spec
 
     assert "lights" not in Spec.from_dict(dict(TINY)).as_json()
     assert Spec.from_dict(dict(TINY, lights={"0": {"scale": 2}})).as_json()["lights"] == {"0": {"scale": 2}}
@@ -101,7 +101,7 @@ def test_specs_without_lights_keep_their_seeds():
     ({"0": {"translate": [1e308, 0, 0]}}, "lights.0.translate[0]: expected a finite number of magnitude at most"),
 ])
 def test_bad_light_changes_are_refused(lights, message):
-    from denoise.export import Spec
+    from export import Spec
 
     with pytest.raises(SpecError, match=message.replace("[", r"\[").replace("]", r"\]")):
         Spec.from_dict(dict(TINY, lights=lights), "spec.json")
@@ -113,22 +113,22 @@ def test_bad_light_changes_are_refused(lights, message):
     ("lamps", {"1": {"rotate": {"axis": [0, 1, 0], "degrees": 9}}}, "lights.1.rotate: light 1 is a point light"),
 ])
 def test_lights_the_scene_lacks_are_refused_before_anything_is_written(tmp_path, capsys, scene, lights, message):
-    from denoise.export import main
+    from export import main
 
     spec = tmp_path / "spec.json"
     spec.write_text(json.dumps(dict(TINY, scene=scene, objects={}, lights=lights)))
     assert main([str(spec), str(tmp_path / "out"), "--local"]) == 2
     err = capsys.readouterr().err
     # the spec named by its file, as every other spec error names it
-    assert err.count("\n") == 1 and err.startswith(f"python -m denoise.export: error: {spec}: ") and message in err, err
+    assert err.count("\n") == 1 and err.startswith(f"python -m export: error: {spec}: ") and message in err, err
     assert not (tmp_path / "out").exists()
 
 
 def test_a_scene_the_spec_names_wrongly_is_refused_naming_the_spec(tmp_path, capsys):
-    from denoise.export import main
+    from export import main
 
     spec = tmp_path / "spec.json"
     spec.write_text(json.dumps(dict(TINY, scene="no_such_scene")))
     assert main([str(spec), str(tmp_path / "out"), "--local"]) == 2
     err = capsys.readouterr().err
-    assert err.count("\n") == 1 and err.startswith(f"python -m denoise.export: error: {spec}: scene: no scene "), err
+    assert err.count("\n") == 1 and err.startswith(f"python -m export: error: {spec}: scene: no scene "), err

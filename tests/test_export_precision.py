@@ -21,7 +21,7 @@ TOLERANCE = 1e-4
 
 
 def export(tmp_path, name: str, spp: int, reference_spp: int, batch_spp: int):
-    from denoise.export import Spec, export, reference_folder
+    from export import Spec, export, reference_folder
 
     scene = tmp_path / "one_light.txt"
     scene.write_text(SCENE)

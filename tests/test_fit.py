@@ -168,7 +168,7 @@ def test_sizes_that_disagree_are_one_line_naming_both_files(variant_vectorised_r
 
     from core.errors import FrameError
     from denoise.fit import prepare
-    from denoise.frames import write_frame
+    from export.frames import write_frame
     from imaging.image_io import write_exr
 
     folder = tmp_path / "seq"

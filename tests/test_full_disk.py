@@ -58,7 +58,7 @@ def test_each_image_writer_on_a_full_disk(kind, capsys):
 def sequence(tmp_path_factory):
     """A tiny exported sequence, and the size of one denoised frame."""
     folder = tmp_path_factory.mktemp("seq")
-    code, _, stderr = run_command(python("-m", "denoise.export", ROOT / "scenes/sequences/dolly_lamps.json",
+    code, _, stderr = run_command(python("-m", "export", ROOT / "scenes/sequences/dolly_lamps.json",
                                          folder / "seq", "--frames", 2, "--size", 32, 18))
     assert code == 0, stderr
     code, _, stderr = run_command(python("-m", "denoise", folder / "seq", folder / "den"))

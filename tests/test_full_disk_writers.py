@@ -59,16 +59,16 @@ def spec(tmp_path_factory):
 
 
 def test_the_export_on_a_full_disk_resumes_to_the_same_bytes(spec, tmp_path):
-    code, _, stderr = run_command(python("-m", "denoise.export", spec, tmp_path / "seq", *EXPORT))
+    code, _, stderr = run_command(python("-m", "export", spec, tmp_path / "seq", *EXPORT))
     assert code == 0, stderr
     expected = tree(tmp_path)
     named = set()
     for room in ROOMS:
         with full_disk() as disk:
             disk.fill(room=room * 4096)
-            argv = python("-m", "denoise.export", spec, disk.path / "seq", *EXPORT)
+            argv = python("-m", "export", spec, disk.path / "seq", *EXPORT)
             code, _, stderr = run_command(argv, preexec=disk.limit)
-            assert one_error_line(code, stderr, "python -m denoise.export", disk.expect) == [], (room, stderr)
+            assert one_error_line(code, stderr, "python -m export", disk.expect) == [], (room, stderr)
             path = stderr.split(": error: ", 1)[1].split(": ")[0]
             assert not re.search(r"/\.[^/]*$", path), (room, stderr)  # the user's file, not a staging one
             named |= {kind for kind, pattern in KINDS.items() if re.search(pattern, path)}
@@ -88,7 +88,7 @@ def test_the_export_on_a_full_disk_resumes_to_the_same_bytes(spec, tmp_path):
 def denoised(spec, tmp_path_factory):
     """An exported tiny sequence and its denoised results."""
     folder = tmp_path_factory.mktemp("denoised")
-    code, _, stderr = run_command(python("-m", "denoise.export", spec, folder / "seq", *EXPORT))
+    code, _, stderr = run_command(python("-m", "export", spec, folder / "seq", *EXPORT))
     assert code == 0, stderr
     code, _, stderr = run_command(python("-m", "denoise", folder / "seq", folder / "den"))
     assert code == 0, stderr

@@ -15,11 +15,11 @@ import pytest
 from PIL import Image
 
 from core.errors import FrameError, SpecError, UsageError
-from denoise.export.spec import Spec
-from denoise.frames import frame_indices
 from denoise.methods.asvgf import load_parameter_file
 from denoise.pipeline import check_folder
 from denoise.score import check_consecutive
+from export.frames import frame_indices
+from export.spec import Spec
 from imaging.image_io import read_png
 from validation.stress_cases_inputs_denoiser import denoiser_input_cases
 
@@ -213,8 +213,8 @@ def test_the_stress_cases_of_these_classes_pass(variant_vectorised_rgb, case):
 
 @pytest.mark.parametrize("command", ["export", "fit"])
 def test_export_and_fit_never_write_onto_their_inputs(tmp_path, capsys, command):
-    from denoise.export.cli import main as export
     from denoise.fit import main as fit
+    from export.cli import main as export
 
     spec, data = tmp_path / "seq.json", tmp_path / "data"
     spec.write_text('{"scene": "lamps", "frames": 2}')

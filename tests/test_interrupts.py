@@ -91,7 +91,7 @@ def long_denoise_input(tmp_path_factory):
     if SCALAR_FALLBACK:
         pytest.skip("no usable libLLVM: the denoiser's kernels need a JIT variant")
     folder = tmp_path_factory.mktemp("denoise_input") / "lamps"
-    code, _, stderr = run_command(python("-m", "denoise.export", ROOT / "scenes" / "sequences" / "dolly_lamps.json",
+    code, _, stderr = run_command(python("-m", "export", ROOT / "scenes" / "sequences" / "dolly_lamps.json",
                                          folder, "--frames", 8, "--size", 320, 180, "--reference-spp", 2, "--local"))
     assert code == 0, stderr
     return folder

@@ -25,7 +25,7 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
-PACKAGES = ("core", "converters", "course", "mi_plugins", "imaging", "renderer", "validation", "benchmarks",
+PACKAGES = ("core", "converters", "course", "mi_plugins", "imaging", "renderer", "export", "validation", "benchmarks",
             "denoise", "notebooks", "tests")
 #: function name -> the one module that defines it
 HOMES = {"relmse": "imaging/metrics.py", "flip_error": "imaging/metrics.py",
@@ -39,8 +39,8 @@ HOMES = {"relmse": "imaging/metrics.py", "flip_error": "imaging/metrics.py",
          "back_projected": "denoise/temporal_metrics.py", "stability": "denoise/temporal_metrics.py",
          "flip_heat_map": "imaging/metrics.py"}
 #: the floors, lowest first: a package imports only those below it (tests and notebooks sit on top)
-FLOORS = ("core", "imaging", "mi_plugins", "converters", "course", "renderer", "denoise", "validation",
-          "benchmarks", "notebooks", "tests")
+FLOORS = ("core", "imaging", "mi_plugins", "converters", "course", "renderer", "export", "denoise",
+          "validation", "benchmarks", "notebooks", "tests")
 #: the packages users run (the floors up to the denoiser)
 PRODUCTION = FLOORS[:FLOORS.index("denoise") + 1]
 
@@ -155,7 +155,7 @@ def test_the_layout_checks_can_fail(tmp_path):
 
 # -- the import graph, file sizes and comments ----------------------------------------
 #: the packages of the import graph (tests are not imported by any of them)
-GRAPH_PACKAGES = ("core", "converters", "course", "mi_plugins", "imaging", "renderer", "validation",
+GRAPH_PACKAGES = ("core", "converters", "course", "mi_plugins", "imaging", "renderer", "export", "validation",
                   "benchmarks", "denoise", "notebooks", "scenes")
 MAX_LINES = 450
 DIARY = re.compile(r"20\d\d-\d\d-\d\d|\bissue \d+|\bissue #\d+", re.IGNORECASE)

@@ -63,7 +63,7 @@ ENTRY_POINTS = sorted((set(DOCUMENTED) | set(guarded_modules())) - {"scenes.gene
 RUNS = {
     "render.py": (["-input", "{scene}", "-size", "4", "3", "-output", "{tmp}/a.png"], "fallback"),
     "converters": (["{scene}", "-o", "{tmp}/s.xml", "-size", "4", "3"], "none"),
-    "denoise.export": (["{spec}", "{tmp}/seq", "--local"], "fallback"),
+    "export": (["{spec}", "{tmp}/seq", "--local"], "fallback"),
     "denoise": (["{seq}", "{tmp}/den"], "refuse"),
     "denoise.score": (["{seq}", "--reference", "{seq}_reference", "--frames", "{seq}"], "refuse"),
     "denoise.fit": (["{spec}", "--work", "{tmp}/fit", "--steps", "1", "--switch-frame", "1", "--out", "{tmp}/p.json"],
@@ -87,7 +87,7 @@ def inputs(tmp_path_factory) -> dict:
     folder = tmp_path_factory.mktemp("inputs")
     (folder / "s.txt").write_text(scene())
     (folder / "tiny.json").write_text(json.dumps(TINY))
-    done = subprocess.run(command("denoise.export") + [str(folder / "tiny.json"), str(folder / "seq"), "--local"],
+    done = subprocess.run(command("export") + [str(folder / "tiny.json"), str(folder / "seq"), "--local"],
                           cwd=ROOT, capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr
     return {"scene": folder / "s.txt", "spec": folder / "tiny.json", "seq": folder / "seq"}
@@ -270,7 +270,7 @@ def test_every_entry_point_loads_the_libllvm_it_chose(name, case, watch_folder, 
 def test_every_entry_point_is_found_and_starts_with_the_launcher():
     """The documented commands are among the runnable modules (none missed by the lists above), and
     in each runnable module nothing but the standard library is imported before core.launcher.start."""
-    assert {"render.py", "converters", "denoise", "denoise.export", "denoise.score", "denoise.fit",
+    assert {"render.py", "converters", "denoise", "export", "denoise.score", "denoise.fit",
             "denoise.live", "benchmarks.denoise"} <= set(DOCUMENTED)
     assert set(DOCUMENTED) <= set(ENTRY_POINTS)
     late = []

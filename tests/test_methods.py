@@ -72,8 +72,8 @@ def test_a_method_defined_here_is_listed_and_runs(registered_box, exported, tmp_
     ``--help``, the command runs it on an exported folder with its parameter,
     and refuses a bad value in one line."""
     from denoise.__main__ import main
-    from denoise.frames import read_frame
     from denoise.methods.listing import method_list
+    from export.frames import read_frame
     from imaging.image_io import read_exr_rgb
 
     with pytest.raises(SystemExit) as exit_code:

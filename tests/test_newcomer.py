@@ -64,7 +64,7 @@ def test_the_system_python_really_lacks_the_packages(fresh_shell, tmp_path):
 
 def test_readme_commands_in_a_fresh_shell(fresh_shell, tmp_path):
     """`python render.py scene06 --variant scalar_rgb`, `python -m converters`,
-    `python -m denoise.export` and `python -m denoise` as the README writes them,
+    `python -m export` and `python -m denoise` as the README writes them,
     with the system Python first on PATH (tiny sizes)."""
     if COURSE_SCENES.is_dir():
         result = fresh_shell("python", "render.py", "scene06", "--variant", "scalar_rgb", "-size", "16", "16",
@@ -77,7 +77,7 @@ def test_readme_commands_in_a_fresh_shell(fresh_shell, tmp_path):
     assert result.returncode == 0, result.stderr
     assert (tmp_path / "x.xml").is_file()
     frames = tmp_path / "seq"
-    result = fresh_shell("python", "-m", "denoise.export", "scenes/sequences/dolly_lamps.json", str(frames),
+    result = fresh_shell("python", "-m", "export", "scenes/sequences/dolly_lamps.json", str(frames),
                          "--frames", "2", "--size", "16", "12", "--spp", "1", "--reference-spp", "2")
     assert result.returncode == 0, result.stderr
     result = fresh_shell("python", "-m", "denoise", str(frames), str(tmp_path / "denoised"))
@@ -417,7 +417,7 @@ def test_converter_writes_spp_and_refuses_what_render_py_refuses(variant_scalar_
 
 @pytest.mark.parametrize("command", [["converters", "scenes/transforms.txt", "-o", "x.xml", "-size", "32"],
                                      ["converters"], ["denoise", "a", "b", "--bogus"],
-                                     ["denoise.export", "a.json", "b", "--bogus"]])
+                                     ["export", "a.json", "b", "--bogus"]])
 def test_argument_errors_are_one_line(command, tmp_path):
     """argparse's usage block is not an error line: every command's parser raises UsageError."""
     result = subprocess.run([sys.executable, "-m", *command], cwd=ROOT, capture_output=True, text=True)

@@ -113,7 +113,7 @@ def _plane_frames(count=2, h=24, w=32, seed=9):
     (pixel (x, y) sees the point (x + 0.5, y + 0.5, 1)): the back projection
     keeps every pixel's own history, except where the previous frame saw
     the background (id -1)."""
-    from denoise.frames import FrameData
+    from export.frames import FrameData
 
     rng = np.random.default_rng(seed)
     ys, xs = np.mgrid[0:h, 0:w]

@@ -48,10 +48,10 @@ def test_the_page_is_about_thirty_lines():
 
 def test_the_pages_method_runs_through_every_surface(my_filter, exported, tmp_path, capsys):
     from denoise.__main__ import main as denoise
-    from denoise.export import reference_folder
     from denoise.live.methods import SLIDERS, describe, refresh
     from denoise.methods.user import load_method_file
     from denoise.score import main as score
+    from export import reference_folder
     from imaging.image_io import read_exr_rgb
 
     files = ["--method-file", str(my_filter)]

@@ -1,4 +1,4 @@
-"""denoise.export on Dask: the same bytes with 1 and 2 workers as in one
+"""export on Dask: the same bytes with 1 and 2 workers as in one
 process, a killed worker's tasks redone, several specs into one dataset, and
 the scale-out benchmark's figures (at a tiny size)."""
 from __future__ import annotations
@@ -19,7 +19,7 @@ SPEC = dict(TINY, reference_spp=12)
 
 
 def export_with(target: Path, **where):
-    from denoise.export import Spec, export
+    from export import Spec, export
 
     return export(Spec.from_dict(dict(SPEC)), target, batch_spp=BATCH_SPP, **where)
 
@@ -54,7 +54,7 @@ def test_byte_comparison_fails_on_order_dependent_sums(tmp_path, in_process, mon
     change the bytes, so a sum that depended on the order would be caught."""
     import numpy as np
 
-    import denoise.export.recorder as export_module
+    import export.recorder as export_module
     from imaging.image_io import write_exr
 
     def sums_last_first(sequence, frame):
@@ -145,7 +145,7 @@ def test_kill_check_fails_when_dask_may_not_retry(tmp_path, in_process):
 def test_dataset_of_two_specs_and_the_cli(tmp_path, capsys):
     """Two specs -> OUT/<name> and OUT/<name>_reference each, and one manifest
     (the layout does not depend on where tasks run: here in this process)."""
-    from denoise.export import main
+    from export import main
 
     paths = []
     for name, change in (("first", {}), ("second", {"frames": 1, "camera": {"pan": [0.3, 0, 0]}})):

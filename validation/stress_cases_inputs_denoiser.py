@@ -28,13 +28,13 @@ DAMAGED_SPECS = {
 
 
 def damaged_json(folder: Path) -> list[str]:
-    from denoise.export.cli import main as export  # noqa: PLC0415  Dr.Jit loads after the suite chose its variant
+    from export.cli import main as export  # noqa: PLC0415  Dr.Jit loads after the suite chose its variant
 
     cases = {}
     for k, (name, (data, words)) in enumerate(DAMAGED_SPECS.items()):
         (folder / f"spec{k}.json").write_bytes(data)
         cases[name] = ([folder / f"spec{k}.json", folder / "out", "--local"], words)
-    return refusals("python -m denoise.export", export, cases)
+    return refusals("python -m export", export, cases)
 
 
 def _exr_folder(folder: Path, sizes: list[tuple[int, int]], name: str = "beauty") -> Path:

@@ -19,10 +19,10 @@ import numpy as np
 from core.errors import FrameError, UsageError
 from denoise.__main__ import main as denoise_main
 from denoise.filters import OutlierParams, TemporalParams, clamp_box
-from denoise.frames import FrameData, read_matrices, write_frame
 from denoise.methods import METHODS, make
 from denoise.pipeline import denoise_folder
 from denoise.svgf_common import SVGFParams
+from export.frames import FrameData, read_matrices, write_frame
 from imaging.image_io import write_exr
 
 H, W = 12, 16

@@ -1,7 +1,7 @@
 """The command-line fuzzer of the denoiser's commands and the scores.
 
 :func:`fuzz_commands` draws argument lists for ``python -m denoise``,
-``denoise.export``, ``denoise.score``, ``denoise.fit``, ``denoise.live``,
+``export``, ``denoise.score``, ``denoise.fit``, ``denoise.live``,
 ``denoise.methods`` and ``course.score`` from a vocabulary of their flags,
 numbers that are fine, odd or absurd, and paths that are fine, missing,
 damaged or of the wrong kind (a method file among them, and a broken one).
@@ -11,7 +11,7 @@ runs each command's ``main`` in-process in
 a scratch folder. Each must end in exit 0 (``course.score``: 0 or 1, its
 verdict), or exit 2 with one ``PROG: error:`` line; never a traceback or
 another exception. What a command would do for long is kept short:
-``denoise.export`` renders in-process at a few pixels, ``denoise.fit`` takes
+``export`` renders in-process at a few pixels, ``denoise.fit`` takes
 a step or two, and ``denoise.live`` is given a port that is in use as its
 last flag (it checks the port before anything else, so it never serves).
 """
@@ -55,7 +55,7 @@ COMMANDS = {
                                       "bogus", "--png", "--video", "v.mp4", "v.avi", "--reference", "--fps",
                                       "--levels", "--alpha", "--k", "--oidn-quality", "fast", "best",
                                       "--no-temporal", "--radius", "--sigma-color"], ["seq", "out"]),
-    "denoise.export": ("python -m denoise.export", ["--frames", "--size", "--spp", "--reference-spp",
+    "export": ("python -m export", ["--frames", "--size", "--spp", "--reference-spp",
                                                     "--batch-spp", "--whitted", "--data", "--force", "--workers",
                                                     "--scheduler", "tcp://127.0.0.1:1"],
                        ["tiny.json", "out", "--local"]),
@@ -78,7 +78,7 @@ COMMANDS = {
 def _scratch() -> tuple[Path, Path]:
     """A folder with every path of the vocabulary, and the spec it exported."""
     from core.entry import run  # noqa: PLC0415  the commands load on use
-    from denoise.export import main as export_main  # noqa: PLC0415  as above
+    from export import main as export_main  # noqa: PLC0415  as above
     from imaging.image_io import write_image  # noqa: PLC0415  as above
 
     folder = Path(tempfile.mkdtemp(prefix="stress-commands-"))
@@ -107,7 +107,7 @@ def _main_of(command: str):
     """The command's ``main(argv)`` (imported on use: Dr.Jit loads after the suite chose its variant)."""
     import importlib  # noqa: PLC0415  only the fuzzer needs it
 
-    module = {"denoise": "denoise.__main__", "denoise.export": "denoise.export.cli",
+    module = {"denoise": "denoise.__main__", "export": "export.cli",
               "denoise.live": "denoise.live.app", "denoise.methods": "denoise.methods.__main__"}.get(command, command)
     return importlib.import_module(module).main
 

@@ -1,7 +1,7 @@
 """Frames for the live page: render at 1 spp with G-buffers, denoise, encode.
 
 :class:`SceneRenderer` renders a frame as the export does
-(:func:`denoise.export.loaded_frame`): whitted's AOVs (:data:`GBUFFER_AOVS`)
+(:func:`export.loaded_frame`): whitted's AOVs (:data:`GBUFFER_AOVS`)
 through the pixel centres, then Mitsuba's path tracer at 1 spp through
 jittered positions, with the camera of the moment (``live_camera``, whose
 basis is opaque data) and the first point light where the viewer put it.
@@ -37,8 +37,8 @@ from converters.description import RenderOptions, scene_dict
 from converters.model import PointLight
 from converters.scene_variants import with_path_tracer, without_ambient
 from converters.to_mitsuba import load_scene_dict
-from denoise.export import GBUFFER_AOVS
-from denoise.frames import FrameData, camera_matrices, depth_range
+from export import GBUFFER_AOVS
+from export.frames import FrameData, camera_matrices, depth_range
 from imaging.colour import tone_map
 from renderer.job import split_layers
 

@@ -21,6 +21,7 @@ import numpy as np
 
 from core.errors import FrameError, UsageError
 from core.numbers import ascii_float, ascii_int
+from export.frames import FrameData
 
 from ..filters import (
     EdgeWeights,
@@ -33,7 +34,6 @@ from ..filters import (
     remove_outliers,
     reproject,
 )
-from ..frames import FrameData
 
 #: beauty values beyond +-this are clamped to it (NaN and inf become 0) before any filter:
 #: squared differences and second moments of 49 such values stay finite in float32

@@ -1,7 +1,7 @@
 """The export's tasks on a Dask distributed cluster.
 
 Every frame is one task (G-buffers and noisy beauty) plus one task per
-ground-truth batch (see :func:`denoise.export.store.plan`). They are submitted as
+ground-truth batch (see :func:`export.store.plan`). They are submitted as
 Dask futures and collected with ``as_completed``; this process writes each
 result as it arrives (atomically), so only the scene files need to be
 readable on the workers, at the same path. Dask reschedules the tasks of a
@@ -10,7 +10,7 @@ next run submits only what is missing.
 
 Without a scheduler address a ``LocalCluster`` is started: one worker process
 per core (or ``workers``), one task at a time each. Every render runs on one
-Dr.Jit thread (:data:`denoise.export.sequence.RENDER_THREADS`), so on an existing
+Dr.Jit thread (:data:`export.sequence.RENDER_THREADS`), so on an existing
 cluster start one single-threaded worker per core:
 ``dask worker ADDRESS --nworkers -1 --nthreads 1`` on each machine.
 """
@@ -158,6 +158,6 @@ def cluster_description(client, scheduler: str | None = None) -> dict:
     """What the manifest records about the cluster (and the dashboard's link, on stderr)."""
     info = client.scheduler_info()
     if has_dashboard():
-        print(f"denoise.export: Dask dashboard at {client.dashboard_link}", file=sys.stderr)
+        print(f"export: Dask dashboard at {client.dashboard_link}", file=sys.stderr)
     return {"runner": "dask", "scheduler": scheduler or info.get("address"),
             "workers": len(info.get("workers", {}))}

@@ -26,8 +26,8 @@ from core.entry import hold_signals
 from renderer.job import split_layers
 from renderer.variants import set_variant
 
-from ..frames import FrameData, camera_matrices, depth_range
 from .animation import animate
+from .frames import FrameData, camera_matrices, depth_range
 from .sequence import MAX_SPP_PER_RENDER, RENDER_THREADS, Sequence, part_seed
 
 #: the layers the G-buffer pass writes (whitted's AOVs at pixel centres)

@@ -1,6 +1,6 @@
 """Rendering animated sequences into frame folders, with their ground truth.
 
-    python -m denoise.export SPEC.json... OUT [--frames N] [--size W H] [--spp K]
+    python -m export SPEC.json... OUT [--frames N] [--size W H] [--spp K]
                              [--reference-spp R] [--batch-spp B] [--whitted] [--data DIR]
                              [--variant V] [--force]
                              [--local | --workers N | --scheduler ADDRESS]
@@ -52,7 +52,7 @@ is refused (``--force`` starts it over).
 
 By default the tasks run on a Dask ``LocalCluster`` with one worker process
 per core; ``--scheduler ADDRESS`` runs them on an existing Dask cluster (see
-:mod:`denoise.export.cluster`), ``--local`` in this process without Dask.
+:mod:`export.cluster`), ``--local`` in this process without Dask.
 
 The package's modules, each importing only those above it:
 ``spec`` (the schema and its checks), ``animation`` (the scene at a time),
@@ -60,7 +60,7 @@ The package's modules, each importing only those above it:
 cache, rendering one task), ``files`` (crash-safe writes, staging files,
 folder locks), ``store`` (folders: done, claimed, resumed, written),
 ``recorder`` (results as they come, the manifest), ``cluster`` (Dask),
-``runners`` (the whole export), ``cli`` (``python -m denoise.export``).
+``runners`` (the whole export), ``cli`` (``python -m export``).
 """
 from __future__ import annotations
 
@@ -84,7 +84,7 @@ __all__ = sorted(_HOMES)
 
 
 def __getattr__(name: str):
-    # imported on first use: ``python -m denoise.export`` must reach its launcher
+    # imported on first use: ``python -m export`` must reach its launcher
     # (core.launcher) before NumPy or Mitsuba are imported
     if name not in _HOMES:
         raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -1,4 +1,4 @@
-"""The command line of :mod:`denoise.export`: ``python -m denoise.export``."""
+"""The command line of :mod:`export`: ``python -m export``."""
 from __future__ import annotations
 
 import argparse
@@ -17,7 +17,7 @@ from .spec import Spec
 
 
 def _parser() -> argparse.ArgumentParser:
-    parser = ArgumentParser(prog="python -m denoise.export", description=PACKAGE_DOC.split("\n\n")[0])
+    parser = ArgumentParser(prog="python -m export", description=PACKAGE_DOC.split("\n\n")[0])
     parser.add_argument("paths", type=Path, nargs="+", metavar="SPEC.json... OUT",
                         help="one or more specs, then the output folder")
     parser.add_argument("--frames", type=ascii_int)
@@ -62,5 +62,5 @@ def _main(argv: list[str] | None) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """``python -m denoise.export``; returns the exit code."""
-    return run("python -m denoise.export", lambda: _main(argv))
+    """``python -m export``; returns the exit code."""
+    return run("python -m export", lambda: _main(argv))

@@ -10,7 +10,7 @@ the settings: an export with other settings is refused;
 truth of ``target``, at how many samples), so that a scorer can refuse the
 noisy frames, or a thinner truth, given as its reference.
 
-Every file is written crash-safely (:func:`denoise.export.files.publish`), and
+Every file is written crash-safely (:func:`export.files.publish`), and
 the file that marks a part complete is written last: ``matrix_i.mat`` for a
 frame's buffers, ``beauty_i.exr`` for its reference (after both halves). So
 after a kill at any instant a rerun (:func:`recover`, then :func:`plan`)
@@ -30,9 +30,9 @@ from core.errors import SpecError
 from core.json_input import JSONInputError, read_json
 from imaging.image_io import write_exr
 
-from ..frames import BUFFERS, FrameData, write_matrices
-from ..ground_truth import GROUND_TRUTH_RECORD, SEQUENCE_RECORD
 from .files import publish, remove_staging
+from .frames import BUFFERS, FrameData, write_matrices
+from .ground_truth import GROUND_TRUTH_RECORD, SEQUENCE_RECORD
 from .sequence import EXPORT_FORMAT, Sequence, reference_folder, seed
 from .tasks import Task
 

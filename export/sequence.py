@@ -13,7 +13,7 @@ import json
 from importlib.metadata import version
 from pathlib import Path
 
-from ..ground_truth import reference_folder
+from .ground_truth import reference_folder
 from .spec import Spec
 
 #: bump when the way frames are rendered changes (seeds, batching, passes)

@@ -1,6 +1,6 @@
 """What a ground-truth folder is, and the checks before anything is judged against it.
 
-``python -m denoise.export`` writes a sequence's frames into ``OUT`` (with
+``python -m export`` writes a sequence's frames into ``OUT`` (with
 ``sequence.json``, its settings) and their ground truth into ``OUT_reference``
 (with ``ground_truth.json``: what the folder holds, at how many samples per
 pixel). A folder given as the truth is refused when it is a frame folder (an
