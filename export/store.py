@@ -161,8 +161,6 @@ def claim_folder(sequence: Sequence, force: bool = False) -> None:
     record = Path(sequence.target) / SEQUENCE_RECORD
     if not record.exists():
         write_record(record, sequence.settings())
-    if not (sequence.reference / GROUND_TRUTH_RECORD).exists():
-        write_record(sequence.reference / GROUND_TRUTH_RECORD, ground_truth_record(sequence))
 
 
 def ground_truth_record(sequence: Sequence) -> dict:
@@ -233,6 +231,8 @@ def assemble_reference(sequence: Sequence, frame: int) -> bool:
     for name, image in (("half_a", halves["a"]), ("half_b", halves["b"]), ("beauty", (halves["a"] + halves["b"]) / 2)):
         publish(folder / f"{name}_{frame}.exr", lambda staging, image=image: write_exr(
             staging, {"": image.astype(np.float32)}))
+    if not (folder / GROUND_TRUTH_RECORD).exists():  # after a frame's truth: the folder now holds one
+        write_record(folder / GROUND_TRUTH_RECORD, ground_truth_record(sequence))
     shutil.rmtree(paths[0].parent, ignore_errors=True)
     try:
         paths[0].parent.parent.rmdir()  # .batches, once no frame waits

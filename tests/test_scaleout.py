@@ -164,7 +164,7 @@ def test_dataset_of_two_specs_and_the_cli(tmp_path, capsys):
             assert frame["status"] == "rendered" and frame["tasks"]
             assert all(t["seconds"] > 0 for t in frame["tasks"])
     assert sorted(p.name for p in (out / "second_reference").iterdir()) == [
-        "beauty_0.exr", "half_a_0.exr", "half_b_0.exr"]
+        "beauty_0.exr", "ground_truth.json", "half_a_0.exr", "half_b_0.exr"]
     assert (out / "first" / "sequence.json").exists() and (out / "second" / "matrix_0.mat").exists()
     # the same name twice would share a folder
     assert main([paths[0], paths[0], str(tmp_path / "dup"), "--local"]) == 2
