@@ -32,6 +32,7 @@ from renderer.job import render
 from renderer.launches import pixel_order, render_in_launches
 from validation.stress import scaled
 from validation.stress_cases import DEFAULTS, scene as scene_text
+from validation.stress_system import wait_for_handler
 
 ROOT = Path(__file__).resolve().parent.parent
 SIZE = (96, 72)
@@ -356,20 +357,11 @@ def test_depth_images_are_clamped_and_black_where_nothing_is_hit(tmp_path, monke
 
 
 #: Delays at which the start-up test sends its signals, counted from when
-#: render.py's handlers are in place (:func:`unhandled_start_up_s`): the
+#: render.py's handlers are in place (:func:`wait_for_handler`): the
 #: imports, Dr.Jit's initialisation (where SIGTERM used to give a 60-line
 #: ImportError / SystemError traceback and a signal inside the import of its
 #: extension aborted the process), the render and the interpreter's teardown.
 START_UP_DELAYS = (0.0, 0.15, 0.55, 0.85, 1.25, 1.65, 2.05)
-
-
-def unhandled_start_up_s() -> float:
-    """How long Python takes, on this machine now, to start and import
-    ``core.entry``: until then no program can handle a signal (a loaded machine
-    makes this longer), so the test's delays count from there."""
-    start = time.perf_counter()
-    subprocess.run([sys.executable, "-c", "import core.entry"], cwd=ROOT, check=True)
-    return time.perf_counter() - start
 
 
 @pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
@@ -380,11 +372,11 @@ def test_a_signal_in_any_phase_of_start_up_keeps_the_contract(tmp_path, signum):
     for delay in START_UP_DELAYS:
         out = tmp_path / f"{delay}"
         out.mkdir()
-        unhandled = unhandled_start_up_s()
         process = subprocess.Popen([sys.executable, str(ROOT / "render.py"), "scene03", "-size", "48", "48",
                                     "--out", str(out)], cwd=out, stdout=subprocess.PIPE,
                                    stderr=subprocess.PIPE, text=True)
-        time.sleep(unhandled + delay)
+        wait_for_handler(process)
+        time.sleep(delay)
         process.send_signal(signum)
         _, stderr = process.communicate(timeout=120)
         lines = stderr.strip().splitlines()

@@ -135,15 +135,40 @@ class Interrupted:
     running: bool  # still running when the signal was sent
 
 
+def catches(pid: int, signum: int) -> bool:
+    """Whether process ``pid`` has a handler of its own for ``signum`` (its SigCgt mask)."""
+    try:
+        status = Path(f"/proc/{pid}/status").read_text()
+    except OSError:
+        return False
+    for line in status.splitlines():
+        if line.startswith("SigCgt:"):
+            return bool(int(line.split()[1], 16) >> (signum - 1) & 1)
+    return False
+
+
+def wait_for_handler(process: subprocess.Popen, timeout: float = 30) -> None:
+    """Waits until ``process`` catches SIGTERM, which Python leaves alone and
+    :func:`core.start_up.exit_on_signals` (a command's first line) takes: the
+    first instant at which any line of the command's own has run."""
+    end = time.perf_counter() + timeout
+    while not catches(process.pid, signal.SIGTERM) and process.poll() is None and time.perf_counter() < end:
+        time.sleep(0.002)
+
+
 def interrupt(argv: list, delay: float, signum: int, cwd: Path = ROOT, timeout: float = 30,
-              env: dict | None = None, group: bool = False) -> Interrupted:
+              env: dict | None = None, group: bool = False, after_handler: bool = False) -> Interrupted:
     """Starts ``argv`` in a session of its own, sends ``signum`` after ``delay``
     seconds (``group``: to its whole process group, as a terminal's Ctrl-C
-    does), and waits (up to ``timeout``) for it to exit."""
+    does), and waits (up to ``timeout``) for it to exit. ``after_handler``:
+    the delay counts from the command's first line (:func:`wait_for_handler`),
+    not from Python's own start-up, which no program can handle."""
     with tempfile.TemporaryFile() as err:
         process = subprocess.Popen([str(a) for a in argv], cwd=cwd, stdout=subprocess.DEVNULL, stderr=err,
                                    start_new_session=True, env={**os.environ, **(env or {})})
         try:
+            if after_handler:
+                wait_for_handler(process)
             time.sleep(delay)
             running = process.poll() is None
             if group:
