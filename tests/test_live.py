@@ -17,6 +17,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from denoise.live.app import is_loopback
+from denoise.live.frame_loop import IN_FLIGHT
 from denoise.live.methods import METHOD_NAMES, SLIDERS
 from denoise.live.session import MESSAGE_LIMIT, MessageError, parse_message
 
@@ -240,6 +242,49 @@ def test_port_in_use_is_one_line_exit_2(server):
                             cwd=ROOT, capture_output=True, text=True, timeout=120)
     assert result.returncode == 2
     assert result.stderr.count("\n") == 1 and "in use" in result.stderr and result.stdout == ""
+
+
+@pytest.mark.parametrize("host, loopback", [("127.0.0.1", True), ("localhost", True), ("::1", True),
+                                            ("127.0.0.2", True), ("", False), ("0.0.0.0", False), ("::", False),
+                                            ("192.168.1.10", False), ("example.com", False)])
+def test_only_loopback_hosts_are_served(host, loopback):
+    assert is_loopback(host) == loopback
+
+
+@pytest.mark.parametrize("host", ["", "0.0.0.0"])
+def test_a_host_beyond_loopback_is_one_line_exit_2(host):
+    """The page has no login: ``--host ""`` listened on every interface."""
+    result = subprocess.run([sys.executable, "-m", "denoise.live", "showcase", "--host", host, "--port", "0"],
+                            cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert result.returncode == 2, result.stderr
+    assert result.stderr.count("\n") == 1 and "--host" in result.stderr and result.stdout == ""
+
+
+def test_a_viewer_that_stops_reading_gets_no_queue(server):
+    """Acknowledgements far beyond the frames sent, and steps, then no reading:
+    the frame loop stays within IN_FLIGHT frames of what was really sent (an
+    acknowledgement taken at its word let it queue frames without bound)."""
+    import aiohttp
+
+    async def flood():
+        async with aiohttp.ClientSession() as session:
+            async with session.ws_connect(server + "ws", headers={"Origin": server.rstrip("/")}) as ws:
+                await _receive_frame(ws)
+                for _ in range(100):
+                    await ws.send_json({"type": "ack", "frame": 10 ** 9})
+                    await ws.send_json({"type": "step"})
+                await asyncio.sleep(3)  # a page that reads nothing
+                frames = []
+                while len(frames) < 20:
+                    try:
+                        header, _ = await _receive_frame(ws, 2.0)
+                    except asyncio.TimeoutError:
+                        break
+                    frames.append(header["frame"])
+                return frames
+
+    frames = run(flood())
+    assert len(frames) <= 2 * IN_FLIGHT, frames
 
 
 @pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])

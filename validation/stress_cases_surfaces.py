@@ -35,6 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
+from converters.model import Camera
 from validation.stress_cases_system import SystemCase, one_error_line
 from validation.stress_system import python, run_command
 
@@ -88,7 +89,6 @@ async def _talk(problems: list[str]) -> None:
     import aiohttp  # noqa: PLC0415  aiohttp loads on use: the other cases run without it
     from aiohttp.test_utils import TestServer  # noqa: PLC0415  aiohttp loads on use: the other cases run without it
 
-    from converters.model import Camera  # noqa: PLC0415  the live package loads on use: the other cases run without it
     from denoise.live.server import SOCKET_LIMIT, LiveServer, hello_message  # noqa: PLC0415  as above
     from denoise.live.session import Session  # noqa: PLC0415  as above
 
@@ -134,6 +134,25 @@ def live_messages(folder: Path) -> list[str]:
     problems: list[str] = []
     asyncio.run(_talk(problems))
     return problems
+
+
+
+def live_bounds(folder: Path) -> list[str]:
+    """What a page cannot make the server do: run ahead of the frames it was
+    sent (an acknowledgement far beyond them), or listen beyond loopback."""
+    from denoise.live.app import main as live_main  # noqa: PLC0415  the live package loads on use (as above)
+    from denoise.live.session import Session, parse_message  # noqa: PLC0415  as above
+
+    problems = []
+    session = Session(Camera((0.0, 0.0, 5.0), (0.0, 0.0, -1.0), (0.0, 1.0, 0.0), 45.0), None, 5.0, "svgf")
+    session.published = 3
+    for frame in (10 ** 9, 2 ** 53, 4):
+        session.apply(parse_message(json.dumps({"type": "ack", "frame": frame}), "svgf"))
+    if session.acked != 3:
+        problems.append(f"acknowledgements beyond frame 3, the last sent, left acked at {session.acked}")
+    hosts = {f"--host {host!r}": (["showcase", "--host", host, "--port", 0], "--host: expected a loopback address")
+             for host in ("", "0.0.0.0", "::", "10.0.0.1", "example.com")}
+    return problems + refusals("python -m denoise.live", live_main, hosts)
 
 
 # -- the scores ---------------------------------------------------------------------
@@ -297,6 +316,7 @@ def fit_largest_step(folder: Path) -> list[str]:
 def surface_cases() -> list[SystemCase]:
     return [
         SystemCase("live server: bad messages over a real socket", live_messages, fast=True, kind="surface"),
+        SystemCase("live server: no frames ahead of the page, loopback only", live_bounds, fast=True, kind="surface"),
         SystemCase("denoise.score on odd folders", denoise_score_odd_folders, fast=True, kind="surface"),
         SystemCase("course.score on odd folders", course_score_odd_folders, fast=True, kind="surface"),
         SystemCase("light animation: bad specs are one line", light_animation, fast=True, kind="surface"),

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import ipaddress
 import os
 import sys
 from pathlib import Path
@@ -31,6 +32,17 @@ STOPPED = "stopped (the live page writes no files)"
 JOIN_S = 1.0
 
 
+def is_loopback(host: str) -> bool:
+    """``localhost`` or an address of this machine's loopback (127.0.0.0/8, ::1):
+    the page has no login, so it is served to this machine alone."""
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
+
+
 def parser() -> argparse.ArgumentParser:
     result = ArgumentParser(prog="python -m denoise.live", description=DESCRIPTION)
     result.add_argument("scene", help="a scene name (showcase, glossy_shadow, a course scene) or a scene file")
@@ -39,7 +51,8 @@ def parser() -> argparse.ArgumentParser:
     result.add_argument("--method", choices=METHOD_NAMES, default="svgf", help="the first method (default svgf)")
     result.add_argument("--variant", help="Mitsuba variant (default: llvm_ad_rgb where usable); a JIT variant")
     result.add_argument("--host", default="127.0.0.1",
-                        help="address to listen on (default 127.0.0.1: this machine only)")
+                        help="loopback address to listen on (default 127.0.0.1; also localhost, ::1, "
+                             "127.x.y.z): the page has no login, so it serves this machine only")
     result.add_argument("--port", type=ascii_int, default=8765, help="port (default 8765; 0: any free one)")
     result.add_argument("--no-freeze", action="store_true", help="trace every frame's render (no dr.freeze)")
     result.add_argument("--data", type=Path, help="course data folder for course scene names")
@@ -54,6 +67,9 @@ def _main(argv: list[str] | None) -> int:
     width, height = args.size
     if not (1 <= width <= MAX_SIDE and 1 <= height <= MAX_SIDE):
         raise UsageError(f"--size: expected 1..{MAX_SIDE} pixels per side, found {width} {height}")
+    if not is_loopback(args.host):
+        raise UsageError(f"--host: expected a loopback address (127.0.0.1, ::1 or localhost: the page has no "
+                         f"login, so it serves this machine only), found {args.host!r}")
     if not 0 <= args.port <= 65535:
         raise UsageError(f"--port: expected 0..65535, found {args.port}")
 

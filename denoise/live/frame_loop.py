@@ -264,6 +264,7 @@ class FrameLoop(threading.Thread):
                                                              for k, v in ms.items()}}
             with self.session.changed:
                 self.sent_at[self.frame] = time.perf_counter()
+                self.session.published = self.frame
             self.publish(packet(header, raw_jpeg, denoised_jpeg))
             self.frame += 1
 

@@ -131,6 +131,7 @@ class Session:
         self.history_resets = 0  # counts reset_history messages (and method changes)
         self.changed = threading.Condition()
         self.acked: int | None = None  # the last frame the page showed (None: none since it connected)
+        self.published = -1  # the last frame handed to the viewer: no acknowledgement goes beyond it
         self.connected = False  # a viewer is there: frames are rendered only then
         self.reset_view()
 
@@ -215,4 +216,6 @@ class Session:
         self.history_resets += 1
 
     def _ack(self, frame: int) -> None:
-        self.acked = max(self.acked if self.acked is not None else -1, int(frame))
+        """A frame the page showed; a number beyond the frames sent counts as the
+        last one sent, so no message lets the frame loop run ahead of the page."""
+        self.acked = max(self.acked if self.acked is not None else -1, min(int(frame), self.published))
