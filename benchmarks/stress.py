@@ -2,11 +2,11 @@
 
     python -m benchmarks.stress [--json PATH] [--fuzz N] [--quick] [--only NAME]
 
-Runs every named case of :mod:`validation.stress_cases` (the renderer) and
-:mod:`validation.stress_denoise` (the denoiser), each stating its expected
-behaviour, and the fuzzers of :mod:`validation.stress` (hypothesis: mutated
+Runs every named case of :mod:`validation.stress` (``validation.stress.suite.all_cases``:
+the renderer, the inputs, the system, the newer surfaces, the denoiser), each
+stating its expected behaviour, and the fuzzers of :mod:`validation.stress.fuzz` (hypothesis: mutated
 scenes, token soup, raw bytes as scene and as OBJ files, and ``render.py``'s
-command line) and :mod:`validation.stress_fuzz_commands` (the command lines of
+command line) and :mod:`validation.stress.fuzz_commands` (the command lines of
 the denoiser's commands and the scores). Only :class:`SceneError`, with
 ``file:line:col``, may come out of the scene fuzzers; a command ends in its
 exit code or one error line.
@@ -32,10 +32,9 @@ from core.entry import ArgumentParser, native_start_up
 from core.errors import UsageError
 from core.numbers import ascii_int
 from renderer.variants import set_variant
-from validation.stress import fuzz, fuzz_cli, run_case
-from validation.stress_cases import all_cases
-from validation.stress_denoise import denoise_cases
-from validation.stress_fuzz_commands import fuzz_commands
+from validation.stress.fuzz import fuzz, fuzz_cli
+from validation.stress.fuzz_commands import fuzz_commands
+from validation.stress.suite import all_cases
 
 
 def run(fuzz_examples: int, quick: bool, only: list[str] | None = None) -> dict:
@@ -45,15 +44,11 @@ def run(fuzz_examples: int, quick: bool, only: list[str] | None = None) -> dict:
     def wanted(case) -> bool:
         return (case.fast or not quick) and (not only or case.name in only)
 
-    cases = [c for c in all_cases() if wanted(c)]
     results = []
-    for case in cases:
-        passed, detail = run_case(case)
-        results.append({"name": case.name, "kind": case.kind, "passed": bool(passed), "detail": detail})
-    for case in denoise_cases():
+    for case in all_cases():
         if wanted(case):
             passed, detail = case.check()
-            results.append({"name": case.name, "kind": "denoise", "passed": bool(passed), "detail": detail})
+            results.append({"name": case.name, "kind": case.kind, "passed": bool(passed), "detail": detail})
     fuzz_inputs, fuzz_failure = 0, None
     try:
         if fuzz_examples:
@@ -77,7 +72,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.fuzz < 0:
         raise UsageError(f"--fuzz wants a number >= 0, got {args.fuzz}")
-    names = {case.name for case in all_cases()} | {case.name for case in denoise_cases()}
+    names = {case.name for case in all_cases()}
     unknown = [name for name in args.only or [] if name not in names]
     if unknown:
         raise UsageError(f"--only: no stress case named {', '.join(map(repr, unknown))}")

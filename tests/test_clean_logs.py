@@ -11,9 +11,9 @@ import subprocess
 
 import pytest
 
-from validation.stress_cases_system import RENDER, SHOWCASE
-from validation.stress_scene import scene
-from validation.stress_system import python
+from validation.stress.cases_system import RENDER, SHOWCASE
+from validation.stress.scene import scene
+from validation.stress.system import python
 
 COMMANDS = {
     "render.py -input": ["-input", "s.txt", "-size", 16, 12, "-output", "a.png", "-normals", "n.png",

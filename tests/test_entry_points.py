@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from validation.stress_cases import scene
+from validation.stress.scene import scene
 
 ROOT = Path(__file__).resolve().parent.parent
 LIBLLVM19 = "/usr/lib/x86_64-linux-gnu/libLLVM-19.so"
@@ -272,13 +272,13 @@ def test_probe_verdicts_are_cached(tmp_path, monkeypatch, damaged_llvm):
 
 # -- the fuzzer ------------------------------------------------------------------------
 def test_random_argument_lists_and_batches_keep_the_contract(variant_llvm_ad_rgb):
-    from validation.stress import fuzz_cli
+    from validation.stress.fuzz import fuzz_cli
 
     assert fuzz_cli(examples=60) == 120
 
 
 def test_the_contract_check_can_fail():
-    from validation.stress_cases_inputs import contract_problems
+    from validation.stress.cases_inputs import contract_problems
 
     assert contract_problems(1, "Traceback (most recent call last):\n  ...\nKeyError: 'x'\n", batch=False)
     assert contract_problems(2, "usage: render.py [-h]\nrender.py: error: bad\n", batch=False)
@@ -291,8 +291,8 @@ def test_the_contract_check_can_fail():
 def test_cli_cases_and_the_fuzzer_can_fail(variant_llvm_ad_rgb, monkeypatch):
     """A case whose command line is fine but expects a refusal fails, so does one
     expecting a file that is not written; the fuzzer stops on an escaping exception."""
-    from validation.stress import fuzz_cli
-    from validation.stress_cases_inputs import SCENE, CliCase
+    from validation.stress.cases_inputs import SCENE, CliCase
+    from validation.stress.fuzz import fuzz_cli
 
     files = {"s.txt": SCENE}
     assert not CliCase("not an error", ("-input", "s.txt", "-size", "4", "3", "-output", "a.png", "--quiet"), 2,

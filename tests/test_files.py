@@ -133,7 +133,7 @@ def test_sigterm_while_writing_leaves_no_temporary_file(tmp_path, pause=3):
     """A write in flight finishes (files are written in the background) or is
     removed; either way no hidden partial file stays, and the exit is 143."""
     scene = tmp_path / "s.txt"
-    from validation.stress_cases import scene as scene_text
+    from validation.stress.scene import scene as scene_text
 
     scene.write_text(scene_text())
     out = tmp_path / "out"

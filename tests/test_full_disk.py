@@ -15,8 +15,8 @@ import pytest
 
 from core.entry import run
 from imaging import image_io
-from validation.stress_cases_system import OLD, SHOWCASE, one_error_line, system_cases
-from validation.stress_system import ROOT, full_disk, python, run_command, temporary_files
+from validation.stress.cases_system import OLD, SHOWCASE, one_error_line, system_cases
+from validation.stress.system import ROOT, full_disk, python, run_command, temporary_files
 
 CASES = [case for case in system_cases() if case.name.startswith("full disk")]
 

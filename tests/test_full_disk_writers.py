@@ -18,8 +18,8 @@ import pytest
 
 from core.entry import run
 from imaging.image_io import exr_complete, write_image
-from validation.stress_cases_system import OLD, one_error_line
-from validation.stress_system import ROOT, full_disk, python, run_command, temporary_files
+from validation.stress.cases_system import OLD, one_error_line
+from validation.stress.system import ROOT, full_disk, python, run_command, temporary_files
 
 TINY = {"scene": "lamps", "frames": 2, "size": [32, 18], "spp": 1, "reference_spp": 8, "bounces": 1,
         "camera": {"dolly": 0.5}}

@@ -21,7 +21,7 @@ from denoise.score import check_consecutive
 from export.frames import frame_indices
 from export.spec import Spec
 from imaging.image_io import read_png
-from validation.stress_cases_inputs_denoiser import denoiser_input_cases
+from validation.stress.cases_inputs_denoiser import denoiser_input_cases
 
 ROOT = Path(__file__).resolve().parents[1]
 GOOD = '{"scene": "box", "frames": 4, "lights": {"0": {"scale": 2}}}'

@@ -16,8 +16,8 @@ from pathlib import Path
 import pytest
 from conftest import SCALAR_FALLBACK
 
-from validation.stress_cases_system import FACING_MIRRORS
-from validation.stress_system import ROOT, interrupt, python, run_command
+from validation.stress.cases_system import FACING_MIRRORS
+from validation.stress.system import ROOT, interrupt, python, run_command
 
 #: The largest delay between a signal and the exit
 STOP_SECONDS = 2.0

@@ -82,7 +82,7 @@ def command(name: str, python: str = sys.executable) -> list[str]:
 @pytest.fixture(scope="module")
 def inputs(tmp_path_factory) -> dict:
     """A scene, a tiny spec and its sequence (exported with the usable libLLVM)."""
-    from validation.stress_scene import scene
+    from validation.stress.scene import scene
 
     folder = tmp_path_factory.mktemp("inputs")
     (folder / "s.txt").write_text(scene())

@@ -30,9 +30,8 @@ from converters.render_flags import RenderJob
 from converters.to_mitsuba import load_scene_dict
 from renderer.job import render
 from renderer.launches import pixel_order, render_in_launches
-from validation.stress import scaled
-from validation.stress_cases import DEFAULTS, scene as scene_text
-from validation.stress_system import wait_for_handler
+from validation.stress.scene import DEFAULTS, scaled, scene as scene_text
+from validation.stress.system import wait_for_handler
 
 ROOT = Path(__file__).resolve().parent.parent
 SIZE = (96, 72)

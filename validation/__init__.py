@@ -7,7 +7,7 @@
   against Mitsuba's path tracer (z-scores per tile);
 - :mod:`validation.convergence`: relMSE against spp and time (Monte Carlo rate);
 - :mod:`validation.course_images`: the course's reference images and their regression bar;
-- :mod:`validation.stress`, ``stress_cases*``, ``stress_denoise``: named stress cases and fuzzers.
+- :mod:`validation.stress`: the stress suite, one protocol for every named case (tables by surface) and the fuzzers.
 
 ``benchmarks/`` runs them at full size, times them and writes the reports.
 """

@@ -1,31 +1,25 @@
-"""The stress suite's CI subset: every named case, and the fuzzer with 1,000+ inputs."""
+"""The stress suite's CI subset: every fast case of every surface, and the fuzzers with 1,000+ inputs."""
 from __future__ import annotations
 
 import pytest
 
-from validation.stress import fuzz, run_case
-from validation.stress_cases import all_cases
-from validation.stress_denoise import denoise_cases
-from validation.stress_fuzz_commands import contract_problems, fuzz_commands
+from validation.stress.fuzz import fuzz
+from validation.stress.fuzz_commands import contract_problems, fuzz_commands
+from validation.stress.scene import Case, scene
+from validation.stress.suite import all_cases
 
 CASES = [c for c in all_cases() if c.fast]
-DENOISE_CASES = [c for c in denoise_cases() if c.fast]
 
 
 def test_enough_cases():
-    assert len(CASES) + len(DENOISE_CASES) >= 40
-    assert len(all_cases()) + len(denoise_cases()) >= 60
-
-
-@pytest.mark.parametrize("case", DENOISE_CASES, ids=lambda c: c.name)
-def test_denoise_case(variant_llvm_ad_rgb, case):
-    passed, detail = case.check()
-    assert passed, detail
+    assert len(CASES) >= 40
+    assert len(all_cases()) >= 60
+    assert len({c.name for c in all_cases()}) == len(all_cases()), "two cases of one name"
 
 
 @pytest.mark.parametrize("case", CASES, ids=lambda c: c.name)
 def test_case(variant_llvm_ad_rgb, case):
-    passed, detail = run_case(case)
+    passed, detail = case.check()
     assert passed, detail
 
 
@@ -36,10 +30,8 @@ def test_fuzzer_finds_only_located_scene_errors():
 def test_a_case_can_fail(variant_llvm_ad_rgb):
     """The checks bite: an error case whose scene is fine fails, and so does a
     render case whose 'equivalent' differs."""
-    from validation.stress_cases import Case, scene
-
-    assert not run_case(Case("not an error", scene(), "error", expect="anything"))[0]
-    assert not run_case(Case("wrong equivalent", scene(), "render", match=scene(angle="60")))[0]
+    assert not Case("not an error", scene(), "error", expect="anything").check()[0]
+    assert not Case("wrong equivalent", scene(), "render", match=scene(angle="60")).check()[0]
 
 
 def test_the_commands_fuzzer_keeps_the_contract(variant_llvm_ad_rgb):

@@ -9,8 +9,8 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
-from validation.stress_cases_surfaces import refusals
-from validation.stress_cases_system import SystemCase
+from validation.stress.cases_surfaces import refusals
+from validation.stress.cases_system import SystemCase
 
 #: a spec's damage -> the words of its one line (the reader's limits and error shape)
 DAMAGED_SPECS = {

@@ -1,6 +1,6 @@
 """The machine under a command: full disks, signals, processes left behind.
 
-Shared by the system stress cases (:mod:`validation.stress_cases_system`)
+Shared by the system stress cases (:mod:`validation.stress.cases_system`)
 and the tests that check each class (``tests/test_full_disk.py``,
 ``tests/test_interrupts.py``, ``tests/test_clean_logs.py``):
 
@@ -27,7 +27,7 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 #: Size of the test file system: a few previous files and one page of room fit
 DISK_BYTES = 256 * 1024
 PAGE = 4096

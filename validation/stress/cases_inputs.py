@@ -2,7 +2,7 @@
 
 Two kinds:
 
-- :class:`~validation.stress_cases.Case` scenes: numbers that are legal text
+- :class:`~validation.stress.cases_renderer.Case` scenes: numbers that are legal text
   but not float32 values (or give non-finite derived values), negative
   shininess, deep nesting, damaged and non-square cube-map faces: each must be
   one located ``file:line:col`` error; deep but allowed nesting must render
@@ -30,8 +30,8 @@ from PIL import Image
 
 from imaging.image_io import CUBE_FACES
 from renderer.cli import main
-from validation.stress_cases_inputs_denoiser import denoiser_input_cases
-from validation.stress_scene import Case, material, scene
+from validation.stress.cases_inputs_denoiser import denoiser_input_cases
+from validation.stress.scene import Case, material, scene
 
 
 def run_render_cli(folder: Path, argv: list[str]) -> tuple[int, str]:

@@ -1,7 +1,5 @@
-"""Stress suite: how a named case is checked, and the fuzzers.
+"""The stress suite's fuzzers over the scene grammar and ``render.py``'s command line.
 
-:func:`run_case` checks one case of :mod:`validation.stress_cases` (its stated
-behaviour: a finite image equal to its equivalent, or one located error);
 :func:`fuzz` fuzzes the parser and converter with hypothesis (mutated scenes,
 token soup, raw bytes as scene and as OBJ files: only :class:`SceneError`,
 with ``file:line:col``, may come out) and :func:`fuzz_cli` the command line.
@@ -9,115 +7,17 @@ with ``file:line:col``, may come out) and :func:`fuzz_cli` the command line.
 """
 from __future__ import annotations
 
-import dataclasses
 import os
 import re
 import tempfile
 from pathlib import Path
 
-import mitsuba as mi
-import numpy as np
-
-from converters import transforms
 from converters.course_scene import load_scene, parse_scene
-from converters.description import RenderOptions, scene_dict
-from converters.model import PointLight
-from converters.to_mitsuba import load_scene_dict
+from converters.description import scene_dict
 from core.errors import SceneError
-from imaging.colour import to_course_8bit
 from imaging.image_io import CUBE_FACES
-from imaging.metrics import TOLERANCE, bad_fraction
-from renderer.job import split_layers
-from validation.reference_tracer import ReferenceTracer
-from validation.stress_cases_inputs import contract_problems, run_render_cli
-from validation.stress_scene import DEFAULTS, Case, scene as base_scene
-
-#: "file:line:col: message", one line
-LOCATED = re.compile(r"^[^\n]+:\d+:\d+: [^\n]+$")
-SIZE = (48, 36)
-
-
-def _write(folder: Path, case: Case) -> Path:
-    path = folder / "scene.txt"
-    try:  # latin-1 writes the raw-byte cases (binary garbage) byte for byte ...
-        data = case.text.encode("latin-1")
-    except UnicodeEncodeError:  # ... and text beyond it is a UTF-8 file, as an editor saves it
-        data = case.text.encode("utf-8")
-    path.write_bytes(data)
-    for name, data in case.files.items():
-        (folder / name).parent.mkdir(parents=True, exist_ok=True)
-        (folder / name).write_bytes(data)
-    return path
-
-
-def scaled(scene, scale: float, offset: float):
-    """The same scene scaled about the origin by ``scale``, then moved by
-    ``offset`` along (1, 1, 1)/sqrt(3); point lights keep their effect."""
-    move = transforms.translate(np.full(3, offset / np.sqrt(3.0))) @ transforms.uniform_scale(scale)
-
-    def point(p):
-        return tuple((move @ np.append(np.asarray(p, np.float64), 1.0))[:3])
-
-    camera = dataclasses.replace(scene.camera, center=point(scene.camera.center))
-    lights = [dataclasses.replace(light, position=point(light.position), falloff=light.falloff / scale ** 2)
-              if isinstance(light, PointLight) else light for light in scene.lights]
-    objects = [dataclasses.replace(o, to_world=move @ o.to_world) for o in scene.objects]
-    return dataclasses.replace(scene, camera=camera, lights=lights, objects=objects)
-
-
-def _layers(scene, flags: dict) -> dict:
-    width, height = flags.get("size", SIZE)
-    options = RenderOptions(width=width, height=height, bounces=flags["bounces"], shadows=flags["shadows"],
-                            aovs=("depth", "normal", "position", "albedo", "id"))
-    image = np.array(mi.render(load_scene_dict(scene_dict(scene, options))), np.float32)
-    return split_layers(image, options.aovs)
-
-
-def _compare(a: np.ndarray, b: np.ndarray, case: Case, what: str) -> tuple[bool, str]:
-    """The course's tolerance (or the case's): fraction of pixels over 2/255, and the largest difference."""
-    a, b = to_course_8bit(a), to_course_8bit(b)
-    bad, worst = bad_fraction(a, b, TOLERANCE), int(np.abs(a.astype(int) - b.astype(int)).max())
-    passed = bad <= case.tolerance and worst <= case.max_difference
-    return passed, f"{100 * bad:.3f}% of pixels differ from {what} (largest difference {worst}/255)"
-
-
-def run_case(case: Case) -> tuple[bool, str]:
-    """(passed, what happened) for one case."""
-    if hasattr(case, "check"):  # a command-line case (validation.stress_cases_inputs.CliCase)
-        return case.check()
-
-    with tempfile.TemporaryDirectory() as tmp:
-        path = _write(Path(tmp), case)
-        try:
-            scene = load_scene(path)
-            scene_dict(scene)
-        except SceneError as error:
-            message = str(error)
-            if case.kind != "error":
-                return False, f"unexpected error: {message}"
-            ok = bool(LOCATED.match(message)) and case.expect in message
-            return ok, message
-        except Exception as error:  # anything else is a failure whatever the case expects
-            return False, f"{type(error).__name__}: {error}"
-        if case.kind == "error":
-            return False, "no error"
-
-        layers = _layers(scene, case.flags)
-        finite = all(np.all(np.isfinite(v)) for v in layers.values())
-        if not finite:
-            return False, "non-finite output"
-        if case.scale is not None:
-            moved = _layers(scaled(scene, case.scale, case.offset), case.flags)
-            return _compare(moved[""], layers[""], case, "the unscaled render")
-        if case.match is not None:
-            other = _layers(parse_scene(case.match, path), case.flags)
-            return _compare(layers[""], other[""], case, "the equivalent")
-        if case.reference:
-            width, height = case.flags.get("size", SIZE)
-            beauty, _, _ = ReferenceTracer(scene).render(width, height, case.flags["bounces"], case.flags["shadows"])
-            return _compare(layers[""], beauty, case, "the NumPy reference")
-        return True, "finite"
-
+from validation.stress.cases_inputs import contract_problems, run_render_cli
+from validation.stress.scene import DEFAULTS, LOCATED, scene as base_scene
 
 # -- fuzzing ---------------------------------------------------------------------
 VOCABULARY = ["{", "}", "PerspectiveCamera", "Lights", "Background", "Materials", "Group", "Transform",

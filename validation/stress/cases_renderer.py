@@ -8,19 +8,12 @@ Every case states what must happen:
 - ``error``: exactly one :class:`SceneError` whose message is one line
   ``file:line:col: ...`` containing ``expect``.
 
-Used by ``tests/stress`` (the fast subset) and ``python -m benchmarks.stress``; :func:`all_cases`
-also gathers the input, scale and system cases (``stress_cases_*``).
+:func:`validation.stress.suite.all_cases` gathers them with the other tables.
 """
 from __future__ import annotations
 
 from imaging.image_io import CUBE_FACES
-from validation.stress_cases_inputs import all_input_cases
-from validation.stress_cases_scale import scale_cases
-from validation.stress_cases_surfaces import surface_cases
-from validation.stress_cases_system import system_cases
-from validation.stress_scene import DEFAULTS, Case, material, scene
-
-__all__ = ["DEFAULTS", "Case", "material", "scene", "all_cases", "error_cases", "render_cases"]
+from validation.stress.scene import DEFAULTS, Case, material, scene
 
 
 def render_cases() -> list[Case]:
@@ -171,7 +164,3 @@ def error_cases() -> list[Case]:
         Case("repeated key", scene(center="0 1 6 center 0 1 6"), "error", expect="repeated"),
         Case("repeated section", s + s.splitlines()[0], "error", expect="repeated"),
     ]
-
-
-def all_cases() -> list[Case]:
-    return render_cases() + error_cases() + scale_cases() + all_input_cases() + system_cases() + surface_cases()

@@ -1,7 +1,7 @@
 """Stress cases for the system around a command: full disks, signals, links, logs.
 
 Each :class:`SystemCase` runs real commands in subprocesses (see
-:mod:`validation.stress_system`) and states what must happen:
+:mod:`validation.stress.system`) and states what must happen:
 
 - a full disk under every writer: one ``PROG: error: FILE: no space left on
   device`` line, exit 2, no temporary file, the previous file intact;
@@ -21,8 +21,8 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-from validation.stress_scene import scene
-from validation.stress_system import ROOT, full_disk, interrupt, python, run_command, temporary_files
+from validation.stress.scene import scene
+from validation.stress.system import ROOT, full_disk, interrupt, python, run_command, temporary_files
 
 #: Two parallel mirrors with the camera between them: every ray bounces as often as -bounces allows
 FACING_MIRRORS = """PerspectiveCamera { center 0 0 0 direction 0 0.05 -1 up 0 1 0 angle 60 }

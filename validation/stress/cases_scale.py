@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from validation.stress_scene import DEFAULTS, Case, scene
+from validation.stress.scene import DEFAULTS, Case, scene
 
 NEAR_LIGHT = "PointLight { position 1 3 2 color 1 1 1 falloff 0.2 }"
 DIRECTIONAL_SUN = "DirectionalLight { direction -1 -3 -2 color 0.7 0.7 0.7 }"

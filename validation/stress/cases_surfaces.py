@@ -20,7 +20,7 @@ Each case runs the real command or server and states what must happen:
   file within the allowed ranges, or one line and no file.
 
 The fuzzers of these commands' argument parsers are in
-:mod:`validation.stress_fuzz_commands`.
+:mod:`validation.stress.fuzz_commands`.
 """
 from __future__ import annotations
 
@@ -36,8 +36,8 @@ from pathlib import Path
 import numpy as np
 
 from converters.model import Camera
-from validation.stress_cases_system import SystemCase, one_error_line
-from validation.stress_system import python, run_command
+from validation.stress.cases_system import SystemCase, one_error_line
+from validation.stress.system import python, run_command
 
 #: the tiny sequence the cases export (a few seconds)
 TINY = {"scene": "lamps", "frames": 3, "size": [24, 16], "spp": 1, "reference_spp": 4, "bounces": 1}

@@ -30,9 +30,11 @@ H, W = 12, 16
 
 @dataclass(frozen=True)
 class DenoiseCase:
+    """A denoiser case: ``check`` runs the filters on made-up frames."""
     name: str
     check: Callable[[], tuple[bool, str]]
     fast: bool = True
+    kind: str = "denoise"
 
 
 def _frame(seed: int = 0, beauty=None, normal=None, position=None, ids=None, objects=None):
