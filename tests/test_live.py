@@ -34,7 +34,8 @@ FIRST_FRAME_S = int(os.environ.get("LIVE_FIRST_FRAME_S", 240))
 GOOD = [{"type": "orbit", "dx": 3.5, "dy": -1}, {"type": "dolly", "amount": 0.1}, {"type": "pan", "dx": 0, "dy": 0.2},
         {"type": "light", "dx": 0.1, "dy": 0, "dz": -0.1}, {"type": "method", "name": "atrous+temporal"},
         {"type": "param", "name": "sigma_luminance", "value": 8}, {"type": "pause", "paused": True},
-        {"type": "step"}, {"type": "reset_history"}, {"type": "reset_view"}, {"type": "ack", "frame": 12}]
+        {"type": "step"}, {"type": "reset_history"}, {"type": "reset_view"}, {"type": "ack", "frame": 12},
+        {"type": "size", "name": "640x360"}]
 BAD = {
     "too long": json.dumps({"type": "step", "pad": "x" * MESSAGE_LIMIT}),
     "not json": "{type: step}",
@@ -50,6 +51,8 @@ BAD = {
     "string for a number": '{"type": "dolly", "amount": "0.1"}',
     "string for a bool": '{"type": "pause", "paused": "yes"}',
     "unknown method": '{"type": "method", "name": "rm -rf"}',
+    "unknown size": '{"type": "size", "name": "99x99"}',
+    "size as numbers": '{"type": "size", "name": [640, 360]}',
     "unknown slider": '{"type": "param", "name": "levels_x", "value": 1}',
     "slider value beyond its range": '{"type": "param", "name": "sigma_luminance", "value": 1000}',
     "fractional whole slider": '{"type": "param", "name": "levels", "value": 2.5}',
@@ -384,6 +387,13 @@ def test_page_in_a_real_browser(server):
             switched = step(page)
             assert page.evaluate("window.live.header.method") == "raw"
             assert np.abs(switched[:, right] - last[:, right]).mean() > 3 * same_method
+            page.select_option("#size", "320x180")  # the size control: the next frame is rendered at that size
+            page.wait_for_function("window.live.state.size === '320x180'", timeout=30000)
+            frames = page.evaluate("window.live.frames")
+            page.click("#step")
+            page.wait_for_function(f"window.live.frames > {frames}", timeout=FIRST_FRAME_S * 1000)
+            assert page.evaluate("[window.live.header.width, window.live.header.height]") == [320, 180]
+            assert canvas_pixels(page).shape[:2] == (180, 320)
             assert page.evaluate("window.live.errors") == []
         finally:
             browser.close()

@@ -83,7 +83,8 @@ def _main(argv: list[str] | None) -> int:
     from .server import LiveServer, hello_message  # noqa: PLC0415  aiohttp after the checks: --help and errors stay quick
 
     renderer = SceneRenderer(scene_path, width, height, freeze=not args.no_freeze)
-    session = Session(renderer.scene.camera, renderer.light, renderer.pivot_distance(), args.method)
+    session = Session(renderer.scene.camera, renderer.light, renderer.pivot_distance(), args.method,
+                      (width, height))
     hello = hello_message(scene_path.stem, width, height, variant, renderer.frozen, renderer.light is not None)
     server = LiveServer(session, args.host, args.port, hello)
     loop = FrameLoop(renderer, session, server.publish, variant)

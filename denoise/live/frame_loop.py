@@ -59,7 +59,7 @@ class SceneRenderer:
         from . import camera  # noqa: PLC0415  it derives from the active variant's course_camera: only after set_variant
 
         camera.register()
-        self.width, self.height, self.frozen = width, height, freeze
+        self.scene_path, self.width, self.height, self.frozen = scene_path, width, height, freeze
         self.scene = load_scene(scene_path)
         description = scene_dict(self.scene, RenderOptions(width=width, height=height, aovs=GBUFFER_AOVS))
         description["sensor"]["type"] = "live_camera"
@@ -77,6 +77,12 @@ class SceneRenderer:
         self.mi_scene.integrator().analyse(self.mi_scene)  # what whitted.render does before sampling
         self.last_camera, self.layers = None, None
         self.render_beauty = dr.freeze(render_beauty) if freeze else render_beauty
+
+    def at_size(self, width: int, height: int) -> SceneRenderer:
+        """This renderer, or the same scene's at another frame size (loaded anew)."""
+        if (width, height) == (self.width, self.height):
+            return self
+        return SceneRenderer(self.scene_path, width, height, self.frozen)
 
     def pivot_distance(self) -> float:
         """Distance from the camera to the centre of the scene's bounding box,
@@ -243,6 +249,8 @@ class FrameLoop(threading.Thread):
                 if self.session.paused:
                     self.session.steps -= 1
                 view, reset = self.session.view(), self.session.history_resets
+            if view.size != (self.renderer.width, self.renderer.height):
+                self.renderer, method = self.renderer.at_size(*view.size), None  # a new size: a new denoiser
             frame, seconds = self.renderer.render(view, self.frame)
             start = time.perf_counter()
             if view.method != method or reset != resets:

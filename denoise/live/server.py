@@ -24,7 +24,7 @@ from core.entry import Interrupted
 from core.errors import UsageError
 
 from .methods import METHOD_NAMES, describe
-from .session import MessageError, Session, parse_message
+from .session import SIZES, MessageError, Session, parse_message
 
 PAGE = Path(__file__).parent / "static" / "index.html"
 #: the raw request paths served; every other is 404
@@ -84,7 +84,7 @@ class LiveServer:
     def state(self) -> dict:
         view = self.session.view()
         return {"type": "state", "method": view.method, "paused": self.session.paused,
-                "sliders": describe(view.method, self.hello["width"], dict(view.values))}
+                "size": "{}x{}".format(*view.size), "sliders": describe(view.method, view.size[0], dict(view.values))}
 
     async def socket(self, request: web.Request) -> web.StreamResponse:
         origin = request.headers.get("Origin")
@@ -124,7 +124,7 @@ class LiveServer:
         if message["type"] == "ack":
             if self.on_shown is not None:
                 self.on_shown(message["frame"])
-        elif message["type"] in ("method", "param", "pause", "reset_view"):
+        elif message["type"] in ("method", "param", "pause", "reset_view", "size"):
             await ws.send_json(self.state())
 
     def stop_on(self, signum: int) -> None:
@@ -184,5 +184,5 @@ class LiveServer:
 
 def hello_message(scene: str, width: int, height: int, variant: str, frozen: bool, light: bool) -> dict:
     return {"scene": scene, "width": width, "height": height, "variant": variant, "frozen": frozen,
-            "light": light}
+            "light": light, "sizes": list(SIZES)}
 

@@ -22,6 +22,8 @@ from .methods import METHOD_NAMES, SLIDERS
 
 #: the largest message accepted, in bytes (the page's are below 200)
 MESSAGE_LIMIT = 2048
+#: the frame sizes the page offers (``WxH``); the size the server started with is kept until one is chosen
+SIZES = ("320x180", "640x360", "1280x720")
 #: per message type: key -> (low, high) for numbers, bool, or "method"/"slider" for names
 MESSAGES = {
     "orbit": {"dx": (-180.0, 180.0), "dy": (-180.0, 180.0)},  # degrees about the pivot
@@ -29,6 +31,7 @@ MESSAGES = {
     "pan": {"dx": (-1.0, 1.0), "dy": (-1.0, 1.0)},  # fraction of the view's half-width at the pivot
     "light": {"dx": (-1.0, 1.0), "dy": (-1.0, 1.0), "dz": (-1.0, 1.0)},  # along the view's axes, same unit
     "method": {"name": "method"},
+    "size": {"name": "size"},  # one of SIZES
     "param": {"name": "slider", "value": (-1e9, 1e9)},  # the value is then checked against the slider's range
     "pause": {"paused": bool},
     "step": {},
@@ -76,6 +79,9 @@ def parse_message(text: str | bytes, method: str) -> dict:
             if not isinstance(value, str) or value not in METHOD_NAMES:
                 raise MessageError(f"{kind}.{key}: unknown method {str(value)[:40]!r}; "
                                    f"known: {', '.join(METHOD_NAMES)}")
+        elif rule == "size":
+            if not isinstance(value, str) or value not in SIZES:
+                raise MessageError(f"{kind}.{key}: unknown size {str(value)[:40]!r}; known: {', '.join(SIZES)}")
         elif rule == "slider":
             names = [s.name for s in SLIDERS[method]]
             if not isinstance(value, str) or value not in names:
@@ -110,21 +116,23 @@ def _rotate(v: np.ndarray, axis: np.ndarray, degrees: float) -> np.ndarray:
 @dataclasses.dataclass(frozen=True)
 class View:
     """What one frame renders: the camera, the first point light's position
-    (None without one), the method and its slider values."""
+    (None without one), the method, its slider values and the frame size."""
     camera: Camera
     light: tuple[float, float, float] | None
     method: str
     values: tuple[tuple[str, float], ...]
+    size: tuple[int, int]
 
 
 class Session:
     """The viewer's state, changed by checked messages (:meth:`apply`) from the
     server's thread and read by the frame loop (:meth:`view`)."""
 
-    def __init__(self, camera: Camera, light, pivot_distance: float, method: str):
+    def __init__(self, camera: Camera, light, pivot_distance: float, method: str, size: tuple[int, int] = (320, 180)):
         self.first_camera, self.first_light = camera, None if light is None else tuple(map(float, light))
         self.first_distance = pivot_distance
         self.method = method
+        self.size = (int(size[0]), int(size[1]))
         self.values: dict[str, dict[str, float]] = {name: {} for name in METHOD_NAMES}
         self.paused = False
         self.steps = 0  # single steps asked for while paused
@@ -146,7 +154,8 @@ class Session:
 
     def view(self) -> View:
         with self.changed:
-            return View(self.camera, self.light, self.method, tuple(sorted(self.values[self.method].items())))
+            return View(self.camera, self.light, self.method, tuple(sorted(self.values[self.method].items())),
+                        self.size)
 
     def apply(self, message: dict) -> None:
         """Applies a message from :func:`parse_message` and wakes the frame loop."""
@@ -198,6 +207,12 @@ class Session:
     def _method(self, name: str) -> None:
         self.method = name
         self.history_resets += 1
+
+    def _size(self, name: str) -> None:
+        width, height = (int(v) for v in name.split("x"))
+        if (width, height) != self.size:
+            self.size = (width, height)
+            self.history_resets += 1
 
     def _param(self, name: str, value: float) -> None:
         self.values[self.method][name] = value
