@@ -53,6 +53,7 @@ if __name__ == "__main__":  # first: ./.venv's Python, the libLLVM, then Dr.Jit 
 import drjit as dr
 import numpy as np
 
+from benchmarks.denoise_front import QUALITY_FROM, tail_mean, write_front
 from benchmarks.records import check_json, machine, write_json
 from core import entry
 from core.entry import ArgumentParser
@@ -100,11 +101,10 @@ SPEED_BARS = (("atrous+temporal", BASELINE, 0.2), ("svgf", BASELINE, 0.3), ("bil
               ("asvgf", BASELINE, 0.2), ("asvgf", "oidn-fast", 1.0))
 #: asvgf's quality bars: mean relMSE over frames >= QUALITY_FROM at most this times OIDN's, on every sequence
 ASVGF_RELMSE_BAR = 1.5
-QUALITY_FROM = 4
 #: asvgf's response to a sudden change, in frames
 RESPONSE_BAR = 2
-#: the methods timed at 1280x720 (the bars' methods and OIDN in each quality mode)
-TIMED = OIDN_ALONE + ("atrous+temporal", "svgf", "asvgf", "bilateral")
+#: every method is timed (the error-against-time front), OIDN's modes first
+TIMED = OIDN_ALONE + tuple(m for m in METHODS if m not in OIDN_ALONE and m != "raw")
 
 
 def timing_folder(work: Path, sequence: str, settings: dict, quick: bool = False) -> Path:
@@ -308,13 +308,6 @@ def bar_lines(results: dict) -> list[str]:
     return lines
 
 
-def tail_mean(rows: list[dict], sequence: str, method: str) -> float | None:
-    """``method``'s mean relMSE on ``sequence`` over frames >= :data:`QUALITY_FROM`; None without such frames."""
-    values = [r["relmse"] for r in rows
-              if r["sequence"] == sequence and r["method"] == method and r["frame"] >= QUALITY_FROM]
-    return float(np.mean(values)) if values else None
-
-
 def tail_text(ours: float | None, theirs: float | None) -> str:
     """asvgf's tail mean against the baseline's, or why there is none."""
     if ours is None or theirs is None:
@@ -365,7 +358,7 @@ def asvgf_lines(results: dict) -> list[str]:
 RESULTS_PAGE = ROOT / "docs" / "results" / "denoise.md"
 
 
-def results_section(results: dict, still: str | None, video: str | None, command: str) -> str:
+def results_section(results: dict, still: str | None, video: str | None, front: str | None, command: str) -> str:
     """The denoising results of docs/results/denoise.md: every number from ``results``."""
     described = "; ".join("{}: {}x{}, {} frames, {} spp, ground truth {} spp as two halves".format(
         s["name"], s["size"][0], s["size"][1], s["frames"], s["spp"], s["reference_spp"])
@@ -385,15 +378,23 @@ def results_section(results: dict, still: str | None, video: str | None, command
                   f"![{HARD}, last frame]({still})"]
     if video:
         lines.append(f"\nVideo of {HARD} (the same panels, every frame): [{video}]({video})")
+    if front:
+        size = "x".join(map(str, results["timing"]["size"]))
+        lines += ["", f"Error against time per frame at {size}, every method and OIDN mode (mean relMSE over frames "
+                  f">= {QUALITY_FROM}; the last panel the geometric mean over the sequences, with the Pareto front; "
+                  "`python -m benchmarks.denoise_front` redraws it from the JSON):", "",
+                  f"![error against time]({front})"]
     return "\n".join(lines)
 
 
-def write_results_page(results: dict, still: Path | None, video: Path | None, command: str) -> None:
+def write_results_page(results: dict, still: Path | None, video: Path | None, front: Path | None,
+                       command: str) -> None:
     """Section ``denoise`` of :data:`RESULTS_PAGE`; links relative to the page."""
     def link(p):
         return Path(os.path.relpath(Path(p).resolve(), RESULTS_PAGE.parent)).as_posix() if p else None
 
-    replace_section(RESULTS_PAGE, "denoise", results_section(results, link(still), link(video), command))
+    replace_section(RESULTS_PAGE, "denoise", results_section(results, link(still), link(video), link(front),
+                                                             command))
 
 
 PROG = "python -m benchmarks.denoise"
@@ -512,7 +513,8 @@ def main(argv: list[str] | None = None) -> int:
             still, video = docs / f"{HARD}_last.png", docs / f"{HARD}.mp4"
             write_image(still, side_by_side([p[-1] for p in panels]))
             write_video(video, [side_by_side(list(images)) for images in zip(*panels)])
-        write_results_page(results, still, video, "python -m benchmarks.denoise --docs")
+        front = write_front(results, docs / "front.png") if results.get("timing") else None
+        write_results_page(results, still, video, front, "python -m benchmarks.denoise --docs")
     failed = [line for line in checks if line.startswith("FAIL")]
     if failed and not args.quick:
         print("benchmarks.denoise: error: the ground truth is too noisy to rank the methods (see FAIL above)",

@@ -317,8 +317,8 @@ def test_reprojection_of_the_ground_truth(variant_llvm_ad_rgb, tmp_path, motion)
 BENCHMARK_METHODS = ("raw", "bilateral", "atrous", "bilateral+temporal", "atrous+temporal",
                      "demod+outliers+atrous+temporal", "svgf", "asvgf", "oidn-fast", "oidn-balanced", "oidn-high",
                      "oidn+temporal", "oidn-guided")
-#: the methods of the speed bars and OIDN in each quality mode (its TIMED)
-TIMED_METHODS = ("oidn-fast", "oidn-balanced", "oidn-high", "atrous+temporal", "svgf", "asvgf", "bilateral")
+#: every method but raw is timed (its TIMED: the error-against-time front)
+TIMED_METHODS = tuple(m for m in BENCHMARK_METHODS if m != "raw")
 
 
 def test_denoise_command_and_benchmark_quick(variant_llvm_ad_rgb, tmp_path):
@@ -349,6 +349,10 @@ def test_denoise_command_and_benchmark_quick(variant_llvm_ad_rgb, tmp_path):
     assert all(v > 0 for v in results["timing"]["cpu_ms"].values())
     last = {r["method"]: r["relmse"] for r in results["results"] if r["frame"] == 3}
     assert last["atrous+temporal"] < last["raw"] / 2  # it denoises
+    front = subprocess.run([sys.executable, "-m", "benchmarks.denoise_front", "--json", str(out), "--out",
+                            str(tmp_path / "front.png")], cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert front.returncode == 0 and front.stderr == "", front.stderr
+    assert (tmp_path / "front.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     # the per-kernel profile, on the speed run's frames just rendered: À-Trous has its
     # 5 levels, each reading 24 colour and 24 guide records per pixel (the centre not gathered)
     profile = tmp_path / "profile.json"
@@ -375,6 +379,30 @@ def test_denoise_command_and_benchmark_quick(variant_llvm_ad_rgb, tmp_path):
     # our OIDN-guided accumulation is a method of the command too
     assert denoise_main([str(folder), str(tmp_path / "guided"), "--method", "oidn-guided"]) == 0
     assert len(list((tmp_path / "guided").glob("result_*.exr"))) == 4
+
+
+def test_the_front_is_the_methods_no_other_beats_in_error_and_time(tmp_path):
+    """benchmarks.denoise_front on made-up results: a method slower and worse than
+    another is off the front; the mean over sequences is geometric; no speed run is one line."""
+    import json
+    import subprocess
+    import sys
+
+    points = {"a": (10, 0.1), "b": (20, 0.05), "c": (30, 0.2), "d": (40, 0.01)}
+    rows = [{"sequence": s, "method": m, "frame": f, "relmse": e * scale}
+            for s, scale in (("one", 1.0), ("two", 4.0)) for m, (_, e) in points.items() for f in range(6)]
+    results = {"sequences": [{"name": "one"}, {"name": "two"}], "results": rows,
+               "timing": {"size": [1280, 720], "ms": {m: t for m, (t, _) in points.items()}}}
+    path = tmp_path / "r.json"
+    path.write_text(json.dumps(results))
+    command = [sys.executable, "-m", "benchmarks.denoise_front", "--json", str(path), "--out", str(tmp_path / "f.png")]
+    done = subprocess.run(command, cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip().endswith("fastest first: a, b, d")
+    del results["timing"]
+    path.write_text(json.dumps(results))
+    done = subprocess.run(command, cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 2 and done.stderr.count("\n") == 1 and "no speed run" in done.stderr
 
 
 @pytest.mark.parametrize("argv, message", [
