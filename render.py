@@ -3,7 +3,6 @@
 
 Every error is one line and exit code 2 (``core.entry.run`` inside ``main``);
 Ctrl-C and SIGTERM are one line and 130 / 143 in every phase, the imports included."""
-import signal
 import sys
 
 from core.start_up import exit_on_signals  # first: standard library only, before the heavy imports
@@ -15,13 +14,8 @@ if __name__ == "__main__":  # started by a Python without the project's packages
     # starts before the arguments are parsed)
     start("render.py", quiet="--quiet" in sys.argv[1:])
 
+from core.entry import finish
 from renderer.cli import main
 
 if __name__ == "__main__":
-    code = main()
-    # Done: a signal during the interpreter's teardown (Dr.Jit's shutdown takes
-    # a moment) would kill it silently, as Python restores the default handlers
-    # there; every file is complete, so the exit code stays this one
-    for signum in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
-        signal.signal(signum, signal.SIG_IGN)
-    sys.exit(code)
+    finish(main())  # a signal in the teardown keeps this exit code (see core.entry.finish)

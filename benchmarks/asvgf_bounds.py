@@ -166,4 +166,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(entry.run(PROG, main))
+    entry.finish(entry.run(PROG, main))

@@ -69,4 +69,4 @@ def main(argv: list[str] | None = None) -> int:
 if __name__ == "__main__":
     from core import entry
 
-    sys.exit(entry.run("python -m benchmarks.course", main))
+    entry.finish(entry.run("python -m benchmarks.course", main))

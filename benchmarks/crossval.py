@@ -142,4 +142,4 @@ def main(argv: list[str] | None = None) -> int:
 if __name__ == "__main__":
     from core import entry
 
-    sys.exit(entry.run("python -m benchmarks.crossval", main))
+    entry.finish(entry.run("python -m benchmarks.crossval", main))

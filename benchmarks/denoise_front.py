@@ -152,4 +152,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(entry.run("python -m benchmarks.denoise_front", main))
+    entry.finish(entry.run("python -m benchmarks.denoise_front", main))

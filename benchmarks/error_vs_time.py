@@ -133,5 +133,5 @@ def main(argv: list[str] | None = None) -> int:
 if __name__ == "__main__":
     from core import entry
 
-    sys.exit(entry.run("python -m benchmarks.error_vs_time", main))
+    entry.finish(entry.run("python -m benchmarks.error_vs_time", main))
 

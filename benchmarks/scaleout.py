@@ -157,4 +157,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(entry.run("python -m benchmarks.scaleout", main))
+    entry.finish(entry.run("python -m benchmarks.scaleout", main))

@@ -27,7 +27,6 @@ if __name__ == "__main__":
 
 import argparse
 import os
-import signal
 import sys
 import tempfile
 from pathlib import Path
@@ -36,7 +35,7 @@ import mitsuba as mi
 
 from converters.render_flags import RenderJob, check_numbers, check_samples
 from converters.scene_flags import DEFAULTS, with_scene_flags
-from core.entry import ArgumentParser, run
+from core.entry import ArgumentParser, finish, run
 from core.errors import OutputError, UsageError
 from core.numbers import ascii_int
 
@@ -190,9 +189,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    code = main()
-    # Done, every file complete: a signal during the interpreter's teardown (Dr.Jit's
-    # shutdown takes a moment) would kill it silently, Python having restored the defaults
-    for signum in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
-        signal.signal(signum, signal.SIG_IGN)
-    sys.exit(code)
+    finish(main())

@@ -34,6 +34,7 @@ import sys
 import threading
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
+from typing import NoReturn
 
 from core.errors import UsageError
 
@@ -58,9 +59,12 @@ class SignalRecord:
 
     def __init__(self):
         self.received: list[int] = []
+        self.finished = False  # the body has ended: record, do not raise (see restore_handlers)
 
     def handler(self, signum, frame):
         self.received.append(signum)
+        if self.finished:
+            return
         if signum == signal.SIGINT:
             raise KeyboardInterrupt
         raise Interrupted(signum)
@@ -88,12 +92,17 @@ def hold_signals() -> Iterator[list[int]]:
     finally:
         for signum, handler in previous.items():
             signal.signal(signum, handler)
-        for signum in dict.fromkeys(pending):
-            handler = previous[signum]
-            if callable(handler):
-                handler(signum, None)  # e.g. Python's SIGINT handler raises KeyboardInterrupt
-            elif handler == signal.SIG_DFL:
-                signal.raise_signal(signum)
+        deliver(pending, previous)
+
+
+def deliver(signums: list[int], handlers: dict) -> None:
+    """Each signal of ``signums`` (once) to its handler in ``handlers``, as if it came now."""
+    for signum in dict.fromkeys(signums):
+        handler = handlers[signum]
+        if callable(handler):
+            handler(signum, None)  # e.g. Python's SIGINT handler raises KeyboardInterrupt
+        elif handler == signal.SIG_DFL:
+            signal.raise_signal(signum)
 
 
 def is_native_notice(line: str) -> bool:
@@ -204,5 +213,28 @@ def run(prog: str, body: Callable[[], int | None], interrupted: str = INTERRUPTE
             return 2
         raise
     finally:
-        for signum, handler in previous.items():
-            signal.signal(signum, handler)
+        restore_handlers(record, previous)
+
+
+def restore_handlers(record: SignalRecord, previous: dict) -> None:
+    """Puts back the handlers :func:`run` replaced. A stop signal that comes
+    meanwhile (another thread's C handler may have caught it, and
+    ``signal.signal`` runs the pending Python handler) is recorded, not raised
+    out of here as a traceback, then given to the handler put back."""
+    if not previous:
+        return
+    record.finished = True
+    arrived = len(record.received)
+    for signum, handler in previous.items():
+        signal.signal(signum, handler)
+    deliver(record.received[arrived:], previous)
+
+
+def finish(code: int) -> NoReturn:
+    """Ends a command with ``code`` once :func:`run` has returned it: every file
+    is complete, so a stop signal during the interpreter's teardown (Dr.Jit's
+    shutdown takes a moment, and Python restores the default handlers there,
+    which would end the process by the signal without a word) is ignored."""
+    for signum in STOP_SIGNALS:
+        signal.signal(signum, signal.SIG_IGN)
+    sys.exit(code)

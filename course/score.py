@@ -19,14 +19,13 @@ if __name__ == "__main__":  # first: ./.venv's Python, the libLLVM, then Dr.Jit 
     start("python -m course.score", "course.score")
 
 import argparse
-import sys
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 from tqdm import tqdm
 
-from core.entry import ArgumentParser, run
+from core.entry import ArgumentParser, finish, run
 from core.errors import FrameError, UsageError
 from course import ENVIRONMENT, root
 from imaging.image_io import IMAGE_DECODE_ERRORS, atomic_path, check_writable, read_png, write_image
@@ -219,4 +218,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    finish(main())

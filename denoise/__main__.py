@@ -15,7 +15,7 @@ import sys
 import textwrap
 from pathlib import Path
 
-from core.entry import ArgumentParser, run
+from core.entry import ArgumentParser, finish, run
 from core.errors import FrameError, UsageError
 from core.inputs import check_outside
 from core.numbers import ascii_int
@@ -194,4 +194,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    finish(main())

@@ -43,7 +43,6 @@ import json
 import math
 import multiprocessing
 import signal
-import sys
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -51,7 +50,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from core.entry import ArgumentParser, hold_signals, run
+from core.entry import ArgumentParser, finish, hold_signals, run
 from core.errors import UsageError
 from core.inputs import check_outside
 from core.numbers import ascii_float, ascii_int
@@ -373,4 +372,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    finish(main())

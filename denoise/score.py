@@ -30,13 +30,12 @@ import json
 import os
 import re
 import string
-import sys
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from core.entry import ArgumentParser, run
+from core.entry import ArgumentParser, finish, run
 from core.errors import FrameError, OutputError, UsageError
 from core.inputs import check_outside
 from export.frames import frame_indices, missing_between, read_frame, same_size
@@ -351,4 +350,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    finish(main())

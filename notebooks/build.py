@@ -423,4 +423,4 @@ def main(argv: list[str] | None = None) -> int:
 if __name__ == "__main__":
     from core import entry
 
-    sys.exit(entry.run(PROG, main))
+    entry.finish(entry.run(PROG, main))

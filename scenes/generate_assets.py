@@ -24,6 +24,7 @@ if __name__ == "__main__":  # first: ./.venv's Python, the libLLVM, then Dr.Jit 
 
 import numpy as np
 
+from core.entry import finish, run
 from imaging.colour import to_course_8bit
 from imaging.image_io import CUBE_FACES as FACES, atomic_path, write_image
 
@@ -128,4 +129,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    finish(run("python -m scenes.generate_assets", main))

@@ -356,3 +356,19 @@ def test_benchmarks_keep_the_error_contract(name):
         assert code == 2 and err.count("\n") == 1 and "--json docs: a folder" in err, err
         code, err = run("--json", "/proc/no/such.json")
         assert code == 2 and err.count("\n") == 1 and "/proc/no" in err, err
+
+
+def test_every_entry_point_ends_through_finish():
+    """A command ends with ``core.entry.finish`` (stop signals ignored in the
+    teardown): ``sys.exit`` after ``run`` left a signal during the interpreter's
+    teardown to end the process by the signal, without a word."""
+    guard = 'if __name__ == "__main__":'
+    missing = []
+    for path in sorted(ROOT.rglob("*.py")):
+        relative = path.relative_to(ROOT)
+        if relative.parts[0] in (".venv", "tests") or guard not in (text := path.read_text()):
+            continue
+        last = text.rsplit(guard, 1)[1]
+        if "finish(" not in last:
+            missing.append(relative.as_posix())
+    assert missing == []

@@ -10,6 +10,7 @@ write nothing (no output, no temporary file) and leave no process behind.
 from __future__ import annotations
 
 import signal
+import subprocess
 import time
 from pathlib import Path
 
@@ -139,3 +140,31 @@ def test_a_signal_during_a_commands_start_up_stops_it(tmp_path, long_denoise_inp
     assert result.seconds <= STOP_SECONDS
     assert len(result.stderr.strip().splitlines()) <= 1 and "Traceback" not in result.stderr, result.stderr
     assert result.left == []
+
+
+#: commands that print, then end: a signal right after their output lands in the interpreter's teardown
+FINISHING = {"python -m denoise.methods": ["-m", "denoise.methods"],
+             "python -m export": ["-m", "export", ROOT / "scenes" / "sequences" / "dolly_lamps.json", "{out}",
+                                  "--frames", 1, "--size", 8, 6, "--reference-spp", 2, "--local"]}
+
+
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+@pytest.mark.parametrize("name", FINISHING)
+def test_a_signal_after_the_output_keeps_the_contract(tmp_path, name, signum):
+    """Sent as the output appears (stdout to a pipe is written at the exit's
+    flush): finished (0), or one line and 128 + signum; never an exit by the
+    signal itself without a word (Python restores the default handlers in its
+    teardown), nor a traceback out of the handlers' restoring."""
+    outcomes = []
+    for k, delay in enumerate((0.0, 0.01, 0.03, 0.08, 0.15)):
+        argv = [str(a).format(out=tmp_path / f"o{k}") for a in FINISHING[name]]
+        process = subprocess.Popen(python(*argv), cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+        process.stdout.readline()
+        time.sleep(delay)
+        process.send_signal(signum)
+        _, stderr = process.communicate(timeout=120)
+        stderr = stderr.decode(errors="replace")
+        outcomes.append((delay, process.returncode))
+        assert process.returncode in (0, 128 + signum), (delay, process.returncode, stderr[-2000:])
+        assert len(stderr.strip().splitlines()) <= 1 and "Traceback" not in stderr, (delay, stderr[-2000:])
+    print(name, signal.Signals(signum).name, outcomes)

@@ -11,9 +11,10 @@ if __name__ == "__main__":  # first: ./.venv's Python, the libLLVM, then Dr.Jit 
     from core.launcher import start
     start("python -m denoise.live", "denoise.live")
 
-import sys
+
+from core.entry import finish
 
 from .app import main
 
 if __name__ == "__main__":
-    sys.exit(main())
+    finish(main())

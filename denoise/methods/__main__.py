@@ -7,9 +7,8 @@ if __name__ == "__main__":  # first: ./.venv's Python, the libLLVM, then Dr.Jit 
     start("python -m denoise.methods", "denoise.methods")
 
 import argparse
-import sys
 
-from core.entry import ArgumentParser, run
+from core.entry import ArgumentParser, finish, run
 
 from .listing import DOC, method_list, with_method_list
 
@@ -34,4 +33,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    finish(main())
