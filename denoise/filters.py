@@ -3,7 +3,7 @@
 Images are ``mi.TensorXf`` of shape (H, W, C); pixel (x, y) has flat index
 ``y * W + x``. No loop runs per pixel in Python: each filter is a handful of
 kernels over all pixels (a symbolic loop over the window for the bilateral
-filter, one kernel per level for À-Trous).
+filter).
 """
 from __future__ import annotations
 
@@ -15,6 +15,8 @@ import mitsuba as mi
 import numpy as np
 
 from core.errors import UsageError
+
+from .neighbours import ShiftedPlanes, margin_for
 
 #: B3-spline taps of the À-Trous wavelet
 B3 = (1.0 / 16.0, 1.0 / 4.0, 3.0 / 8.0, 1.0 / 4.0, 1.0 / 16.0)
@@ -51,13 +53,6 @@ class BilateralWindow:
     spatial weight ``exp(-d²/(2 sigma_coord²))`` (bilateral's options declare and check both)."""
     radius: int = 16
     sigma_coord: float = 32.0
-
-
-@dataclass(frozen=True)
-class AtrousLevels:
-    """À-Trous: ``levels`` passes of the 5x5 B3 kernel with holes 2^i; the
-    colour sigma halves from one level to the next (``--levels`` declares and checks it)."""
-    levels: int = 5
 
 
 @dataclass(frozen=True)
@@ -136,10 +131,12 @@ def fast_acos(x: mi.Float) -> mi.Float:
     return dr.select(x < 0.0, dr.pi - r, r)
 
 
-def _coefficients(p: EdgeWeights, sigma_color: float) -> tuple[float, float, float]:
+def edge_coefficients(p: EdgeWeights, sigma_color: float) -> tuple[float, float, float]:
     return inv_two_sigma_sq(sigma_color), inv_two_sigma_sq(p.sigma_normal), inv_two_sigma_sq(p.sigma_plane)
 
 
+#: taps up to this many pixels away read the guides' planes made for the first level (six levels' holes)
+GUIDE_REACH = 64
 #: floats per pixel of the packed guides: a power of two, so a tap reads them in one packet gather
 GUIDE_FLOATS = 8
 
@@ -189,6 +186,7 @@ class FrameArrays:
         # normalisation and read the tensors through strided single-float gathers
         dr.eval(self.color, self.normal, self.position, self.guides)
         self.x, self.y = pixel_coordinates(self.width, self.height)
+        self._guide_planes = self._planes = None
 
     def gather(self, packed: mi.Float, x: mi.Int32, y: mi.Int32, active=None) -> mi.Vector3f:
         """The value at (x, y) of an image packed by :func:`pack`, (x, y)
@@ -206,6 +204,31 @@ class FrameArrays:
         g = dr.gather(mi.ArrayXf, self.guides, mi.UInt32(y * self.width + x), shape=(GUIDE_FLOATS, dr.width(x)))
         return mi.Vector3f(g[0], g[1], g[2]), mi.Vector3f(g[3], g[4], g[5])
 
+    def guide_planes(self, reach: int) -> ShiftedPlanes:
+        """Normal and position as :class:`ShiftedPlanes` for taps up to
+        ``reach`` pixels away, made once per frame (for :data:`GUIDE_REACH`
+        or more: every level of a frame reads the same)."""
+        margin = margin_for(self.width, max(reach, GUIDE_REACH))
+        if self._guide_planes is None or self._guide_planes.margin < margin:
+            self._guide_planes = ShiftedPlanes([self.normal.x, self.normal.y, self.normal.z,
+                                                self.position.x, self.position.y, self.position.z], margin)
+        return self._guide_planes
+
+    def offer_planes(self, channels: tuple, reach: int) -> None:
+        """Schedules ``channels`` (lazy Dr.Jit Floats) to be written as
+        :class:`ShiftedPlanes` by the kernel that evaluates them (one set
+        kept: a filter's next level reads its level's output)."""
+        self._planes = ShiftedPlanes(channels, margin_for(self.width, reach), keep=channels)
+
+    def planes_of(self, channels: tuple, reach: int) -> ShiftedPlanes:
+        """``channels`` as :class:`ShiftedPlanes` for taps up to ``reach``
+        pixels away: the ones :meth:`offer_planes` scheduled for exactly these
+        arrays, else made now (a kernel of their own)."""
+        margin = margin_for(self.width, reach)
+        if self._planes is None or not self._planes.made_from(*channels) or self._planes.margin < margin:
+            self._planes = ShiftedPlanes(channels, margin, keep=channels)
+        return self._planes
+
     def tensor(self, color: mi.Vector3f) -> mi.TensorXf:
         return mi.TensorXf(dr.ravel(color), shape=(self.height, self.width, 3))
 
@@ -218,7 +241,7 @@ def joint_bilateral(frame: FrameArrays, p: EdgeWeights = EdgeWeights(), window: 
     than one loop iteration per tap; the same result)."""
     r = window.radius
     k_coord = inv_two_sigma_sq(window.sigma_coord)  # plain floats: not loop state
-    coefficients = _coefficients(p, p.sigma_color)
+    coefficients = edge_coefficients(p, p.sigma_color)
     total = mi.Vector3f(frame.color)  # the centre pixel, weight exp(0) = 1
     color4 = pack(frame.color)
     weights = mi.Float(1.0)
@@ -238,40 +261,6 @@ def joint_bilateral(frame: FrameArrays, p: EdgeWeights = EdgeWeights(), window: 
             weights += w
         dy += 1
     return frame.tensor(total / weights)
-
-
-def atrous(frame: FrameArrays, p: EdgeWeights = EdgeWeights(),
-           levels: AtrousLevels | int = AtrousLevels()) -> mi.TensorXf:
-    """The À-Trous wavelet: ``levels`` passes of a 5x5 B3-spline kernel with
-    holes (step 2^i), each with the bilateral edge-stopping weights; the
-    colour sigma halves from one level to the next."""
-    count = levels.levels if isinstance(levels, AtrousLevels) else AtrousLevels(levels).levels
-    color = frame.color
-    color4 = pack(color)
-    for level in range(count):
-        step = 1 << level
-        coefficients = _coefficients(p, p.sigma_color / step)
-        total, weights = mi.Vector3f(0.0), mi.Float(0.0)
-        for j, hy in enumerate(B3):
-            for i, hx in enumerate(B3):
-                dx, dy = (i - 2) * step, (j - 2) * step
-                if dx == 0 and dy == 0:  # the centre: weight exp(0), its own colour (no gather)
-                    total += hx * hy * color
-                    weights += hx * hy
-                    continue
-                x, y = frame.x + dx, frame.y + dy
-                inside = (x >= 0) & (x < frame.width) & (y >= 0) & (y < frame.height)
-                color_j = frame.gather(color4, x, y, inside)
-                log_w = edge_log_weight(coefficients, color, frame.normal, frame.position, color_j,
-                                        *frame.gather_guides(x, y))
-                w = dr.select(inside, hx * hy * neg_exp(log_w), 0.0)
-                total += w * color_j
-                weights += w
-        color = total / weights
-        dr.eval(color)
-        if level + 1 < count:
-            color4 = pack(color)  # the next level's taps
-    return frame.tensor(color)
 
 
 def reproject(position: mi.TensorXf, ids: mi.TensorXf, prev_ids: mi.TensorXf, object_to_world, prev_object_to_world,
