@@ -332,9 +332,10 @@ def test_a_libllvm_that_is_not_a_library_is_named_in_a_whole_sentence(tmp_path):
 
 
 BENCHMARKS = ("course", "crossval", "denoise", "denoise_profile", "error_vs_time", "render_speed", "report",
-              "scaleout", "stress")
+              "roofline", "scaleout", "stress")
 #: the benchmarks that write their numbers with --json
-WITH_JSON = ("crossval", "denoise", "denoise_profile", "error_vs_time", "render_speed", "scaleout", "stress")
+WITH_JSON = ("crossval", "denoise", "denoise_profile", "error_vs_time", "render_speed", "roofline", "scaleout",
+             "stress")
 
 
 @pytest.mark.parametrize("name", BENCHMARKS)
