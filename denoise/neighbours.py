@@ -43,30 +43,69 @@ def margin_for(width: int, reach: int) -> int:
     return reach * (width + 1)
 
 
+class Plane:
+    """One zero-padded plane's memory: a Dr.Jit array, its NumPy view and the
+    arrays mapped onto it at each offset asked for so far (kept: a mapped array
+    freed costs the queue a task that releases its NumPy owner)."""
+
+    def __init__(self, length: int):
+        self.array = dr.zeros(mi.Float, length)
+        dr.make_opaque(self.array)
+        self.view = self.array.numpy()  # no copy: the array's memory (waits for the queued kernels, once)
+        self.mapped = {}
+
+    def at(self, start: int, pixels: int) -> mi.Float:
+        """``pixels`` values from ``start`` on, as a Dr.Jit array mapped onto this memory."""
+        key = (start, pixels)
+        if key not in self.mapped:
+            self.mapped[key] = mi.Float(self.view[start:start + pixels])
+        return self.mapped[key]
+
+
+#: planes no ShiftedPlanes holds, by length, for the next frame's planes of that length
+FREE: dict[int, list[Plane]] = {}
+
+
+def take(pixels: int, length: int) -> Plane:
+    """A plane of ``length`` floats from :data:`FREE`, else a new one. Planes of
+    another image size are dropped (a sequence keeps its size)."""
+    for other in [k for k in FREE if FREE[k] and FREE[k][0].pixels != pixels]:
+        del FREE[other]
+    free = FREE.get(length)
+    plane = free.pop() if free else Plane(length)
+    plane.pixels = pixels
+    return plane
+
+
 class ShiftedPlanes:
     """``channels`` (Dr.Jit Floats of one width each) as zero-padded planes.
 
-    Each plane is its own array, so that the scatters filling them are side
-    effects of whichever kernel evaluates next at this width (the kernel that
-    computes the values writes the planes too; scatters into one array would
-    each be a kernel of their own). ``keep`` holds arrays alive with the
-    planes (see :meth:`made_from`)."""
+    Each plane is memory of its own, taken from the planes of earlier frames
+    where one of its length is free (its mapped arrays made once: no new
+    NumPy view, no wait for the queue), and given back when these planes are
+    dropped. The values are scattered in as side effects of whichever kernel
+    evaluates next at this width (the kernel that computes them, when they
+    are a level's lazy output); Dr.Jit runs kernels in order, so a plane is
+    written only after every kernel that read it before. Scatters into one
+    array would each be a kernel of their own, hence a plane per channel.
+    ``keep`` holds arrays alive with the planes (see :meth:`made_from`)."""
 
     def __init__(self, channels: Sequence[mi.Float], margin: int, keep: Sequence = ()):
         self.pixels = dr.width(channels[0])
         self.margin = margin
+        self.planes = [take(self.pixels, self.pixels + 2 * margin) for _ in channels]
         where = dr.arange(mi.UInt32, self.pixels) + margin
-        self.planes = []
-        for values in channels:
-            plane = dr.zeros(mi.Float, self.pixels + 2 * margin)
-            dr.make_opaque(plane)
-            dr.scatter(plane, values, where)
-            self.planes.append(plane)
+        for plane, values in zip(self.planes, channels):
+            dr.scatter(plane.array, values, where)  # in place: the memory mapped (the padding stays 0)
+        self._filled = False
         # the arrays the planes were made from, by Dr.Jit variable: held, so that no
         # other array can take their indices while the planes exist
         self.keep = tuple(keep)
         self.sources = tuple(v.index for v in self.keep)
-        self._views = None
+
+    def __del__(self):
+        for plane in getattr(self, "planes", ()):
+            FREE.setdefault(len(plane.view), []).append(plane)
 
     def made_from(self, *values) -> bool:
         """Whether these are the planes of exactly ``values`` (as given in ``keep``)."""
@@ -76,7 +115,7 @@ class ShiftedPlanes:
         """Plane ``channel`` at flat offset ``offset``: the value of pixel ``i + offset`` at lane ``i``."""
         if abs(offset) > self.margin:
             raise ValueError(f"offset {offset} beyond the planes' margin {self.margin}")
-        if self._views is None:  # no copy: each plane's memory, once its kernel has run
-            self._views = [plane.numpy() for plane in self.planes]
-        start = self.margin + offset
-        return mi.Float(self._views[channel][start:start + self.pixels])
+        if not self._filled:  # the scatters run before any kernel that reads the planes (no-op when they ran)
+            dr.eval(*(plane.array for plane in self.planes))
+            self._filled = True
+        return self.planes[channel].at(self.margin + offset, self.pixels)
