@@ -16,7 +16,7 @@ import numpy as np
 
 from core.errors import UsageError
 
-from .neighbours import ShiftedPlanes, margin_for
+from .neighbours import ShiftedPlanes, margin_for, usable
 
 #: B3-spline taps of the À-Trous wavelet
 B3 = (1.0 / 16.0, 1.0 / 4.0, 3.0 / 8.0, 1.0 / 4.0, 1.0 / 16.0)
@@ -217,8 +217,10 @@ class FrameArrays:
     def offer_planes(self, channels: tuple, reach: int) -> None:
         """Schedules ``channels`` (lazy Dr.Jit Floats) to be written as
         :class:`ShiftedPlanes` by the kernel that evaluates them (one set
-        kept: a filter's next level reads its level's output)."""
-        self._planes = ShiftedPlanes(channels, margin_for(self.width, reach), keep=channels)
+        kept: a filter's next level reads its level's output). Values with a
+        gradient tracked are not offered: the next level gathers them."""
+        if usable(*channels):
+            self._planes = ShiftedPlanes(channels, margin_for(self.width, reach), keep=channels)
 
     def planes_of(self, channels: tuple, reach: int) -> ShiftedPlanes:
         """``channels`` as :class:`ShiftedPlanes` for taps up to ``reach``
@@ -312,10 +314,17 @@ def clamp_box(color: mi.TensorXf, radius: int = 3) -> tuple[mi.Vector3f, mi.Vect
     ``Σ(c_q - c_p)² = Σ(c_q - c_r)² + 2 (c_r - c_p) Σ(c_q - c_r) + n (c_r - c_p)²``,
     so every term stays a difference: 2 (2r+1) taps instead of (2r+1)². ``n``,
     the columns inside the image, is the same for every row of a column, so
-    a row's record is its two sums alone (one 8-float packet per tap)."""
+    a row's record is its two sums alone (one 8-float packet per tap).
+    Where no gradient is tracked, both passes read shifted planes instead
+    (:mod:`denoise.neighbours`; the same result, bit for bit)."""
     height, width = color.shape[0], color.shape[1]
     c = dr.unravel(mi.Vector3f, color.array)
-    c4 = pack(c)
+    shifted = usable(c)
+    if shifted:
+        planes = ShiftedPlanes([c.x, c.y, c.z], margin_for(width, radius))
+        dr.eval(c)  # with the planes, in one kernel
+    else:
+        c4 = pack(c)
     x0, y0 = pixel_coordinates(width, height)
     row_sum, row_sq = mi.Vector3f(0.0), mi.Vector3f(0.0)
     for dx in range(-radius, radius + 1):
@@ -323,34 +332,50 @@ def clamp_box(color: mi.TensorXf, radius: int = 3) -> tuple[mi.Vector3f, mi.Vect
             continue
         x = x0 + dx
         inside = (x >= 0) & (x < width)
-        v = dr.gather(mi.Vector4f, c4, mi.UInt32(y0 * width + dr.clip(x, 0, width - 1)))
-        d = dr.select(inside, mi.Vector3f(v.x, v.y, v.z) - c, 0.0)
+        if shifted:
+            v = mi.Vector3f(planes.at(0, dx), planes.at(1, dx), planes.at(2, dx))
+        else:
+            v = dr.gather(mi.Vector4f, c4, mi.UInt32(y0 * width + dr.clip(x, 0, width - 1)))
+            v = mi.Vector3f(v.x, v.y, v.z)
+        d = dr.select(inside, v - c, 0.0)
         row_sum += d
         row_sq += d * d
-    sums = dr.ravel(mi.ArrayXf(row_sum.x, row_sum.y, row_sum.z, row_sq.x, row_sq.y, row_sq.z, 0.0, 0.0))
-    dr.eval(sums)
+    if shifted:
+        sums = ShiftedPlanes([row_sum.x, row_sum.y, row_sum.z, row_sq.x, row_sq.y, row_sq.z],
+                             margin_for(width, radius))
+    else:
+        sums = dr.ravel(mi.ArrayXf(row_sum.x, row_sum.y, row_sum.z, row_sq.x, row_sq.y, row_sq.z, 0.0, 0.0))
+        dr.eval(sums)
     n = mi.Float(dr.minimum(x0 + radius, width - 1) - dr.maximum(x0 - radius, 0) + 1)
     total, total_sq, rows = mi.Vector3f(0.0), mi.Vector3f(0.0), mi.Float(0.0)
     for dy in range(-radius, radius + 1):
         y = y0 + dy
         inside = (y >= 0) & (y < height)
-        j = mi.UInt32(dr.clip(y, 0, height - 1) * width + x0)  # clamped, unmasked; outside rows are selected away
-        s = dr.gather(mi.ArrayXf, sums, j, shape=(8, width * height))
+        if shifted:
+            s = [sums.at(k, dy * width) for k in range(6)]
+            r = mi.Vector3f(planes.at(0, dy * width), planes.at(1, dy * width), planes.at(2, dy * width))
+        else:
+            j = mi.UInt32(dr.clip(y, 0, height - 1) * width + x0)  # clamped, unmasked; outside rows selected away
+            s = dr.gather(mi.ArrayXf, sums, j, shape=(8, width * height))
+            r = dr.gather(mi.Vector4f, c4, j)
+            r = mi.Vector3f(r.x, r.y, r.z)
         row_s, row_q = mi.Vector3f(s[0], s[1], s[2]), mi.Vector3f(s[3], s[4], s[5])
         if dy == 0:  # the centre's own row: c_r = c_p
             total += row_s
             total_sq += row_q
             rows += 1.0
             continue
-        r = dr.gather(mi.Vector4f, c4, j)
-        offset = mi.Vector3f(r.x, r.y, r.z) - c
+        offset = r - c
         total += dr.select(inside, row_s + n * offset, 0.0)
         total_sq += dr.select(inside, row_q + 2.0 * offset * row_s + n * offset * offset, 0.0)
         rows += dr.select(inside, 1.0, 0.0)
     count = n * rows
     mean_offset = total / count
     variance = dr.maximum(total_sq / count - mean_offset * mean_offset, 0.0)
-    return c + mean_offset, dr.sqrt(variance)
+    mean, sigma = c + mean_offset, dr.sqrt(variance)
+    if shifted:  # read while the planes are held (see denoise.neighbours)
+        dr.eval(mean, sigma)
+    return mean, sigma
 
 
 def accumulate(current: mi.TensorXf, previous: mi.TensorXf | None, index: mi.UInt32 | None, valid: mi.Bool | None,

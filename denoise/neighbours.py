@@ -15,6 +15,11 @@ gather would read; so every caller gives such taps the weight 0 with a
 ``dr.select`` (which also discards any NaN their weight's arithmetic makes),
 and the channels written must be finite. ``|o|`` is at most ``margin``.
 
+A plane's memory goes back to a pool when its :class:`ShiftedPlanes` is
+dropped, and the next planes of that length write into it: so every kernel
+that reads planes is launched (``dr.eval``) while they are held; Dr.Jit
+runs kernels in launch order.
+
 The mapped arrays carry no derivatives and are read from memory: a filter
 uses them only where no gradient is tracked (:func:`usable`), never inside
 ``dr.freeze`` (reading the planes waits for the kernel that writes them).
@@ -91,6 +96,9 @@ class ShiftedPlanes:
     ``keep`` holds arrays alive with the planes (see :meth:`made_from`)."""
 
     def __init__(self, channels: Sequence[mi.Float], margin: int, keep: Sequence = ()):
+        if any(dr.grad_enabled(values) for values in channels):
+            # a scatter of tracked values would replace the plane's array, not write its mapped memory
+            raise ValueError("shifted planes of values with a gradient tracked")
         self.pixels = dr.width(channels[0])
         self.margin = margin
         self.planes = [take(self.pixels, self.pixels + 2 * margin) for _ in channels]

@@ -218,4 +218,5 @@ def atrous_level(frame: FrameArrays, color: mi.Vector3f, variance: mi.Float, ste
     out, out_var = total / weights, total_var / (weights * weights)
     if shifted:  # written by this level's kernel, read by the next level's taps (holes 2 step)
         frame.offer_planes((out.x, out.y, out.z, out_var), 4 * step)
+        dr.eval(out, out_var)  # read while the planes are held (see denoise.neighbours)
     return out, out_var

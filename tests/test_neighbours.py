@@ -93,6 +93,8 @@ def test_planes_read_shifted_values_and_refuse_offsets_past_their_margin(variant
     tracked = mi.Float(values)
     dr.enable_grad(tracked)
     assert usable(values) and not usable(values, tracked)  # a gradient needs the gathers
+    with pytest.raises(ValueError, match="gradient tracked"):
+        ShiftedPlanes([tracked], margin=1)
 
 
 def test_a_level_reads_its_own_inputs_not_the_planes_offered_before(variant_vectorised_rgb, buffers, monkeypatch):
@@ -115,3 +117,13 @@ def test_a_level_reads_its_own_inputs_not_the_planes_offered_before(variant_vect
 
     shifted, gathered = both_ways(monkeypatch, run)
     assert all(np.array_equal(a, b) for a, b in zip(shifted, gathered))
+
+
+@pytest.mark.parametrize("radius", [1, 3])
+def test_clamp_box_is_the_same_with_shifted_planes(variant_vectorised_rgb, buffers, monkeypatch, radius):
+    """The temporal clamp's box statistics: both passes read shifted planes."""
+    from denoise.filters import clamp_box
+
+    c, _, _, _ = buffers
+    shifted, gathered = both_ways(monkeypatch, lambda: [np.array(a) for a in clamp_box(tensors(c)[0], radius)])
+    assert all(np.isfinite(a).all() and np.array_equal(a, b) for a, b in zip(shifted, gathered))
