@@ -26,6 +26,7 @@ uses them only where no gradient is tracked (:func:`usable`), never inside
 """
 from __future__ import annotations
 
+import threading
 from collections.abc import Sequence
 
 import drjit as dr
@@ -67,18 +68,21 @@ class Plane:
         return self.mapped[key]
 
 
-#: planes no ShiftedPlanes holds, by length, for the next frame's planes of that length
-FREE: dict[int, list[Plane]] = {}
+#: planes no ShiftedPlanes holds, by thread and length, for the next planes of that length.
+#: By thread: Dr.Jit orders the kernels of one thread, not those of two
+FREE: dict[tuple[int, int], list[Plane]] = {}
 
 
 def take(pixels: int, length: int) -> Plane:
-    """A plane of ``length`` floats from :data:`FREE`, else a new one. Planes of
-    another image size are dropped (a sequence keeps its size)."""
-    for other in [k for k in FREE if FREE[k] and FREE[k][0].pixels != pixels]:
-        del FREE[other]
-    free = FREE.get(length)
+    """A plane of ``length`` floats from this thread's :data:`FREE`, else a new
+    one. This thread's planes of another image size are dropped (a sequence
+    keeps its size)."""
+    thread = threading.get_ident()
+    for key in [k for k in FREE if k[0] == thread and FREE[k] and FREE[k][0].pixels != pixels]:
+        del FREE[key]
+    free = FREE.get((thread, length))
     plane = free.pop() if free else Plane(length)
-    plane.pixels = pixels
+    plane.pixels, plane.thread = pixels, thread
     return plane
 
 
@@ -113,7 +117,7 @@ class ShiftedPlanes:
 
     def __del__(self):
         for plane in getattr(self, "planes", ()):
-            FREE.setdefault(len(plane.view), []).append(plane)
+            FREE.setdefault((plane.thread, len(plane.view)), []).append(plane)
 
     def made_from(self, *values) -> bool:
         """Whether these are the planes of exactly ``values`` (as given in ``keep``)."""

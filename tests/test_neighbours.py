@@ -127,3 +127,31 @@ def test_clamp_box_is_the_same_with_shifted_planes(variant_vectorised_rgb, buffe
     c, _, _, _ = buffers
     shifted, gathered = both_ways(monkeypatch, lambda: [np.array(a) for a in clamp_box(tensors(c)[0], radius)])
     assert all(np.isfinite(a).all() and np.array_equal(a, b) for a, b in zip(shifted, gathered))
+
+
+def test_a_steady_frame_maps_no_new_memory(variant_vectorised_rgb, buffers, monkeypatch):
+    """From the second frame of a size on, every plane comes from the pool
+    (no NumPy view made, no wait for the queue), and the output stays the gathers'."""
+    import denoise.neighbours as neighbours
+    from denoise.filters import FrameArrays
+    from denoise.methods.svgf import svgf
+    from denoise.svgf_common import SVGFParams
+
+    c, n, x, _ = buffers
+    made = []
+    original = neighbours.Plane.__init__
+
+    def counted(self, length):
+        made.append(length)
+        original(self, length)
+
+    monkeypatch.setattr(neighbours.Plane, "__init__", counted)
+    p = SVGFParams(levels=3, sigma_plane=0.3)
+    outputs = []
+    for _ in range(3):
+        before = len(made)
+        outputs.append(np.array(svgf(FrameArrays(*tensors(c, n, x)), p)[0]))
+        new = len(made) - before
+    assert new == 0 and made  # the third frame took every plane from the pool
+    monkeypatch.setattr(neighbours, "ENABLED", False)
+    assert np.array_equal(outputs[-1], np.array(svgf(FrameArrays(*tensors(c, n, x)), p)[0]))
