@@ -10,8 +10,9 @@ operation count, what its IR reads per pixel (packet gathers of 4- and
 8-float records, single-float gathers, plain loads) and writes, and its
 execution time, the median over the frames after two warm-up frames.
 Kernels with at least 24 gathers of 4-float colour records and 24 of 8-float
-guide records are the À-Trous levels (5x5 taps, the centre read without a
-gather); the table sums them apart from the rest (guide packing, SVGF's
+guide records, or 216 shifted loads (3 colour and 6 guide planes per tap,
+:mod:`denoise.neighbours`), are the À-Trous levels (5x5 taps, the centre read
+without either); the table sums them apart from the rest (guide packing, SVGF's
 spatial variance estimate, reprojection, accumulation and clamping).
 
 Last, ``atrous+temporal``'s kernel time with one Dr.Jit thread against the
@@ -24,9 +25,7 @@ from __future__ import annotations
 
 import datetime
 import os
-import re
 import sys
-import time
 from pathlib import Path
 
 # started as `python benchmarks/x.py`, this folder would shadow the course and denoise packages
@@ -38,17 +37,9 @@ if __name__ == "__main__":  # first: ./.venv's Python, the libLLVM, then Dr.Jit 
     start("python -m benchmarks.denoise_profile", "benchmarks.denoise_profile" if __package__ else None)
 
 import drjit as dr
-import numpy as np
 
-from benchmarks.denoise import (
-    QUICK_TIMING,
-    RESULTS_PAGE,
-    SEQUENCES,
-    TIMING,
-    check_work_and_json,
-    make_method,
-    timing_folder,
-)
+from benchmarks.denoise import QUICK_TIMING, RESULTS_PAGE, SEQUENCES, TIMING, check_work_and_json, timing_folder
+from benchmarks.kernel_profile import profile
 from benchmarks.records import machine, write_json
 from core import entry
 from core.entry import ArgumentParser
@@ -60,70 +51,6 @@ from renderer.variants import set_variant
 ROOT = Path(__file__).resolve().parent.parent
 PROG = "python -m benchmarks.denoise_profile"
 METHODS = ("atrous+temporal", "svgf")
-#: a kernel with at least this many 4-float and 8-float packet gathers is an À-Trous level
-LEVEL_GATHERS = 24
-
-
-def ir_traffic(ir: str) -> dict:
-    """What a kernel's LLVM IR reads and writes per lane (= per pixel): its
-    main function's loads, stores, single-float gathers and scatters, and
-    calls of Dr.Jit's packet gather/scatter helpers (their bodies not counted)."""
-    start = ir.find("define void @drjit_")
-    if start >= 0:
-        ir = ir[start:ir.find("\n}", start)]
-    packets = {int(n): len(re.findall(rf"call fastcc \[{n} x <\d+ x float>\] @gather_{n}xf32", ir))
-               for n in (2, 4, 8, 16)}
-    single_gathers = len(re.findall(r"call <\d+ x (?:float|i32)> @llvm\.masked\.gather", ir))
-    loads = len(re.findall(r"= load <\d+ x (?:float|i32)>", ir))
-    stores = len(re.findall(r"store <\d+ x (?:float|i32)>", ir))
-    scatters = len(re.findall(r"call void @llvm\.masked\.scatter", ir)) + sum(
-        n * len(re.findall(rf"call fastcc void @scatter_{n}xf32\(", ir)) for n in (2, 4, 8, 16))
-    read = 4 * (sum(n * c for n, c in packets.items()) + single_gathers + loads)
-    return {"packet_gathers": {f"{n} floats": c for n, c in packets.items() if c},
-            "single_gathers": single_gathers, "loads": loads,
-            "bytes_read_per_pixel": read, "bytes_written_per_pixel": 4 * (stores + scatters)}
-
-
-def profile(frames, method: str) -> dict:
-    """Median per-kernel execution times of ``method`` over ``frames[2:]``."""
-    runner = make_method(method)
-    for frame in frames[:2]:
-        runner.step(frame)
-    dr.sync_thread()
-    dr.set_flag(dr.JitFlag.KernelHistory, True)
-    runs, walls = [], []
-    try:
-        for frame in frames[2:]:
-            dr.kernel_history()  # drop what came before
-            start = time.perf_counter()
-            runner.step(frame)
-            dr.sync_thread()
-            walls.append(1000 * (time.perf_counter() - start))
-            runs.append([k for k in dr.kernel_history() if "execution_time" in k and k.get("size", 0) > 1])
-    finally:
-        dr.set_flag(dr.JitFlag.KernelHistory, False)
-    counts = {len(r) for r in runs}
-    if len(counts) != 1:
-        raise RuntimeError(f"{method}: the frames launched different numbers of kernels ({sorted(counts)})")
-    kernels = []
-    for position, first in enumerate(runs[0]):
-        ir = first.get("ir", "")  # only JIT kernels have IR (not e.g. Dr.Jit's compress or memset)
-        traffic = ir_traffic(ir.getvalue() if hasattr(ir, "getvalue") else str(ir))
-        packets = traffic["packet_gathers"]
-        kernels.append({"kernel": position, "type": str(first["type"]).split(".")[-1], "size": int(first["size"]),
-                        "operations": int(first.get("operation_count", 0)),
-                        "level": (packets.get("8 floats", 0) >= LEVEL_GATHERS
-                                  and packets.get("4 floats", 0) >= LEVEL_GATHERS),
-                        **traffic,
-                        "ms": float(np.median([r[position]["execution_time"] for r in runs])),
-                        "ms_min": float(min(r[position]["execution_time"] for r in runs)),
-                        "ms_max": float(max(r[position]["execution_time"] for r in runs))})
-    total = sum(k["ms"] for k in kernels)
-    levels = sum(k["ms"] for k in kernels if k["level"])
-    return {"method": method, "frames": len(runs), "wall_ms": float(np.median(walls)), "kernels_ms": total,
-            "levels_ms": levels, "other_kernels_ms": total - levels, "kernels": kernels}
-
-
 def thread_scaling(frames, method: str = "atrous+temporal") -> dict:
     """Kernel time per frame of ``method`` with one Dr.Jit thread and with the default count."""
     default = dr.thread_count()
@@ -146,9 +73,11 @@ def table(results: dict) -> str:
                   "| ms (min–max) |",
                   "|---|---|---|---|---|---|"]
         for k in p["kernels"]:
-            gathers = ", ".join(f"{c}x{n.split()[0]} floats" for n, c in k["packet_gathers"].items()) or "-"
+            gathers = ", ".join(f"{c}x{n}" for n, c in k["packet_gathers"].items()) or "-"
             if k["single_gathers"]:
                 gathers += f"; {k['single_gathers']} single"
+            if k["shifted_loads"]:
+                gathers += f"; {k['shifted_loads']} shifted loads"
             name = f"{k['kernel']}" + (" (À-Trous level)" if k["level"] else "" if k["type"] == "JIT"
                                        else f" ({k['type']})")
             lines.append(f"| {name} | {k['size']} | {k['operations']} | {gathers} | "

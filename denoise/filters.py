@@ -3,7 +3,7 @@
 Images are ``mi.TensorXf`` of shape (H, W, C); pixel (x, y) has flat index
 ``y * W + x``. No loop runs per pixel in Python: each filter is a handful of
 kernels over all pixels (a symbolic loop over the window for the bilateral
-filter, one kernel per level for À-Trous).
+filter).
 """
 from __future__ import annotations
 
@@ -15,6 +15,8 @@ import mitsuba as mi
 import numpy as np
 
 from core.errors import UsageError
+
+from .neighbours import ShiftedPlanes, margin_for, usable
 
 #: B3-spline taps of the À-Trous wavelet
 B3 = (1.0 / 16.0, 1.0 / 4.0, 3.0 / 8.0, 1.0 / 4.0, 1.0 / 16.0)
@@ -51,13 +53,6 @@ class BilateralWindow:
     spatial weight ``exp(-d²/(2 sigma_coord²))`` (bilateral's options declare and check both)."""
     radius: int = 16
     sigma_coord: float = 32.0
-
-
-@dataclass(frozen=True)
-class AtrousLevels:
-    """À-Trous: ``levels`` passes of the 5x5 B3 kernel with holes 2^i; the
-    colour sigma halves from one level to the next (``--levels`` declares and checks it)."""
-    levels: int = 5
 
 
 @dataclass(frozen=True)
@@ -136,10 +131,12 @@ def fast_acos(x: mi.Float) -> mi.Float:
     return dr.select(x < 0.0, dr.pi - r, r)
 
 
-def _coefficients(p: EdgeWeights, sigma_color: float) -> tuple[float, float, float]:
+def edge_coefficients(p: EdgeWeights, sigma_color: float) -> tuple[float, float, float]:
     return inv_two_sigma_sq(sigma_color), inv_two_sigma_sq(p.sigma_normal), inv_two_sigma_sq(p.sigma_plane)
 
 
+#: taps up to this many pixels away read the guides' planes made for the first level (six levels' holes)
+GUIDE_REACH = 64
 #: floats per pixel of the packed guides: a power of two, so a tap reads them in one packet gather
 GUIDE_FLOATS = 8
 
@@ -189,6 +186,7 @@ class FrameArrays:
         # normalisation and read the tensors through strided single-float gathers
         dr.eval(self.color, self.normal, self.position, self.guides)
         self.x, self.y = pixel_coordinates(self.width, self.height)
+        self._guide_planes = self._planes = None
 
     def gather(self, packed: mi.Float, x: mi.Int32, y: mi.Int32, active=None) -> mi.Vector3f:
         """The value at (x, y) of an image packed by :func:`pack`, (x, y)
@@ -206,6 +204,33 @@ class FrameArrays:
         g = dr.gather(mi.ArrayXf, self.guides, mi.UInt32(y * self.width + x), shape=(GUIDE_FLOATS, dr.width(x)))
         return mi.Vector3f(g[0], g[1], g[2]), mi.Vector3f(g[3], g[4], g[5])
 
+    def guide_planes(self, reach: int) -> ShiftedPlanes:
+        """Normal and position as :class:`ShiftedPlanes` for taps up to
+        ``reach`` pixels away, made once per frame (for :data:`GUIDE_REACH`
+        or more: every level of a frame reads the same)."""
+        margin = margin_for(self.width, max(reach, GUIDE_REACH))
+        if self._guide_planes is None or self._guide_planes.margin < margin:
+            self._guide_planes = ShiftedPlanes([self.normal.x, self.normal.y, self.normal.z,
+                                                self.position.x, self.position.y, self.position.z], margin)
+        return self._guide_planes
+
+    def offer_planes(self, channels: tuple, reach: int) -> None:
+        """Schedules ``channels`` (lazy Dr.Jit Floats) to be written as
+        :class:`ShiftedPlanes` by the kernel that evaluates them (one set
+        kept: a filter's next level reads its level's output). Values with a
+        gradient tracked are not offered: the next level gathers them."""
+        if usable(*channels):
+            self._planes = ShiftedPlanes(channels, margin_for(self.width, reach), keep=channels)
+
+    def planes_of(self, channels: tuple, reach: int) -> ShiftedPlanes:
+        """``channels`` as :class:`ShiftedPlanes` for taps up to ``reach``
+        pixels away: the ones :meth:`offer_planes` scheduled for exactly these
+        arrays, else made now (a kernel of their own)."""
+        margin = margin_for(self.width, reach)
+        if self._planes is None or not self._planes.made_from(*channels) or self._planes.margin < margin:
+            self._planes = ShiftedPlanes(channels, margin, keep=channels)
+        return self._planes
+
     def tensor(self, color: mi.Vector3f) -> mi.TensorXf:
         return mi.TensorXf(dr.ravel(color), shape=(self.height, self.width, 3))
 
@@ -218,7 +243,7 @@ def joint_bilateral(frame: FrameArrays, p: EdgeWeights = EdgeWeights(), window: 
     than one loop iteration per tap; the same result)."""
     r = window.radius
     k_coord = inv_two_sigma_sq(window.sigma_coord)  # plain floats: not loop state
-    coefficients = _coefficients(p, p.sigma_color)
+    coefficients = edge_coefficients(p, p.sigma_color)
     total = mi.Vector3f(frame.color)  # the centre pixel, weight exp(0) = 1
     color4 = pack(frame.color)
     weights = mi.Float(1.0)
@@ -238,40 +263,6 @@ def joint_bilateral(frame: FrameArrays, p: EdgeWeights = EdgeWeights(), window: 
             weights += w
         dy += 1
     return frame.tensor(total / weights)
-
-
-def atrous(frame: FrameArrays, p: EdgeWeights = EdgeWeights(),
-           levels: AtrousLevels | int = AtrousLevels()) -> mi.TensorXf:
-    """The À-Trous wavelet: ``levels`` passes of a 5x5 B3-spline kernel with
-    holes (step 2^i), each with the bilateral edge-stopping weights; the
-    colour sigma halves from one level to the next."""
-    count = levels.levels if isinstance(levels, AtrousLevels) else AtrousLevels(levels).levels
-    color = frame.color
-    color4 = pack(color)
-    for level in range(count):
-        step = 1 << level
-        coefficients = _coefficients(p, p.sigma_color / step)
-        total, weights = mi.Vector3f(0.0), mi.Float(0.0)
-        for j, hy in enumerate(B3):
-            for i, hx in enumerate(B3):
-                dx, dy = (i - 2) * step, (j - 2) * step
-                if dx == 0 and dy == 0:  # the centre: weight exp(0), its own colour (no gather)
-                    total += hx * hy * color
-                    weights += hx * hy
-                    continue
-                x, y = frame.x + dx, frame.y + dy
-                inside = (x >= 0) & (x < frame.width) & (y >= 0) & (y < frame.height)
-                color_j = frame.gather(color4, x, y, inside)
-                log_w = edge_log_weight(coefficients, color, frame.normal, frame.position, color_j,
-                                        *frame.gather_guides(x, y))
-                w = dr.select(inside, hx * hy * neg_exp(log_w), 0.0)
-                total += w * color_j
-                weights += w
-        color = total / weights
-        dr.eval(color)
-        if level + 1 < count:
-            color4 = pack(color)  # the next level's taps
-    return frame.tensor(color)
 
 
 def reproject(position: mi.TensorXf, ids: mi.TensorXf, prev_ids: mi.TensorXf, object_to_world, prev_object_to_world,
@@ -323,10 +314,17 @@ def clamp_box(color: mi.TensorXf, radius: int = 3) -> tuple[mi.Vector3f, mi.Vect
     ``Σ(c_q - c_p)² = Σ(c_q - c_r)² + 2 (c_r - c_p) Σ(c_q - c_r) + n (c_r - c_p)²``,
     so every term stays a difference: 2 (2r+1) taps instead of (2r+1)². ``n``,
     the columns inside the image, is the same for every row of a column, so
-    a row's record is its two sums alone (one 8-float packet per tap)."""
+    a row's record is its two sums alone (one 8-float packet per tap).
+    Where no gradient is tracked, both passes read shifted planes instead
+    (:mod:`denoise.neighbours`; the same result, bit for bit)."""
     height, width = color.shape[0], color.shape[1]
     c = dr.unravel(mi.Vector3f, color.array)
-    c4 = pack(c)
+    shifted = usable(c)
+    if shifted:
+        planes = ShiftedPlanes([c.x, c.y, c.z], margin_for(width, radius))
+        dr.eval(c)  # with the planes, in one kernel
+    else:
+        c4 = pack(c)
     x0, y0 = pixel_coordinates(width, height)
     row_sum, row_sq = mi.Vector3f(0.0), mi.Vector3f(0.0)
     for dx in range(-radius, radius + 1):
@@ -334,34 +332,50 @@ def clamp_box(color: mi.TensorXf, radius: int = 3) -> tuple[mi.Vector3f, mi.Vect
             continue
         x = x0 + dx
         inside = (x >= 0) & (x < width)
-        v = dr.gather(mi.Vector4f, c4, mi.UInt32(y0 * width + dr.clip(x, 0, width - 1)))
-        d = dr.select(inside, mi.Vector3f(v.x, v.y, v.z) - c, 0.0)
+        if shifted:
+            v = mi.Vector3f(planes.at(0, dx), planes.at(1, dx), planes.at(2, dx))
+        else:
+            v = dr.gather(mi.Vector4f, c4, mi.UInt32(y0 * width + dr.clip(x, 0, width - 1)))
+            v = mi.Vector3f(v.x, v.y, v.z)
+        d = dr.select(inside, v - c, 0.0)
         row_sum += d
         row_sq += d * d
-    sums = dr.ravel(mi.ArrayXf(row_sum.x, row_sum.y, row_sum.z, row_sq.x, row_sq.y, row_sq.z, 0.0, 0.0))
-    dr.eval(sums)
+    if shifted:
+        sums = ShiftedPlanes([row_sum.x, row_sum.y, row_sum.z, row_sq.x, row_sq.y, row_sq.z],
+                             margin_for(width, radius))
+    else:
+        sums = dr.ravel(mi.ArrayXf(row_sum.x, row_sum.y, row_sum.z, row_sq.x, row_sq.y, row_sq.z, 0.0, 0.0))
+        dr.eval(sums)
     n = mi.Float(dr.minimum(x0 + radius, width - 1) - dr.maximum(x0 - radius, 0) + 1)
     total, total_sq, rows = mi.Vector3f(0.0), mi.Vector3f(0.0), mi.Float(0.0)
     for dy in range(-radius, radius + 1):
         y = y0 + dy
         inside = (y >= 0) & (y < height)
-        j = mi.UInt32(dr.clip(y, 0, height - 1) * width + x0)  # clamped, unmasked; outside rows are selected away
-        s = dr.gather(mi.ArrayXf, sums, j, shape=(8, width * height))
+        if shifted:
+            s = [sums.at(k, dy * width) for k in range(6)]
+            r = mi.Vector3f(planes.at(0, dy * width), planes.at(1, dy * width), planes.at(2, dy * width))
+        else:
+            j = mi.UInt32(dr.clip(y, 0, height - 1) * width + x0)  # clamped, unmasked; outside rows selected away
+            s = dr.gather(mi.ArrayXf, sums, j, shape=(8, width * height))
+            r = dr.gather(mi.Vector4f, c4, j)
+            r = mi.Vector3f(r.x, r.y, r.z)
         row_s, row_q = mi.Vector3f(s[0], s[1], s[2]), mi.Vector3f(s[3], s[4], s[5])
         if dy == 0:  # the centre's own row: c_r = c_p
             total += row_s
             total_sq += row_q
             rows += 1.0
             continue
-        r = dr.gather(mi.Vector4f, c4, j)
-        offset = mi.Vector3f(r.x, r.y, r.z) - c
+        offset = r - c
         total += dr.select(inside, row_s + n * offset, 0.0)
         total_sq += dr.select(inside, row_q + 2.0 * offset * row_s + n * offset * offset, 0.0)
         rows += dr.select(inside, 1.0, 0.0)
     count = n * rows
     mean_offset = total / count
     variance = dr.maximum(total_sq / count - mean_offset * mean_offset, 0.0)
-    return c + mean_offset, dr.sqrt(variance)
+    mean, sigma = c + mean_offset, dr.sqrt(variance)
+    if shifted:  # read while the planes are held (see denoise.neighbours)
+        dr.eval(mean, sigma)
+    return mean, sigma
 
 
 def accumulate(current: mi.TensorXf, previous: mi.TensorXf | None, index: mi.UInt32 | None, valid: mi.Bool | None,

@@ -31,6 +31,7 @@ from .filters import (
     neg_exp,
     plane_distance_sq,
 )
+from .neighbours import usable
 
 GAUSS3 = (0.25, 0.5, 0.25)
 EPSILON = 1e-10
@@ -166,9 +167,22 @@ def atrous_level(frame: FrameArrays, color: mi.Vector3f, variance: mi.Float, ste
                  ) -> tuple[mi.Vector3f, mi.Float]:
     """One level with holes ``step``; ``p`` has ``sigma_luminance``,
     ``normal_exponent`` and ``sigma_plane`` (see the module). Returns the
-    filtered colour and variance."""
-    packed = dr.ravel(mi.Vector4f(color.x, color.y, color.z, variance))
-    dr.eval(packed, variance)  # the 3x3 blur gathers the variance alone
+    filtered colour and variance.
+
+    Where no gradient is tracked, the taps read colour, variance and guides
+    as shifted planes (:mod:`denoise.neighbours`: plain loads, the same
+    values for every tap inside the image, bit for bit the same result), and
+    the level's kernel also writes its output as the next level's planes
+    (:meth:`FrameArrays.planes_of` finds them); else each tap gathers one
+    4-float colour record and one 8-float guide record."""
+    shifted = usable(color, variance)
+    if shifted:
+        dr.eval(color, variance)
+        planes = frame.planes_of((color.x, color.y, color.z, variance), 2 * step)
+        guides = frame.guide_planes(2 * step)
+    else:
+        packed = dr.ravel(mi.Vector4f(color.x, color.y, color.z, variance))
+        dr.eval(packed, variance)  # the 3x3 blur gathers the variance alone
     k_plane = plane_factor(p.sigma_plane)
     scale = -1.0 / (p.sigma_luminance * dr.sqrt(dr.maximum(blurred_variance(frame, variance), 0.0)) + EPSILON)
     lum_p = luminance(color)
@@ -183,15 +197,26 @@ def atrous_level(frame: FrameArrays, color: mi.Vector3f, variance: mi.Float, ste
                 continue
             x, y = frame.x + dx, frame.y + dy
             inside = (x >= 0) & (x < frame.width) & (y >= 0) & (y < frame.height)
-            q = dr.gather(mi.Vector4f, packed, mi.UInt32(dr.clip(y, 0, frame.height - 1) * frame.width
-                                                         + dr.clip(x, 0, frame.width - 1)))
-            c_q = mi.Vector3f(q.x, q.y, q.z)
-            n_q, x_q = frame.gather_guides(x, y)
+            if shifted:
+                o = dy * frame.width + dx
+                c_q = mi.Vector3f(planes.at(0, o), planes.at(1, o), planes.at(2, o))
+                var_q = planes.at(3, o)
+                n_q = mi.Vector3f(guides.at(0, o), guides.at(1, o), guides.at(2, o))
+                x_q = mi.Vector3f(guides.at(3, o), guides.at(4, o), guides.at(5, o))
+            else:
+                q = dr.gather(mi.Vector4f, packed, mi.UInt32(dr.clip(y, 0, frame.height - 1) * frame.width
+                                                             + dr.clip(x, 0, frame.width - 1)))
+                c_q, var_q = mi.Vector3f(q.x, q.y, q.z), q.w
+                n_q, x_q = frame.gather_guides(x, y)
             log_w = (dr.abs(lum_p - luminance(c_q)) * scale
                      - plane_distance_sq(frame.normal, frame.position, x_q) * k_plane)
             w = hx * hy * normal_weight(dr.dot(frame.normal, n_q), p.normal_exponent) * neg_exp(-log_w)
             w = dr.select(inside, w, 0.0)
             total += w * c_q
             weights += w
-            total_var += w * w * q.w
-    return total / weights, total_var / (weights * weights)
+            total_var += w * w * var_q
+    out, out_var = total / weights, total_var / (weights * weights)
+    if shifted:  # written by this level's kernel, read by the next level's taps (holes 2 step)
+        frame.offer_planes((out.x, out.y, out.z, out_var), 4 * step)
+        dr.eval(out, out_var)  # read while the planes are held (see denoise.neighbours)
+    return out, out_var

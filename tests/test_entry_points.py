@@ -334,7 +334,8 @@ def test_a_libllvm_that_is_not_a_library_is_named_in_a_whole_sentence(tmp_path):
 #: every benchmark command (a module of benchmarks/ with a __main__ guard): one added later is checked too
 BENCHMARKS = sorted(p.stem for p in (ROOT / "benchmarks").glob("*.py") if 'if __name__ == "__main__"' in p.read_text())
 #: the benchmarks that write their numbers with --json
-WITH_JSON = ("crossval", "denoise", "denoise_profile", "error_vs_time", "render_speed", "scaleout", "stress")
+WITH_JSON = ("crossval", "denoise", "denoise_profile", "error_vs_time", "render_speed", "roofline", "scaleout",
+             "stress")
 
 
 @pytest.mark.parametrize("name", BENCHMARKS)

@@ -1,12 +1,83 @@
-"""The assignment's À-Trous wavelet filter, with clamped temporal accumulation."""
+"""The assignment's À-Trous wavelet filter (one kernel per level), with clamped temporal accumulation."""
 from __future__ import annotations
 
-from ..filters import AtrousLevels, atrous
+from dataclasses import dataclass
+
+import drjit as dr
+import mitsuba as mi
+
+from ..filters import B3, EdgeWeights, FrameArrays, edge_coefficients, edge_log_weight, neg_exp, pack
+from ..neighbours import usable
 from .base import SpatialFilterMethod, edge_options, edge_weights, levels_option, temporal_options
 
 
+@dataclass(frozen=True)
+class AtrousLevels:
+    """À-Trous: ``levels`` passes of the 5x5 B3 kernel with holes 2^i; the
+    colour sigma halves from one level to the next (``--levels`` declares and checks it)."""
+    levels: int = 5
+
+
+def atrous(frame: FrameArrays, p: EdgeWeights | None = None,
+           levels: AtrousLevels | int = AtrousLevels()) -> mi.TensorXf:
+    """The À-Trous wavelet: ``levels`` passes of a 5x5 B3-spline kernel with
+    holes (step 2^i), each with the bilateral edge-stopping weights; the
+    colour sigma halves from one level to the next (``p``: the default
+    :class:`EdgeWeights` if None).
+
+    Where no gradient is tracked, the taps read colour and guides as shifted
+    planes (:mod:`denoise.neighbours`: plain loads, bit for bit the same
+    result), each level's kernel writing the next level's colour planes;
+    else they gather 4-float colour and 8-float guide records."""
+    p = EdgeWeights() if p is None else p
+    count = levels.levels if isinstance(levels, AtrousLevels) else AtrousLevels(levels).levels
+    color = frame.color
+    shifted = usable(color)
+    if shifted:
+        planes = frame.planes_of((color.x, color.y, color.z), 2)
+        guides = frame.guide_planes(2 << (count - 1))
+    else:
+        color4 = pack(color)
+    for level in range(count):
+        step = 1 << level
+        coefficients = edge_coefficients(p, p.sigma_color / step)
+        total, weights = mi.Vector3f(0.0), mi.Float(0.0)
+        for j, hy in enumerate(B3):
+            for i, hx in enumerate(B3):
+                dx, dy = (i - 2) * step, (j - 2) * step
+                if dx == 0 and dy == 0:  # the centre: weight exp(0), its own colour (no gather)
+                    total += hx * hy * color
+                    weights += hx * hy
+                    continue
+                x, y = frame.x + dx, frame.y + dy
+                inside = (x >= 0) & (x < frame.width) & (y >= 0) & (y < frame.height)
+                if shifted:
+                    o = dy * frame.width + dx
+                    color_j = mi.Vector3f(planes.at(0, o), planes.at(1, o), planes.at(2, o))
+                    guides_j = (mi.Vector3f(guides.at(0, o), guides.at(1, o), guides.at(2, o)),
+                                mi.Vector3f(guides.at(3, o), guides.at(4, o), guides.at(5, o)))
+                else:
+                    color_j = frame.gather(color4, x, y, inside)
+                    guides_j = frame.gather_guides(x, y)
+                log_w = edge_log_weight(coefficients, color, frame.normal, frame.position, color_j, *guides_j)
+                w = dr.select(inside, hx * hy * neg_exp(log_w), 0.0)
+                total += w * color_j
+                weights += w
+        color = total / weights
+        last = level + 1 == count
+        if shifted and not last:  # the next level's taps, written by this level's kernel
+            frame.offer_planes((color.x, color.y, color.z), 4 * step)
+        dr.eval(color)
+        if not last:
+            if shifted:
+                planes = frame.planes_of((color.x, color.y, color.z), 4 * step)
+            else:
+                color4 = pack(color)  # the next level's taps
+    return frame.tensor(color)
+
+
 class Atrous(SpatialFilterMethod):
-    """À-Trous wavelet filter (:func:`denoise.filters.atrous`): ``levels``
+    """À-Trous wavelet filter (:func:`atrous`): ``levels``
     passes of the 5x5 B3-spline kernel with holes 2^i, each tap weighted by the
     edge-stopping weights, the colour sigma halved from one level to the next;
     then, with ``temporal``, blended with the back-projected previous result

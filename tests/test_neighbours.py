@@ -1,0 +1,157 @@
+"""Neighbour reads as shifted planes (denoise/neighbours.py) give the gathers'
+result bit for bit, in every filter that uses them, and stay out of the way of
+gradients."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from test_denoise import buffers_fixture, tensors  # noqa: F401 (the fixture "buffers")
+
+
+def both_ways(monkeypatch, run):
+    """``run()`` with the shifted planes and with every neighbour read a gather."""
+    import denoise.neighbours as neighbours
+
+    shifted = run()
+    monkeypatch.setattr(neighbours, "ENABLED", False)
+    gathered = run()
+    monkeypatch.setattr(neighbours, "ENABLED", True)
+    return shifted, gathered
+
+
+def moved(c, n, x, seed):
+    """The next frame: the same G-buffers, another noisy colour, the back projection the identity."""
+    import mitsuba as mi
+
+    rng = np.random.default_rng(seed)
+    colour = c * rng.uniform(0.5, 1.5, c.shape)
+    pixels = c.shape[0] * c.shape[1]
+    return colour, mi.UInt32(np.arange(pixels, dtype=np.uint32)), mi.Bool(np.ones(pixels, bool))
+
+
+@pytest.mark.parametrize("levels", [1, 3, 5])  # 5: holes of 16, taps 32 rows away on a 28-row image
+def test_atrous_is_the_same_with_shifted_planes(variant_vectorised_rgb, buffers, monkeypatch, levels):
+    from denoise.filters import EdgeWeights, FrameArrays
+    from denoise.methods.atrous import atrous
+
+    c, n, x, _ = buffers
+    p = EdgeWeights(sigma_color=0.6, sigma_normal=0.3, sigma_plane=0.3)
+    shifted, gathered = both_ways(monkeypatch, lambda: np.array(atrous(FrameArrays(*tensors(c, n, x)), p, levels)))
+    assert np.isfinite(shifted).all() and np.array_equal(shifted, gathered)
+
+
+@pytest.mark.parametrize("levels", [2, 5])
+def test_svgf_is_the_same_with_shifted_planes(variant_vectorised_rgb, buffers, monkeypatch, levels):
+    """Two frames (the second with a history): colour, variance and history alike."""
+    from denoise.filters import FrameArrays
+    from denoise.methods.svgf import svgf
+    from denoise.svgf_common import SVGFParams
+
+    c, n, x, _ = buffers
+    c2, index, valid = moved(c, n, x, 3)
+    p = SVGFParams(levels=levels, sigma_plane=0.3)
+
+    def run():
+        first, history, _ = svgf(FrameArrays(*tensors(c, n, x)), p)
+        second, history, variance = svgf(FrameArrays(*tensors(c2, n, x)), p, history, index, valid)
+        return [np.array(a) for a in (first, second, variance, history.color, history.moments)]
+
+    shifted, gathered = both_ways(monkeypatch, run)
+    assert all(np.isfinite(a).all() and np.array_equal(a, b) for a, b in zip(shifted, gathered))
+
+
+def test_asvgf_is_the_same_with_shifted_planes(variant_vectorised_rgb, buffers, monkeypatch):
+    """asvgf's levels and its wide levels chain the planes from level to level."""
+    from denoise.filters import FrameArrays
+    from denoise.methods.asvgf import asvgf, hand_set
+
+    c, n, x, _ = buffers
+    c2, index, valid = moved(c, n, x, 4)
+    p = hand_set(levels=3, wide_levels=1)
+
+    def run():
+        first, history = asvgf(FrameArrays(*tensors(c, n, x)), p)
+        second, _ = asvgf(FrameArrays(*tensors(c2, n, x)), p, history, index, valid)
+        return [np.array(first), np.array(second)]
+
+    shifted, gathered = both_ways(monkeypatch, run)
+    assert all(np.isfinite(a).all() and np.array_equal(a, b) for a, b in zip(shifted, gathered))
+
+
+def test_planes_read_shifted_values_and_refuse_offsets_past_their_margin(variant_vectorised_rgb):
+    import drjit as dr
+    import mitsuba as mi
+
+    from denoise.neighbours import ShiftedPlanes, usable
+
+    values = mi.Float(np.arange(10, dtype=np.float32) + 1)
+    planes = ShiftedPlanes([values, 2 * values], margin=3)
+    assert np.array_equal(np.array(planes.at(0, 2)), [3, 4, 5, 6, 7, 8, 9, 10, 0, 0])
+    assert np.array_equal(np.array(planes.at(1, -3)), [0, 0, 0, 2, 4, 6, 8, 10, 12, 14])
+    with pytest.raises(ValueError, match="beyond the planes' margin 3"):
+        planes.at(0, 4)
+    tracked = mi.Float(values)
+    dr.enable_grad(tracked)
+    assert usable(values) and not usable(values, tracked)  # a gradient needs the gathers
+    with pytest.raises(ValueError, match="gradient tracked"):
+        ShiftedPlanes([tracked], margin=1)
+
+
+def test_a_level_reads_its_own_inputs_not_the_planes_offered_before(variant_vectorised_rgb, buffers, monkeypatch):
+    """A level whose inputs are not the level before's output (as a caller may
+    chain them) makes its own planes instead of reading the ones offered."""
+    import drjit as dr
+    import mitsuba as mi
+
+    from denoise.filters import FrameArrays
+    from denoise.svgf_common import SVGFParams, atrous_level
+
+    c, n, x, _ = buffers
+    variance = mi.Float(np.random.default_rng(5).uniform(0.01, 0.5, c.shape[0] * c.shape[1]).astype(np.float32))
+    p = SVGFParams(sigma_plane=0.3)
+
+    def run():
+        frame = FrameArrays(*tensors(c, n, x))
+        dr.eval(atrous_level(frame, frame.color, variance, 1, p))  # offers its output's planes
+        return [np.array(a) for a in atrous_level(frame, frame.color, variance, 2, p)]
+
+    shifted, gathered = both_ways(monkeypatch, run)
+    assert all(np.array_equal(a, b) for a, b in zip(shifted, gathered))
+
+
+@pytest.mark.parametrize("radius", [1, 3])
+def test_clamp_box_is_the_same_with_shifted_planes(variant_vectorised_rgb, buffers, monkeypatch, radius):
+    """The temporal clamp's box statistics: both passes read shifted planes."""
+    from denoise.filters import clamp_box
+
+    c, _, _, _ = buffers
+    shifted, gathered = both_ways(monkeypatch, lambda: [np.array(a) for a in clamp_box(tensors(c)[0], radius)])
+    assert all(np.isfinite(a).all() and np.array_equal(a, b) for a, b in zip(shifted, gathered))
+
+
+def test_a_steady_frame_maps_no_new_memory(variant_vectorised_rgb, buffers, monkeypatch):
+    """From the second frame of a size on, every plane comes from the pool
+    (no NumPy view made, no wait for the queue), and the output stays the gathers'."""
+    import denoise.neighbours as neighbours
+    from denoise.filters import FrameArrays
+    from denoise.methods.svgf import svgf
+    from denoise.svgf_common import SVGFParams
+
+    c, n, x, _ = buffers
+    made = []
+    original = neighbours.Plane.__init__
+
+    def counted(self, length):
+        made.append(length)
+        original(self, length)
+
+    monkeypatch.setattr(neighbours.Plane, "__init__", counted)
+    p = SVGFParams(levels=3, sigma_plane=0.3)
+    outputs = []
+    for _ in range(3):
+        before = len(made)
+        outputs.append(np.array(svgf(FrameArrays(*tensors(c, n, x)), p)[0]))
+        new = len(made) - before
+    assert new == 0 and made  # the third frame took every plane from the pool
+    monkeypatch.setattr(neighbours, "ENABLED", False)
+    assert np.array_equal(outputs[-1], np.array(svgf(FrameArrays(*tensors(c, n, x)), p)[0]))
