@@ -279,12 +279,16 @@ def reproject(position: mi.TensorXf, ids: mi.TensorXf, prev_ids: mi.TensorXf, ob
     obj = mi.Int32(ids.array)
     count = len(object_to_world)
     # per object: the previous frame's world from this frame's world, then the screen;
-    # an object whose matrix cannot be inverted has no history (NaN: invalid below)
+    # an object whose matrix cannot be inverted, or whose product is beyond float32
+    # (a camera dollied far away), has no history (NaN: invalid below)
     def to_previous(k: int) -> np.ndarray:
         current = np.asarray(object_to_world[k], np.float64)
         if not np.all(np.isfinite(current)) or abs(np.linalg.det(current)) < 1e-30:
             return np.full((4, 4), np.nan)
-        return np.asarray(prev_world_to_screen) @ np.asarray(prev_object_to_world[k]) @ np.linalg.inv(current)
+        with np.errstate(over="ignore", invalid="ignore"):
+            product = (np.asarray(prev_world_to_screen, np.float64) @ np.asarray(prev_object_to_world[k], np.float64)
+                       @ np.linalg.inv(current))
+        return product if np.all(np.abs(product) < np.finfo(np.float32).max) else np.full((4, 4), np.nan)
 
     to_prev = np.stack([to_previous(k) for k in range(count)]) if count else np.zeros((0, 4, 4))
     table = mi.Float(to_prev.astype(np.float32).ravel()) if count else mi.Float(0.0)

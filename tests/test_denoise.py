@@ -189,6 +189,14 @@ def test_screen_matrix_and_static_reprojection(variant_llvm_ad_rgb, buffers):
     own = np.arange(h * w)
     assert np.mean(valid[hit.ravel()] & (index[hit.ravel()] == own[hit.ravel()])) > 0.999
 
+    # a previous screen beyond float32 (a camera dollied 2^200 away): no history, and no NumPy warning
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        _, far = reproject(*tensors(x, ids, ids), objects, objects, screen * 1e300)
+    assert not np.array(far).any()
+
 
 def test_frame_folder_round_trip(tmp_path):
     from core.errors import FrameError

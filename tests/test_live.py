@@ -51,7 +51,8 @@ BAD = {
     "string for a number": '{"type": "dolly", "amount": "0.1"}',
     "string for a bool": '{"type": "pause", "paused": "yes"}',
     "unknown method": '{"type": "method", "name": "rm -rf"}',
-    "unknown size": '{"type": "size", "name": "99x99"}',
+    "not a size": '{"type": "size", "name": "99999x1"}',
+    "a size with a sign": '{"type": "size", "name": "-320x180"}',
     "size as numbers": '{"type": "size", "name": [640, 360]}',
     "unknown slider": '{"type": "param", "name": "levels_x", "value": 1}',
     "slider value beyond its range": '{"type": "param", "name": "sigma_luminance", "value": 1000}',
@@ -432,3 +433,25 @@ def test_light_moves_in_the_view_plane_and_a_scene_without_one_says_so():
     assert session.view().light[0] > 1.0 and session.view().light[1:] == (2.0, 3.0)
     with pytest.raises(MessageError, match="no point light"):
         _session(light=None).apply({"type": "light", "dx": 0.1, "dy": 0.0, "dz": 0.0})
+
+
+def test_the_page_offers_its_sizes_and_the_one_it_started_with():
+    from denoise.live.session import SIZES, parse_message
+
+    session = _session()
+    session.first_size = session.size = (32, 18)
+    for name in (*SIZES, "32x18"):
+        session.apply(parse_message(f'{{"type": "size", "name": "{name}"}}', "svgf"))
+        assert "{}x{}".format(*session.view().size) == name
+    with pytest.raises(MessageError, match="unknown size '99x99'"):
+        session.apply(parse_message('{"type": "size", "name": "99x99"}', "svgf"))
+    assert session.view().size == (32, 18)
+
+
+def test_dolly_out_stays_within_float32():
+    """200 dolly-outs: the camera stays a bounded distance away (it had run to 2^200, beyond float32)."""
+    session = _session()
+    for _ in range(200):
+        session.apply({"type": "dolly", "amount": -1.0})
+    assert session.distance <= 1e3 * session.first_distance * (1 + 1e-9)
+    assert np.all(np.abs(session.camera.center) < 1e6)

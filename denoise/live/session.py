@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import re
 import threading
 
 import numpy as np
@@ -24,6 +25,7 @@ from .methods import METHOD_NAMES, SLIDERS
 MESSAGE_LIMIT = 2048
 #: the frame sizes the page offers (``WxH``); the size the server started with is kept until one is chosen
 SIZES = ("320x180", "640x360", "1280x720")
+SIZE_NAME = re.compile(r"[1-9][0-9]{0,3}x[1-9][0-9]{0,3}")
 #: per message type: key -> (low, high) for numbers, bool, or "method"/"slider" for names
 MESSAGES = {
     "orbit": {"dx": (-180.0, 180.0), "dy": (-180.0, 180.0)},  # degrees about the pivot
@@ -41,6 +43,8 @@ MESSAGES = {
 }
 #: the pivot stays at least this fraction of its first distance in front of the camera
 MIN_PIVOT_DISTANCE = 1e-3
+#: ... and at most this multiple of it behind (each dolly out doubles the distance at most)
+MAX_PIVOT_DISTANCE = 1e3
 #: pitch stays this many degrees away from straight up or down
 PITCH_MARGIN = 1.0
 
@@ -80,8 +84,9 @@ def parse_message(text: str | bytes, method: str) -> dict:
                 raise MessageError(f"{kind}.{key}: unknown method {str(value)[:40]!r}; "
                                    f"known: {', '.join(METHOD_NAMES)}")
         elif rule == "size":
-            if not isinstance(value, str) or value not in SIZES:
-                raise MessageError(f"{kind}.{key}: unknown size {str(value)[:40]!r}; known: {', '.join(SIZES)}")
+            if not isinstance(value, str) or not SIZE_NAME.fullmatch(value):
+                raise MessageError(f"{kind}.{key}: expected WIDTHxHEIGHT, one of {', '.join(SIZES)}, "
+                                   f"got {str(value)[:40]!r}")
         elif rule == "slider":
             names = [s.name for s in SLIDERS[method]]
             if not isinstance(value, str) or value not in names:
@@ -132,7 +137,7 @@ class Session:
         self.first_camera, self.first_light = camera, None if light is None else tuple(map(float, light))
         self.first_distance = pivot_distance
         self.method = method
-        self.size = (int(size[0]), int(size[1]))
+        self.size = self.first_size = (int(size[0]), int(size[1]))
         self.values: dict[str, dict[str, float]] = {name: {} for name in METHOD_NAMES}
         self.paused = False
         self.steps = 0  # single steps asked for while paused
@@ -188,6 +193,7 @@ class Session:
     def _dolly(self, amount: float) -> None:
         forward, _, _ = self._axes()
         step = min(amount * self.distance, self.distance - MIN_PIVOT_DISTANCE * self.first_distance)
+        step = max(step, self.distance - MAX_PIVOT_DISTANCE * self.first_distance)
         center = np.asarray(self.camera.center, np.float64) + forward * step
         self.distance -= step
         self.camera = dataclasses.replace(self.camera, center=tuple(center))
@@ -210,9 +216,16 @@ class Session:
 
     def _size(self, name: str) -> None:
         width, height = (int(v) for v in name.split("x"))
+        if name not in SIZES and (width, height) != self.first_size:
+            raise MessageError(f"size.name: unknown size {name!r}; known: {', '.join(self.sizes())}")
         if (width, height) != self.size:
             self.size = (width, height)
             self.history_resets += 1
+
+    def sizes(self) -> list[str]:
+        """The sizes the page offers: :data:`SIZES`, and the one the server started with."""
+        first = "{}x{}".format(*self.first_size)
+        return list(SIZES) + ([first] if first not in SIZES else [])
 
     def _param(self, name: str, value: float) -> None:
         self.values[self.method][name] = value
