@@ -53,7 +53,7 @@ if __name__ == "__main__":  # first: ./.venv's Python, the libLLVM, then Dr.Jit 
 import drjit as dr
 import numpy as np
 
-from benchmarks.denoise_front import QUALITY_FROM, tail_mean, write_front
+from benchmarks.denoise_front import QUALITY_FROM, front_points, tail_mean, write_front
 from benchmarks.records import check_json, machine, write_json
 from core import entry
 from core.entry import ArgumentParser
@@ -513,7 +513,7 @@ def main(argv: list[str] | None = None) -> int:
             still, video = docs / f"{HARD}_last.png", docs / f"{HARD}.mp4"
             write_image(still, side_by_side([p[-1] for p in panels]))
             write_video(video, [side_by_side(list(images)) for images in zip(*panels)])
-        front = write_front(results, docs / "front.png") if results.get("timing") else None
+        front = write_front(results, docs / "front.png") if front_points(results).get("all") else None
         write_results_page(results, still, video, front, "python -m benchmarks.denoise --docs")
     failed = [line for line in checks if line.startswith("FAIL")]
     if failed and not args.quick:

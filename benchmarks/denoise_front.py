@@ -90,10 +90,13 @@ def write_front(results: dict, path: Path) -> Path:
     import matplotlib.pyplot as plt  # noqa: PLC0415  as above
     from matplotlib.ticker import LogFormatterSciNotation, NullFormatter  # noqa: PLC0415  as above
 
-    panels = front_points(results)
-    if not panels.get("all"):
+    if not (results.get("timing") or {}).get("ms"):
         raise UsageError("the results have no speed run (timing) to plot the front against; "
                          "run python -m benchmarks.denoise without --no-timing")
+    panels = front_points(results)
+    if not panels.get("all"):
+        raise UsageError(f"no timed method has frames >= {QUALITY_FROM} on every sequence (a --quick run has "
+                         "4 frames a sequence): there is no front to draw")
     size = "x".join(map(str, results["timing"].get("size", ("?", "?"))))
     columns = min(len(panels), 4)
     rows = math.ceil(len(panels) / columns)

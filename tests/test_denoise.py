@@ -360,8 +360,8 @@ def test_denoise_command_and_benchmark_quick(variant_llvm_ad_rgb, tmp_path):
     assert last["atrous+temporal"] < last["raw"] / 2  # it denoises
     front = subprocess.run([sys.executable, "-m", "benchmarks.denoise_front", "--json", str(out), "--out",
                             str(tmp_path / "front.png")], cwd=ROOT, capture_output=True, text=True, timeout=300)
-    assert front.returncode == 0 and front.stderr == "", front.stderr
-    assert (tmp_path / "front.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    # four frames a sequence: no mean over frames >= 4, so no front (one line; the front's own test draws one)
+    assert front.returncode == 2 and "no front to draw" in front.stderr and front.stderr.count("\n") == 1
     # the per-kernel profile, on the speed run's frames just rendered: À-Trous has its
     # 5 levels, each reading 24 taps' colour (3 planes) and guides (6 planes) as shifted loads
     # (denoise.neighbours), no gathers (the centre's own values loaded)
