@@ -27,6 +27,7 @@ import argparse
 import datetime
 import json
 import multiprocessing
+import os
 import shlex
 import signal
 import sys
@@ -190,4 +191,9 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    code = main()
+    if code > 128:  # stopped by a signal: the worker is ended and every file written or not at all, so
+        sys.stdout.flush()  # the teardown of Dr.Jit, Dask and matplotlib (seconds on a loaded machine)
+        sys.stderr.flush()  # would only delay the exit
+        os._exit(code)
+    sys.exit(code)
