@@ -103,8 +103,9 @@ ASVGF_RELMSE_BAR = 1.5
 QUALITY_FROM = 4
 #: asvgf's response to a sudden change, in frames
 RESPONSE_BAR = 2
-#: the methods timed at 1280x720 (the bars' methods and OIDN in each quality mode)
-TIMED = OIDN_ALONE + ("atrous+temporal", "svgf", "asvgf", "bilateral")
+#: the methods timed at 1280x720 (the bars' methods, OIDN in each quality mode, and learned-asvgf beside
+#: asvgf: its network must stay within asvgf's speed bars; its ablations cost the same and are not timed)
+TIMED = OIDN_ALONE + ("atrous+temporal", "svgf", "asvgf", "bilateral", "learned-asvgf")
 
 
 def timing_folder(work: Path, sequence: str, settings: dict, quick: bool = False) -> Path:

@@ -315,10 +315,12 @@ def test_reprojection_of_the_ground_truth(variant_llvm_ad_rgb, tmp_path, motion)
 
 #: what ``python -m benchmarks.denoise`` compares (its METHODS, from the registry)
 BENCHMARK_METHODS = ("raw", "bilateral", "atrous", "bilateral+temporal", "atrous+temporal",
-                     "demod+outliers+atrous+temporal", "svgf", "asvgf", "oidn-fast", "oidn-balanced", "oidn-high",
-                     "oidn+temporal", "oidn-guided")
+                     "demod+outliers+atrous+temporal", "svgf", "asvgf", "learned-asvgf",
+                     "learned-asvgf-no-temporal-inputs", "learned-asvgf-half-hidden", "oidn-fast", "oidn-balanced",
+                     "oidn-high", "oidn+temporal", "oidn-guided")
 #: the methods of the speed bars and OIDN in each quality mode (its TIMED)
-TIMED_METHODS = ("oidn-fast", "oidn-balanced", "oidn-high", "atrous+temporal", "svgf", "asvgf", "bilateral")
+TIMED_METHODS = ("oidn-fast", "oidn-balanced", "oidn-high", "atrous+temporal", "svgf", "asvgf", "bilateral",
+                 "learned-asvgf")
 
 
 def test_denoise_command_and_benchmark_quick(variant_llvm_ad_rgb, tmp_path):
