@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import platform
 import time
 from dataclasses import dataclass
@@ -358,7 +359,15 @@ def held_out_loss(theta: np.ndarray, settings: Settings, held: list[list[Frame]]
 
 
 def machine() -> str:
-    return f"{platform.processor() or platform.machine()}, {platform.system()} {platform.release()}, " \
+    """The CPU's model name (Linux's /proc/cpuinfo, else the architecture), cores, system, Python."""
+    model = platform.processor() or platform.machine()
+    try:
+        names = [line.split(":", 1)[1].strip() for line in Path("/proc/cpuinfo").read_text().splitlines()
+                 if line.startswith("model name")]
+        model = names[0] if names else model
+    except OSError:
+        pass
+    return f"{model}, {os.cpu_count()} cores, {platform.system()} {platform.release()}, " \
            f"Python {platform.python_version()}"
 
 
