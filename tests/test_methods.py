@@ -129,7 +129,9 @@ def test_each_method_documents_its_options(name):
     assert "Parameters:" not in inspect.getdoc(cls)
     section = method_list().split(f"### `{name}` ", 1)[1].split("\n### ", 1)[0]
     for option in cls.options:
-        assert f"| `{option.flag}` |" in section and option.range_text() in section, option.flag
+        assert f"| `{option.flag}` |" in section, option.flag
+        if option.kind in (int, float):  # a file name (learned-asvgf's --network) has no range
+            assert option.range_text() in section, option.flag
     assert cls.description and "\n" not in cls.description
 
 

@@ -21,6 +21,7 @@ from .asvgf import ASVGF
 from .atrous import Atrous
 from .base import DeclarationError, DenoisingMethod, Option, SpatialFilterMethod
 from .bilateral import Bilateral
+from .learned_asvgf import LearnedASVGF
 from .oidn import OIDNMethod
 from .oidn_guided import OIDNGuided
 from .svgf import SVGF
@@ -73,7 +74,7 @@ def register(cls: type[DenoisingMethod]) -> type[DenoisingMethod]:
 
 
 #: the methods of this package, in the order of ``--help``
-for method in (Bilateral, Atrous, SVGF, ASVGF, OIDNMethod, OIDNGuided):
+for method in (Bilateral, Atrous, SVGF, ASVGF, LearnedASVGF, OIDNMethod, OIDNGuided):
     register(method)
 
 

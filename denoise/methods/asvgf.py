@@ -197,10 +197,14 @@ def temporal_gradient(current_mean_y: mi.Float, history_mean_y: mi.Float, v: Fil
 
 
 def temporal_accumulation(frame: FrameArrays, history: ASVGFHistory | None, index: mi.UInt32 | None,
-                          valid: mi.Bool | None, p: ASVGFParams, v: FilterValues, gradient: mi.Float | None = None
-                          ) -> tuple[mi.Vector3f, mi.Vector3f, mi.Vector2f, mi.Float]:
+                          valid: mi.Bool | None, p: ASVGFParams, v: FilterValues, gradient: mi.Float | None = None,
+                          statistics: dict | None = None) -> tuple[mi.Vector3f, mi.Vector3f, mi.Vector2f, mi.Float]:
     """Steps 1-5 but the variance: (fast, slow, moments, length) of this frame;
-    ``gradient``, where given, is λ per pixel instead of step 1's estimate."""
+    ``gradient``, where given, is λ per pixel instead of step 1's estimate.
+    ``statistics``, where given, receives what the step decided on the way
+    (``valid``, ``gradient`` λ, ``slow_history`` and ``slow_clipped``, the
+    back-projected slow history before and after its clip), for a caller that
+    learns from them; it changes nothing that is returned."""
     c = frame.color
     lum = luminance(c)
     moments = mi.Vector2f(lum, lum * lum)
@@ -225,7 +229,10 @@ def temporal_accumulation(frame: FrameArrays, history: ASVGFHistory | None, inde
     fast = dr.select(valid, fast, c)
     dr.eval(fast)
     mean_fast, sigma_fast = differentiable_box_statistics(frame, to_ycocg(fast), p.clip_radius)
-    slow = dr.lerp(clip_ycocg(to_ycocg(slow), mean_fast, sigma_fast, v.clip_width), c, alpha)
+    clipped = clip_ycocg(to_ycocg(slow), mean_fast, sigma_fast, v.clip_width)
+    if statistics is not None:
+        statistics.update(valid=valid, gradient=lam, slow_history=slow, slow_clipped=clipped)
+    slow = dr.lerp(clipped, c, alpha)
     slow = dr.select(valid, slow, c)
     moments = dr.select(valid, dr.lerp(previous_moments, moments, alpha), moments)
     return fast, slow, moments, length

@@ -1,0 +1,199 @@
+"""Training ``learned-asvgf``'s network (the library: :mod:`denoise.training`).
+
+    python -m denoise.train [SPEC.json ...] [--work DIR] [--steps N] [--rate R] [--hidden H]
+                            [--no-temporal-inputs] [--seed S] [--out FILE] [--plot FILE] [--restart] [--quiet]
+
+The training sequences (default ``scenes/sequences/training/network/*.json``)
+are exported into ``--work`` once (a rerun renders nothing); a benchmark
+sequence or scene, or a sequence without ground truth, is refused in one
+line before any work. Each step prints the training loss and the held-out
+sequences' loss on stderr, and writes a checkpoint
+(``WORK/OUT-NAME.checkpoint.npz``): Ctrl-C stops at once (exit 130) with
+the last step's checkpoint kept, and a rerun with the same settings resumes
+from it (``--restart`` starts over). After the last step the weights file
+(``--out``, default ``denoise/learned_asvgf.json``) gets the weights and a
+record of the run, and ``--plot`` the loss curves. A loss that is not
+finite stops the run with one line (exit 2), the weights file untouched.
+The steps run in a worker process: one step is native code that no signal
+interrupts, and Ctrl-C must not wait for it.
+"""
+from __future__ import annotations
+
+if __name__ == "__main__":  # first: ./.venv's Python, the libLLVM, then Dr.Jit (see core.launcher)
+    from core.launcher import start
+    start("python -m denoise.train", "denoise.train")
+
+import argparse
+import datetime
+import json
+import multiprocessing
+import os
+import shlex
+import signal
+import sys
+import time
+from pathlib import Path
+
+from core.entry import ArgumentParser, finish, hold_signals, run
+from core.errors import UsageError
+from core.inputs import check_outside
+from core.numbers import ascii_float, ascii_int
+from export import export
+from imaging.image_io import atomic_path, check_writable
+from renderer.bands import GROUP_SIGNALS
+from renderer.variants import set_variant
+
+from . import training
+from .methods.learned_asvgf import WEIGHTS_FILE
+from .training import HELD_OUT, ROOT, TRAINING, Settings
+
+DOCS = ROOT / "docs"
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = ArgumentParser(prog="python -m denoise.train", description=__doc__.split("\n\n")[0])
+    parser.add_argument("specs", type=Path, nargs="*", metavar="SPEC.json",
+                        help="training sequences (default: scenes/sequences/training/network/*.json)")
+    parser.add_argument("--work", type=Path, default=ROOT / "out" / "train",
+                        help="where they are rendered, and the checkpoint (out/train)")
+    parser.add_argument("--steps", type=ascii_int, default=300, help="gradient steps (300)")
+    parser.add_argument("--rate", type=ascii_float, default=0.01, help="Adam's learning rate (0.01)")
+    parser.add_argument("--hidden", type=ascii_int, default=12, help="hidden units (12)")
+    parser.add_argument("--no-temporal-inputs", dest="temporal_inputs", action="store_false",
+                        help="the ablation: the network reads the noise and albedo alone")
+    parser.add_argument("--seed", type=ascii_int, default=0, help="the first layer's draw and every step's (0)")
+    parser.add_argument("--out", type=Path, default=WEIGHTS_FILE, help="the weights file (denoise/learned_asvgf.json)")
+    parser.add_argument("--plot", type=Path, help="the loss curves' PNG (default: docs/OUT-NAME_loss.png)")
+    parser.add_argument("--restart", action="store_true", help="start over instead of resuming the checkpoint")
+    parser.add_argument("--quiet", action="store_true", help="print nothing but errors")
+    return parser
+
+
+def _main(argv: list[str] | None) -> int:
+    args = _parser().parse_args(argv)
+    if not 1 <= args.steps <= 100000:
+        raise UsageError(f"--steps must be from 1 to 100000, got {args.steps}")
+    if not 0.0 < args.rate <= 1.0:
+        raise UsageError(f"--rate must be in (0, 1], got {args.rate}")
+    if not 1 <= args.hidden <= 256:
+        raise UsageError(f"--hidden must be from 1 to 256, got {args.hidden}")
+    if args.out.suffix.lower() != ".json":
+        raise UsageError(f"--out {args.out}: the weights file is JSON; give a name ending in .json")
+    plot = args.plot if args.plot is not None else DOCS / f"{args.out.stem}_loss.png"
+    specs = args.specs or TRAINING
+    if not specs:
+        raise UsageError("no training sequences (scenes/sequences/training/network/*.json is empty)")
+    for spec in specs:  # a run never writes onto a spec it reads
+        check_outside({"--out": args.out, "--work": args.work, "--plot": plot}, {"SPEC.json": spec})
+    loaded = training.check_specs(specs)  # every refusal before any work
+    names = [path.stem for path, _ in loaded]
+    if len(set(names)) != len(names):
+        raise UsageError("two training sequences of one name: they would share a folder in --work")
+    if not [n for n in names if n not in HELD_OUT]:
+        raise UsageError(f"every sequence given is held out ({', '.join(HELD_OUT)}): nothing to train on")
+    check_writable("--out", args.out)
+    check_writable("--plot", plot)
+    settings = Settings(training.feature_set(args.temporal_inputs), args.hidden, args.seed, args.rate, args.steps)
+    checkpoint = args.work / f"{args.out.stem}.checkpoint.npz"
+    if args.restart and checkpoint.is_file():
+        checkpoint.unlink()
+    training.load_checkpoint(checkpoint, settings, names)  # a mismatched one is refused before rendering
+
+    set_variant("llvm_ad_rgb", jit=True)
+    folders = []
+    for path, spec in loaded:
+        folders.append(args.work / path.stem)
+        export(spec, folders[-1])
+    theta, curve, seconds = train_interruptibly(folders, settings, checkpoint, args.quiet)
+    given = argv if argv is not None else sys.argv[1:]
+    command = "python -m denoise.train " + " ".join(shlex.quote(a) for a in given)
+    record = {"command": command.strip(), "training": [training.display_path(p) for p, _ in loaded
+                                                       if p.stem not in HELD_OUT],
+              "held_out": [training.display_path(p) for p, _ in loaded if p.stem in HELD_OUT],
+              "steps": len(curve), "seconds": round(seconds, 1), "seed": args.seed, "rate": args.rate,
+              "batch": training.BATCH, "crop": list(training.CROP), "exposure": list(training.EXPOSURE),
+              "first_train_loss": curve[0][1], "first_held_out_loss": curve[0][2],
+              "final_train_loss": curve[-1][1], "final_held_out_loss": curve[-1][2],
+              "machine": training.machine(), "date": datetime.date.today().isoformat(),
+              "curve": [[int(s), round(a, 6), None if b is None else round(b, 6)] for s, a, b in curve]}
+    network = training.network_of(theta, settings.features, settings.hidden)
+    with atomic_path(args.out, ".json") as temporary:
+        Path(temporary).write_text(json.dumps({**network.to_json(), "record": record}, indent=1) + "\n")
+    training.plot_curve(plot, curve, f"{args.out.name}: {settings.hidden} hidden units, "
+                                     f"{len(settings.features)} inputs")
+    if not args.quiet:
+        print(f"final loss {curve[-1][1]:.6f} (held out {curve[-1][2]}); weights written to {args.out}, "
+              f"curves to {plot}", file=sys.stderr)
+    return 0
+
+
+def train_worker(connection, folders: list[Path], settings: Settings, checkpoint: Path) -> None:
+    """The steps in a worker process, started with GROUP_SIGNALS blocked and
+    then ignoring them: the parent alone answers a terminal's signals and
+    ends this process. Sends ("step", step, loss, held-out loss, seconds) per
+    step, then ("done", theta, curve, seconds), or ("error", its line)."""
+    for signum in GROUP_SIGNALS:
+        signal.signal(signum, signal.SIG_IGN)
+    set_variant("llvm_ad_rgb", quiet=True)
+    try:
+        connection.send(("done", *training.train(folders, settings, checkpoint,
+                                                 lambda *report: connection.send(("step", *report)))))
+    except UsageError as error:
+        connection.send(("error", str(error)))
+
+
+def train_interruptibly(folders: list[Path], settings: Settings, checkpoint: Path, quiet: bool):
+    """:func:`denoise.training.train` in a worker this process waits for, printing its steps."""
+    context = multiprocessing.get_context("spawn")  # no fork after Dr.Jit started its threads
+    receiver, sender = context.Pipe(duplex=False)
+    worker = context.Process(target=train_worker, args=(sender, folders, settings, checkpoint), daemon=True)
+    message = None
+    try:
+        with hold_signals():  # a signal waits until the worker exists, then ends it below
+            signal.pthread_sigmask(signal.SIG_BLOCK, GROUP_SIGNALS)
+            try:
+                worker.start()
+            finally:
+                signal.pthread_sigmask(signal.SIG_UNBLOCK, GROUP_SIGNALS)
+        sender.close()
+        started = time.monotonic()
+        while message is None and worker.is_alive() or receiver.poll():
+            if not receiver.poll(0.1):
+                continue
+            try:
+                received = receiver.recv()
+            except EOFError:
+                break
+            if received[0] == "step":
+                _, step, loss, held, seconds = received
+                if not quiet:
+                    held = "none" if held is None else f"{held:.6f}"
+                print(f"step {step + 1}/{settings.steps}: loss {loss:.6f}  held-out {held}  "
+                          f"({seconds:.1f} s in all, {time.monotonic() - started:.0f} s this run)",
+                          file=sys.stderr, flush=True)
+            else:
+                message = received
+                break
+    finally:
+        if message is None and worker.is_alive():
+            worker.kill()
+        if worker.pid is not None:
+            worker.join()
+    if message is None:
+        raise UsageError(f"the training's worker process stopped without a result (exit code {worker.exitcode})")
+    if message[0] == "error":
+        raise UsageError(message[1])
+    return message[1:]
+
+
+def main(argv: list[str] | None = None) -> int:
+    return run("python -m denoise.train", lambda: _main(argv))
+
+
+if __name__ == "__main__":
+    code = main()
+    if code > 128:  # stopped by a signal: the worker is ended and every file written or not at all, so
+        sys.stdout.flush()  # the teardown of Dr.Jit, Dask and matplotlib (seconds on a loaded machine)
+        sys.stderr.flush()  # would only delay the exit
+        os._exit(code)
+    finish(code)

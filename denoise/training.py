@@ -1,0 +1,429 @@
+"""Training ``learned-asvgf``'s network end to end through asvgf's temporal and spatial pipeline.
+
+The data: sequences the project renders itself (``python -m export``), by
+default ``scenes/sequences/training/network/*.json`` (14 small sequences of
+the showcase and mirrors scenes, which no benchmark sequence uses), each with
+an independently seeded ground truth of 32 samples per pixel: an unbiased
+(Noise2Noise) target, its noise averaging out over pixels and steps.
+:func:`check_specs` refuses a sequence without ground truth and any benchmark
+sequence or scene (``scenes/sequences/*.json``). :data:`HELD_OUT` sequences
+are not trained on: their loss is reported at each step.
+
+A step: :data:`BATCH` training sequences drawn at random, each cropped to
+:data:`CROP` at a random place, flipped at random in x and y and scaled by a
+random exposure; :func:`denoise.methods.learned_asvgf.learned_asvgf` runs over
+all of its frames in ``llvm_ad_rgb`` with the network's weights as Dr.Jit
+Floats with gradients, the history carried from frame to frame, and
+``dr.backward`` of the mean relMSE (every frame, against its target) gives
+the gradient through the filter of every frame and the slow histories fed
+back to the frames after. Adam (NumPy, :class:`Adam`) updates the weights.
+The draws come from ``numpy.random.default_rng((seed, step))``: a resumed run
+draws what an uninterrupted one would.
+"""
+from __future__ import annotations
+
+import json
+import math
+import os
+import platform
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+from matplotlib.figure import Figure
+
+from core.errors import SpecError, UsageError
+from export import Spec, reference_folder
+from export.frames import frame_indices, read_frame, same_size
+from imaging.image_io import atomic_path, read_exr_rgb
+
+from .filters import FrameArrays, demodulate, remodulate, reproject
+from .methods import make
+from .methods.asvgf import fitted
+from .methods.learned_asvgf import FEATURES, OUTPUTS, TEMPORAL_FEATURES, Network, learned_asvgf
+
+ROOT = Path(__file__).resolve().parent.parent
+TRAINING = sorted((ROOT / "scenes" / "sequences" / "training" / "network").glob("*.json"))
+#: the benchmark's sequences: neither they nor their scenes may be trained on
+BENCHMARK = sorted((ROOT / "scenes" / "sequences").glob("*.json"))
+#: sequences whose loss is reported and never trained on
+HELD_OUT = ("mirrors_switch", "showcase_disocclusion")
+#: training sequences per step, and the size each is cropped to (one size: one set of kernels)
+BATCH, CROP = 4, (128, 72)
+#: the range of the random exposure (a factor on colour and target)
+EXPOSURE = (0.5, 2.0)
+#: the output layer's biases at the start: asvgf as fitted, nearly none of the temporal blend
+START_BIAS = (0.0, 0.0, 0.0, -5.0)
+
+
+def check_specs(paths: list[Path]) -> list[tuple[Path, Spec]]:
+    """Each training spec loaded; one line (a UsageError) for a benchmark
+    sequence, one of its scenes, or a sequence without ground truth."""
+    benchmark = {p.resolve(): Spec.load(p) for p in BENCHMARK}
+    scenes = {spec.scene: p.stem for p, spec in benchmark.items()}
+    loaded = []
+    for path in paths:
+        try:
+            spec = Spec.load(path)
+        except SpecError as error:
+            if "reference_spp" not in str(error):
+                raise
+            raise UsageError(f"{path}: no ground truth to train on ({str(error).removeprefix(f'{path}: ')})") from None
+        if Path(path).resolve() in benchmark or Path(path).stem in {p.stem for p in benchmark}:
+            raise UsageError(f"{path}: a benchmark sequence; training on it would score the network on its own "
+                             f"training data")
+        if spec.scene in scenes:
+            raise UsageError(f"{path}: scene {spec.scene!r} is the benchmark's (sequence {scenes[spec.scene]}); "
+                             f"train on other scenes")
+        if spec.reference_spp < 2:
+            raise UsageError(f"{path}: no ground truth (reference_spp {spec.reference_spp}); training needs "
+                             f"a target per frame")
+        loaded.append((Path(path), spec))
+    return loaded
+
+
+@dataclass
+class Frame:
+    """One frame as NumPy arrays: demodulated colour, guides, albedo, target,
+    and the back projection as a flat index into the previous frame (-1: none)."""
+    color: np.ndarray
+    normal: np.ndarray
+    position: np.ndarray
+    albedo: np.ndarray | None
+    target: np.ndarray
+    previous: np.ndarray | None
+
+
+def load_sequence(folder: Path) -> list[Frame]:
+    """Every frame of an exported folder with its ground truth, as asvgf gets it
+    (usable values, albedo demodulation, back projection)."""
+    def tensor(a):
+        return mi.TensorXf(np.ascontiguousarray(a, np.float32))
+
+    usable = make("asvgf").usable_frame
+    frames, last, last_ids = [], None, None
+    for i in frame_indices(folder):
+        frame = usable(read_frame(folder, i))
+        truth_path = reference_folder(folder) / f"beauty_{i}.exr"
+        if not truth_path.is_file():
+            raise UsageError(f"{folder}: no ground truth for frame {i} (no {truth_path}; python -m export renders it)")
+        truth = read_exr_rgb(truth_path)
+        same_size(folder / f"beauty_{i}.exr", frame.beauty.shape, truth_path, truth.shape)
+        ids = tensor(frame.ids)
+        color = frame.beauty
+        if frame.albedo is not None:
+            color = np.array(demodulate(tensor(color), tensor(frame.albedo)))
+        previous = None
+        if last is not None:
+            index, valid = reproject(tensor(frame.position), ids, last_ids, frame.object_to_world,
+                                     last.object_to_world, last.world_to_screen)
+            previous = np.where(np.array(valid), np.array(index).astype(np.int64), -1).reshape(color.shape[:2])
+        frames.append(Frame(color, frame.normal, frame.position, frame.albedo, truth, previous))
+        last, last_ids = frame, ids
+    return frames
+
+
+@dataclass
+class Prepared:
+    """One (augmented) frame as the filter takes it."""
+    buffers: FrameArrays
+    index: object
+    valid: object
+    albedo: object  # mi.TensorXf or None
+    albedo_luminance: object  # mi.Float or None
+    target: mi.TensorXf
+
+
+def augmented(frames: list[Frame], crop: tuple[int, int] | None, x0: int, y0: int, flip_x: bool, flip_y: bool,
+              exposure: float) -> list[Prepared]:
+    """``frames`` cropped to ``crop`` (None: whole) at (x0, y0), flipped, times
+    ``exposure``; the back projection follows the crop and the flips (a pixel
+    whose previous place left the crop has no history). The filter's weights
+    read world-space normals and positions, which a flip of the pixel grid leaves as they are."""
+    height, width = frames[0].color.shape[:2]
+    w, h = crop if crop is not None else (width, height)
+    xs, ys = np.arange(x0, x0 + w), np.arange(y0, y0 + h)
+    xs, ys = (xs[::-1] if flip_x else xs), (ys[::-1] if flip_y else ys)
+    where = np.full(width * height, -1, np.int64)  # full-frame pixel -> its index in the crop
+    where[(ys[:, None] * width + xs[None, :]).ravel()] = np.arange(w * h)
+
+    def cut(a, dtype=np.float32):
+        return np.ascontiguousarray(a[ys][:, xs], dtype)
+
+    def tensor(a):
+        return upload(cut(a))
+
+    out = []
+    for f in frames:
+        index = valid = None
+        if f.previous is not None:
+            previous = cut(f.previous, np.int64).ravel()
+            mapped = where[np.maximum(previous, 0)]
+            ok = (previous >= 0) & (mapped >= 0)
+            index, valid = upload(np.where(ok, mapped, 0).astype(np.uint32), mi.UInt32), upload(ok, mi.Bool)
+        albedo = None if f.albedo is None else cut(f.albedo)
+        lum = None if albedo is None else upload(
+            (np.clip(albedo, 0.0, 1.0) @ np.array([0.2126, 0.7152, 0.0722], np.float32)).ravel(), mi.Float)
+        out.append(Prepared(FrameArrays(tensor(f.color * exposure), tensor(f.normal), tensor(f.position)), index,
+                            valid, None if albedo is None else upload(albedo), lum, tensor(f.target * exposure)))
+    return out
+
+
+def upload(array: np.ndarray, kind=None):
+    """A Dr.Jit array (``kind``, or a TensorXf of the array's shape) in memory
+    of Dr.Jit's own: an array that reads NumPy's memory in place is declared
+    with that memory's alignment, so the same kernel would hash, and be
+    compiled, anew whenever NumPy's allocation lands elsewhere."""
+    if kind is None:
+        array = np.ascontiguousarray(array, np.float32)
+        return mi.TensorXf(dr.copy(mi.Float(array.ravel())), array.shape)
+    return dr.copy(kind(np.ascontiguousarray(array)))
+
+
+def relmse_loss(image, reference, epsilon: float = 1e-2):
+    """imaging.metrics.relmse's ``mean((x - ref)² / (ref² + ε))`` as a differentiable Dr.Jit Float."""
+    return dr.mean(dr.square(image.array - reference.array) / (dr.square(reference.array) + epsilon))
+
+
+class Recorder:
+    """The perceptron of ``theta`` in NumPy, as :func:`learned_asvgf` calls a
+    network: its outputs become per-pixel Dr.Jit Floats with gradients (the
+    leaves of the differentiation), and what the chain rule needs is kept."""
+
+    def __init__(self, theta: np.ndarray, features: tuple[str, ...], hidden: int, gradients: bool):
+        self.network, self.gradients, self.kept = network_of(theta, features, hidden), gradients, []
+
+    def __call__(self, inputs: dict) -> list:
+        dr.eval(*inputs.values())
+        x = np.stack([np.array(inputs[name], np.float32) for name in self.network.features], axis=1)
+        hidden, outputs = numpy_mlp(self.network, x)
+        leaves = [upload(outputs[:, k].astype(np.float32), mi.Float) for k in range(outputs.shape[1])]
+        if self.gradients:
+            for leaf in leaves:
+                dr.enable_grad(leaf)
+            self.kept.append((x, hidden, leaves))
+        return leaves
+
+    def gradient(self) -> np.ndarray:
+        """d loss / d theta after ``dr.backward``: each frame's output gradients back through the perceptron."""
+        net = self.network
+        g_w1, g_b1 = np.zeros_like(net.w1, np.float64), np.zeros_like(net.b1, np.float64)
+        g_w2, g_b2 = np.zeros_like(net.w2, np.float64), np.zeros_like(net.b2, np.float64)
+        for x, hidden, leaves in self.kept:
+            g = np.stack([np.array(dr.grad(leaf), np.float64) for leaf in leaves], axis=1)
+            g_w2 += g.T @ hidden
+            g_b2 += g.sum(axis=0)
+            pre = (g @ net.w2.astype(np.float64)) * (1.0 - hidden * hidden)
+            g_w1 += pre.T @ x
+            g_b1 += pre.sum(axis=0)
+        return np.concatenate([g_w1.ravel(), g_b1, g_w2.ravel(), g_b2])
+
+
+def numpy_mlp(network: Network, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(hidden, outputs) of the perceptron on ``x`` (pixels, features), in float64."""
+    hidden = np.tanh(x.astype(np.float64) @ network.w1.T.astype(np.float64) + network.b1)
+    return hidden, hidden @ network.w2.T.astype(np.float64) + network.b2
+
+
+def flatten(network: Network) -> np.ndarray:
+    return np.concatenate([network.w1.ravel(), network.b1, network.w2.ravel(), network.b2]).astype(np.float32)
+
+
+def network_of(theta: np.ndarray, features: tuple[str, ...], hidden: int) -> Network:
+    f, o = len(features), len(OUTPUTS)
+    sizes = np.cumsum([hidden * f, hidden, o * hidden])
+    w1, b1, w2, b2 = np.split(np.asarray(theta, np.float32), sizes)
+    return Network(tuple(features), w1.reshape(hidden, f), b1, w2.reshape(o, hidden), b2)
+
+
+def initial(features: tuple[str, ...], hidden: int, seed: int) -> np.ndarray:
+    """Random first layer, output layer 0 (the method starts as asvgf), :data:`START_BIAS`."""
+    rng = np.random.default_rng(seed)
+    w1 = rng.normal(0.0, 1.0 / math.sqrt(len(features)), (hidden, len(features)))
+    return flatten(Network(features, w1.astype(np.float32), np.zeros(hidden, np.float32),
+                           np.zeros((len(OUTPUTS), hidden), np.float32), np.array(START_BIAS, np.float32)))
+
+
+def sequence_loss(frames: list[Prepared], network) -> object:
+    """Mean relMSE of ``learned_asvgf`` with ``network`` (a :class:`Recorder`) over ``frames`` (a Dr.Jit Float)."""
+    params = fitted()
+    history, total = None, 0.0
+    for f in frames:
+        result, history = learned_asvgf(f.buffers, params, network, history if f.index is not None else None,
+                                        f.index, f.valid, f.albedo_luminance)
+        if f.albedo is not None:
+            result = remodulate(result, f.albedo)
+        total = total + relmse_loss(result, f.target)
+    return total / len(frames)
+
+
+class Adam:
+    """Adam on a NumPy parameter vector (its state is three arrays and a count: a checkpoint)."""
+
+    def __init__(self, theta: np.ndarray, rate: float, m=None, v=None, t: int = 0):
+        self.theta, self.rate, self.t = np.asarray(theta, np.float64), rate, t
+        self.m = np.zeros_like(self.theta) if m is None else np.asarray(m, np.float64)
+        self.v = np.zeros_like(self.theta) if v is None else np.asarray(v, np.float64)
+
+    def step(self, gradient: np.ndarray, beta1: float = 0.9, beta2: float = 0.999, epsilon: float = 1e-8) -> None:
+        self.t += 1
+        self.m = beta1 * self.m + (1 - beta1) * gradient
+        self.v = beta2 * self.v + (1 - beta2) * gradient * gradient
+        step = self.rate * (self.m / (1 - beta1 ** self.t)) / (np.sqrt(self.v / (1 - beta2 ** self.t)) + epsilon)
+        self.theta = self.theta - step
+
+
+@dataclass
+class Settings:
+    """What a run trains: its features, hidden units, seed, rate, steps (a checkpoint must match all but steps)."""
+    features: tuple[str, ...]
+    hidden: int
+    seed: int
+    rate: float
+    steps: int
+
+    def key(self) -> str:
+        return json.dumps({"features": list(self.features), "hidden": self.hidden, "seed": self.seed,
+                           "rate": self.rate})
+
+
+def feature_set(temporal_inputs: bool) -> tuple[str, ...]:
+    return FEATURES if temporal_inputs else tuple(f for f in FEATURES if f not in TEMPORAL_FEATURES)
+
+
+def load_checkpoint(path: Path, settings: Settings, names: list[str]) -> dict | None:
+    """The checkpoint's state, or None where there is none; one of other
+    settings or sequences is a one-line refusal (``--restart`` starts over)."""
+    if not path.is_file():
+        return None
+    try:
+        with np.load(path) as data:
+            state = {k: data[k] for k in data.files}
+        key, sequences = str(state["settings"]), json.loads(str(state["sequences"]))
+    except (OSError, ValueError, KeyError) as error:
+        raise UsageError(f"{path}: not a training checkpoint ({error}); --restart starts over") from None
+    if key != settings.key() or sequences != names:
+        raise UsageError(f"{path}: a checkpoint of other settings or sequences; --restart starts over")
+    return state
+
+
+def save_checkpoint(path: Path, settings: Settings, names: list[str], adam: Adam, curve: list, seconds: float) -> None:
+    # a step without held-out sequences is stored with a NaN held-out loss
+    rows = np.array([(s, a, np.nan if b is None else b) for s, a, b in curve], np.float64).reshape(-1, 3)
+    with atomic_path(path, ".npz") as temporary:
+        with open(temporary, "wb") as file:
+            np.savez(file, settings=settings.key(), sequences=json.dumps(names), theta=adam.theta, m=adam.m,
+                     v=adam.v, t=adam.t, curve=rows, seconds=seconds)
+
+
+def draw(rng: np.random.Generator, frames: list[Frame]) -> dict:
+    height, width = frames[0].color.shape[:2]
+    w, h = min(CROP[0], width), min(CROP[1], height)
+    return dict(crop=(w, h), x0=int(rng.integers(0, width - w + 1)), y0=int(rng.integers(0, height - h + 1)),
+                flip_x=bool(rng.integers(2)), flip_y=bool(rng.integers(2)),
+                exposure=float(np.exp(rng.uniform(*np.log(EXPOSURE)))))
+
+
+def train_step(adam: Adam, settings: Settings, train: list[list[Frame]], step: int) -> float:
+    """One gradient step on :data:`BATCH` augmented training sequences; returns the loss before it.
+    A loss that is not finite is a UsageError, the weights left as they were."""
+    rng = np.random.default_rng((settings.seed, step))
+    chosen = rng.choice(len(train), size=min(BATCH, len(train)), replace=False)
+    network = Recorder(adam.theta, settings.features, settings.hidden, gradients=True)
+    total = 0.0
+    for i in chosen:
+        total = total + sequence_loss(augmented(train[i], **draw(rng, train[i])), network)
+    loss = total / len(chosen)
+    value = float(loss[0])
+    if not math.isfinite(value):
+        raise UsageError(f"the training loss is {value} at step {step} (a diverging step); the weights file "
+                         f"was not written")
+    dr.backward(loss)
+    gradient = network.gradient()
+    if not np.all(np.isfinite(gradient)):
+        raise UsageError(f"the gradient is not finite at step {step}; the weights file was not written")
+    adam.step(gradient)
+    return value
+
+
+def held_out_loss(theta: np.ndarray, settings: Settings, held: list[list[Frame]]) -> float | None:
+    """Mean loss over the held-out sequences (None: none), whole frames, no augmentation, no gradients."""
+    if not held:
+        return None
+    network = Recorder(theta, settings.features, settings.hidden, gradients=False)
+    losses = [float(sequence_loss(augmented(frames, None, 0, 0, False, False, 1.0), network)[0]) for frames in held]
+    return sum(losses) / len(losses)
+
+
+def machine() -> str:
+    """The CPU's model name (Linux's /proc/cpuinfo, else the architecture), cores, system, Python."""
+    model = platform.processor() or platform.machine()
+    try:
+        names = [line.split(":", 1)[1].strip() for line in Path("/proc/cpuinfo").read_text().splitlines()
+                 if line.startswith("model name")]
+        model = names[0] if names else model
+    except OSError:
+        pass
+    return f"{model}, {os.cpu_count()} cores, {platform.system()} {platform.release()}, " \
+           f"Python {platform.python_version()}"
+
+
+def display_path(path: Path) -> str:
+    """``path`` relative to the repository where it lies inside it."""
+    path = Path(path).resolve()
+    return str(path.relative_to(ROOT)) if path.is_relative_to(ROOT) else str(path)
+
+
+def train(folders: list[Path], settings: Settings, checkpoint: Path, report) -> tuple[np.ndarray, list, float]:
+    """The steps on the exported ``folders`` (those of :data:`HELD_OUT` held
+    out), resumed from ``checkpoint`` where it exists and written there after
+    every step; ``report(step, loss, held-out loss, seconds)`` after each.
+    Both losses are those of the weights before the step. Returns (the
+    weights, the curve [(step, loss, held-out loss)], the seconds of all steps)."""
+    names = [f.name for f in folders]
+    data = {f.name: load_sequence(f) for f in folders}
+    train_set = [data[n] for n in names if n not in HELD_OUT]
+    held = [data[n] for n in names if n in HELD_OUT]
+    state = load_checkpoint(checkpoint, settings, names)
+    if state is None:
+        adam, curve, seconds = Adam(initial(settings.features, settings.hidden, settings.seed), settings.rate), [], 0.0
+    else:
+        adam = Adam(state["theta"], settings.rate, state["m"], state["v"], int(state["t"]))
+        curve = [(int(s), a, None if math.isnan(b) else b) for s, a, b in state["curve"].tolist()]
+        seconds = float(state["seconds"])
+    for step in range(adam.t, settings.steps):
+        start = time.perf_counter()
+        held_loss = held_out_loss(adam.theta, settings, held)
+        if held_loss is not None and not math.isfinite(held_loss):
+            raise UsageError(f"the held-out loss is {held_loss} at step {step}; the weights file was not written")
+        loss = train_step(adam, settings, train_set, step)
+        seconds += time.perf_counter() - start
+        curve.append((step, loss, held_loss))
+        save_checkpoint(checkpoint, settings, names, adam, curve, seconds)
+        report(step, loss, held_loss, seconds)
+    if not curve:
+        raise UsageError(f"{checkpoint}: the checkpoint has no steps; --restart starts over")
+    return adam.theta, curve, seconds
+
+
+def plot_curve(path: Path, curve: list, title: str) -> None:
+    """The training and held-out losses per step, as a PNG."""
+    steps, loss, held = (np.array(c, np.float64) for c in zip(*((s, a, np.nan if b is None else b)
+                                                                  for s, a, b in curve)))
+    figure = Figure(figsize=(6.4, 3.6), dpi=100)  # no pyplot: no display backend, no global state
+    axes = figure.subplots()
+    axes.plot(steps, loss, lw=0.8, alpha=0.5, label="training batch (random crops, flips, exposure)")
+    if len(loss) >= 10:
+        kernel = np.ones(10) / 10
+        axes.plot(steps[9:], np.convolve(loss, kernel, "valid"), lw=1.5, label="training, mean of 10 steps")
+    axes.plot(steps, held, lw=1.5, label="held-out sequences (whole frames)")
+    axes.set_xlabel("step")
+    axes.set_ylabel("relMSE")
+    axes.set_title(title, fontsize=9)
+    axes.legend(fontsize=8)
+    figure.tight_layout()
+    with atomic_path(path, ".png") as temporary:
+        figure.savefig(temporary, format="png")

@@ -1,0 +1,224 @@
+"""learned-asvgf: the committed networks against a NumPy reference, the
+training data kept apart from the benchmark, bad weights files and the
+training command's refusals, stops and resumption."""
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+WEIGHTS = {"learned-asvgf": ROOT / "denoise" / "learned_asvgf.json",
+           "no-temporal-inputs": ROOT / "denoise" / "learned_asvgf_no_temporal.json",
+           "half-hidden": ROOT / "denoise" / "learned_asvgf_half_hidden.json"}
+#: a training sequence that exports in seconds (a scene no benchmark sequence uses)
+TINY = {"scene": "showcase", "frames": 3, "size": [32, 18], "spp": 1, "reference_spp": 2, "bounces": 1,
+        "camera": {"dolly": 0.5}}
+
+
+def reference_mlp(data: dict, x: np.ndarray) -> np.ndarray:
+    """The weights file's perceptron written out in NumPy, float64: tanh hidden layer, linear outputs."""
+    w1, b1, w2, b2 = (np.array(data[k], np.float64) for k in ("w1", "b1", "w2", "b2"))
+    return np.tanh(x @ w1.T + b1) @ w2.T + b2
+
+
+@pytest.mark.parametrize("name", list(WEIGHTS))
+def test_the_committed_network_matches_numpy(name, variant_llvm_ad_rgb):
+    """Dr.Jit inference (weights as constants) equals the NumPy network within
+    1e-4 on features spread over and beyond their usual ranges."""
+    import mitsuba as mi
+
+    from denoise.methods.learned_asvgf import FEATURES, OUTPUTS, constant_network, load_network
+
+    data = json.loads(WEIGHTS[name].read_text())
+    network = load_network(WEIGHTS[name])
+    assert network.features == tuple(data["features"]) and set(network.features) <= set(FEATURES)
+    rng = np.random.default_rng(7)
+    x = rng.uniform(-0.5, 3.0, (4096, len(FEATURES))).astype(np.float32)
+    inputs = {f: mi.Float(np.ascontiguousarray(x[:, i])) for i, f in enumerate(FEATURES)}
+    outputs = constant_network(network)(inputs)
+    got = np.stack([np.array(o) for o in outputs], axis=1)
+    used = [FEATURES.index(f) for f in network.features]
+    expected = reference_mlp(data, x[:, used].astype(np.float64))
+    assert got.shape == (4096, len(OUTPUTS))
+    assert np.max(np.abs(got - expected)) < 1e-4
+    assert np.max(np.abs(expected)) > 1e-2  # a network that learned something, not the zero start
+
+
+def test_the_committed_networks_are_what_the_benchmark_runs():
+    from denoise.methods import benchmark_names, from_name
+
+    for name in ("learned-asvgf", "learned-asvgf-no-temporal-inputs", "learned-asvgf-half-hidden"):
+        assert name in benchmark_names()
+    plain, ablation = from_name("learned-asvgf-half-hidden"), from_name("learned-asvgf-no-temporal-inputs")
+    assert plain.network.hidden * 2 == from_name("learned-asvgf").network.hidden
+    assert ablation.temporal and "gradient" not in ablation.network.features
+
+
+def test_no_benchmark_scene_or_sequence_is_trained_on():
+    """The training specs, and the ones each committed network records, use
+    no benchmark sequence and none of the benchmark's scenes."""
+    from denoise.training import BENCHMARK, HELD_OUT, TRAINING, check_specs
+    from export import Spec
+
+    benchmark_scenes = {Spec.load(p).scene for p in BENCHMARK}
+    benchmark_names = {p.stem for p in BENCHMARK}
+    assert len(TRAINING) >= 12 and set(HELD_OUT) < {p.stem for p in TRAINING}
+    assert check_specs(TRAINING)
+    for path in TRAINING:
+        assert Spec.load(path).scene not in benchmark_scenes and path.stem not in benchmark_names, path
+    for weights in WEIGHTS.values():
+        record = json.loads(weights.read_text())["record"]
+        for spec in record["training"] + record["held_out"]:
+            assert (ROOT / spec).resolve() in {p.resolve() for p in TRAINING}, spec
+            assert Spec.load(ROOT / spec).scene not in benchmark_scenes
+        assert not set(record["training"]) & set(record["held_out"])
+
+
+def damaged(tmp_path: Path, case: str) -> Path:
+    """A copy of the committed weights file, damaged as ``case`` says."""
+    path = tmp_path / "weights.json"
+    text = WEIGHTS["learned-asvgf"].read_text()
+    data = json.loads(text)
+    if case == "missing":
+        return tmp_path / "nowhere.json"
+    if case == "truncated":
+        path.write_text(text[:len(text) // 2])
+    elif case == "corrupted":
+        path.write_bytes(b"\x00\xff" + text.encode()[2:])
+    elif case == "not an object":
+        path.write_text("[1, 2, 3]\n")
+    elif case == "other shape":
+        data["w1"] = data["w1"][:-1]
+        path.write_text(json.dumps(data))
+    elif case == "other hidden":
+        data["hidden"] += 1
+        path.write_text(json.dumps(data))
+    elif case == "other features":
+        data["features"] = data["features"][::-1]
+        path.write_text(json.dumps(data))
+    elif case == "unknown feature":
+        data["features"][0] = "depth"
+        path.write_text(json.dumps(data))
+    elif case == "other outputs":
+        data["outputs"] = data["outputs"][:-1]
+        path.write_text(json.dumps(data))
+    elif case == "not finite":
+        path.write_text(text.replace(str(data["b2"][0]), "NaN", 1) if str(data["b2"][0]) in text else "x")
+    return path
+
+
+BAD = ("missing", "truncated", "corrupted", "not an object", "other shape", "other hidden", "other features",
+       "unknown feature", "other outputs", "not finite")
+
+
+@pytest.mark.parametrize("case", BAD)
+def test_a_bad_weights_file_is_one_line_naming_it(case, tmp_path):
+    from core.errors import UsageError
+    from denoise.methods import make
+
+    path = damaged(tmp_path, case)
+    with pytest.raises(UsageError) as error:
+        make("learned-asvgf", network=str(path))
+    message = str(error.value)
+    assert "\n" not in message and message.startswith(f"{path}: ") and "python -m denoise.train" in message
+
+
+def test_a_bad_weights_file_stops_the_denoiser_with_exit_2(exported, tmp_path, capsys):
+    from denoise.__main__ import main
+
+    path = damaged(tmp_path, "truncated")
+    assert main([str(exported), str(tmp_path / "out"), "--method", "learned-asvgf", "--network", str(path)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and str(path) in err and "python -m denoise.train" in err
+    assert main([str(exported), str(tmp_path / "out"), "--method", "learned-asvgf"]) == 0
+
+
+def write_spec(folder: Path, name: str, **changes) -> Path:
+    path = folder / f"{name}.json"
+    path.write_text(json.dumps({**TINY, **changes}))
+    return path
+
+
+@pytest.mark.parametrize("case", ["benchmark sequence", "benchmark scene", "no ground truth", "all held out"])
+def test_training_refuses_in_one_line(case, tmp_path, capsys):
+    from denoise.train import main
+
+    spec = {"benchmark sequence": lambda: ROOT / "scenes" / "sequences" / "light_switch.json",
+            "benchmark scene": lambda: write_spec(tmp_path, "lamps_again", scene="lamps"),
+            "no ground truth": lambda: write_spec(tmp_path, "no_truth", reference_spp=0),
+            "all held out": lambda: write_spec(tmp_path, "mirrors_switch")}[case]()
+    out = tmp_path / "w.json"
+    assert main([str(spec), "--work", str(tmp_path / "work"), "--out", str(out), "--plot", str(tmp_path / "w.png"),
+                 "--steps", "1"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("python -m denoise.train: error: ")
+    assert {"benchmark sequence": "a benchmark sequence", "benchmark scene": "scene 'lamps' is the benchmark's",
+            "no ground truth": "no ground truth", "all held out": "is held out"}[case] in err
+    assert not out.exists() and not (tmp_path / "work").exists()  # refused before any rendering
+
+
+@pytest.fixture(scope="module")
+def tiny(tmp_path_factory):
+    """A tiny training sequence, exported once."""
+    from export import Spec, export
+    from renderer.variants import set_variant
+
+    folder = tmp_path_factory.mktemp("tiny")
+    spec = write_spec(folder, "tiny_showcase")
+    set_variant("llvm_ad_rgb", jit=True)
+    export(Spec.load(spec), folder / "work" / "tiny_showcase")
+    return spec, folder / "work"
+
+
+def test_a_loss_that_is_not_finite_stops_and_writes_nothing(tiny, tmp_path, capsys):
+    """A NaN in the weights (here a checkpoint's) makes the loss NaN: one line,
+    exit 2, the weights file as it was."""
+    from denoise.train import main
+    from denoise.training import Adam, Settings, feature_set, initial, save_checkpoint
+
+    spec, work = tiny
+    out = tmp_path / "w.json"
+    out.write_text("before\n")
+    settings = Settings(feature_set(True), 4, 0, 0.01, 1)
+    theta = initial(settings.features, 4, 0)
+    theta[-1] = np.nan
+    save_checkpoint(work / "w.checkpoint.npz", settings, ["tiny_showcase"], Adam(theta, 0.01), [], 0.0)
+    code = main([str(spec), "--work", str(work), "--out", str(out), "--plot", str(tmp_path / "w.png"),
+                 "--hidden", "4", "--steps", "2"])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1 and "the training loss is nan" in err
+    assert out.read_text() == "before\n" and not (tmp_path / "w.png").exists()
+    (work / "w.checkpoint.npz").unlink()
+
+
+def test_ctrl_c_keeps_the_checkpoint_and_a_rerun_resumes(tiny, tmp_path):
+    """Ctrl-C during a step: exit 130 within 2 s, the last step's checkpoint
+    kept; the rerun trains the remaining steps only and writes the weights."""
+    spec, work = tiny
+    out, plot = tmp_path / "w.json", tmp_path / "w.png"
+    command = [sys.executable, "-m", "denoise.train", str(spec), "--work", str(work), "--out", str(out),
+               "--plot", str(plot), "--hidden", "4", "--steps", "1000"]
+    process = subprocess.Popen(command, cwd=ROOT, stderr=subprocess.PIPE, text=True, env={**os.environ})
+    first = process.stderr.readline()
+    assert first.startswith("step 1/1000: loss "), first
+    process.send_signal(signal.SIGINT)
+    start = time.monotonic()
+    process.wait(timeout=10)
+    assert time.monotonic() - start < 2.0 and process.returncode == 130
+    assert (work / "w.checkpoint.npz").is_file() and not out.exists()
+    steps = int(np.load(work / "w.checkpoint.npz")["t"])
+    resumed = subprocess.run(command[:-1] + [str(steps + 1)], cwd=ROOT, capture_output=True, text=True)
+    assert resumed.returncode == 0, resumed.stderr
+    assert resumed.stderr.startswith(f"step {steps + 1}/{steps + 1}: ")
+    data = json.loads(out.read_text())
+    assert data["record"]["steps"] == steps + 1 and len(data["record"]["curve"]) == steps + 1
+    assert plot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    (work / "w.checkpoint.npz").unlink()
