@@ -213,3 +213,42 @@ def test_a_flag_clash_is_one_line_in_every_command(command, tmp_path):
         assert "my_filter.py:9: mine declares --help, which is python -m denoise's own option" in done.stderr
     else:
         assert done.returncode == 0, done.stderr
+
+
+@pytest.mark.parametrize("case", ["raises", "None", "nan"])
+def test_a_bad_filter_stops_the_live_server_in_one_line(case, tmp_path):
+    """python -m denoise.live: the first frame that the method cannot filter stops the
+    server with the same one line (exit 2; the page loses its connection), no traceback."""
+    import asyncio
+
+    import aiohttp
+
+    from core.libllvm import find_libllvm
+
+    if find_libllvm() is None:
+        pytest.skip("no usable libLLVM: the live page needs a JIT variant")
+    body, expected = BAD_FILTERS[case]
+    path = tmp_path / "my_filter.py"
+    path.write_text(method_file(body))
+    process = subprocess.Popen([sys.executable, "-m", "denoise.live", "showcase", "--size", "32", "18", "--variant",
+                                "llvm_ad_rgb", "--port", "0", "--method-file", str(path), "--method", "mine"],
+                               cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        url = process.stdout.readline().split("open ", 1)[1].split()[0]
+
+        async def view():
+            async with aiohttp.ClientSession() as session:
+                async with session.ws_connect(url + "ws", headers={"Origin": url.rstrip("/")}) as ws:
+                    while not ws.closed and (await asyncio.wait_for(ws.receive(), 240)).type not in (
+                            aiohttp.WSMsgType.CLOSE, aiohttp.WSMsgType.CLOSED, aiohttp.WSMsgType.ERROR):
+                        pass
+
+        asyncio.run(view())
+        err = process.communicate(timeout=60)[1]
+    finally:
+        if process.poll() is None:
+            process.kill()
+            process.wait(10)
+    assert process.returncode == 2 and err.count("\n") == 1 and "Traceback" not in err, err
+    assert re.search(r"^python -m denoise.live: error: mine \(.*my_filter.py:1[12]\): filter\(\) ", err), err
+    assert re.search(expected, err.replace("(18, 32, 3)", "")), err
