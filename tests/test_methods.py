@@ -283,3 +283,10 @@ def test_the_live_page_lists_every_method_name():
     from denoise.live.methods import METHOD_NAMES, page_names
 
     assert set(method_names()) <= set(page_names()) and "oidn" in METHOD_NAMES and METHOD_NAMES[0] == "raw"
+
+
+def test_a_prefixed_name_runs_in_python_m_denoise(exported, tmp_path):
+    from denoise.__main__ import main
+
+    assert main([str(exported), str(tmp_path / "out"), "--method", "demod+outliers+atrous+temporal"]) == 0
+    assert (tmp_path / "out" / "result_1.exr").exists()
