@@ -252,3 +252,37 @@ def test_a_bad_filter_stops_the_live_server_in_one_line(case, tmp_path):
     assert process.returncode == 2 and err.count("\n") == 1 and "Traceback" not in err, err
     assert re.search(r"^python -m denoise.live: error: mine \(.*my_filter.py:1[12]\): filter\(\) ", err), err
     assert re.search(expected, err.replace("(18, 32, 3)", "")), err
+
+
+@pytest.mark.parametrize(("body", "expected"), [
+    ("return None", r"spatial\(\) must return a mi.TensorXf .*got builtins.NoneType"),
+    ("return mi.TensorXf(np.zeros((5, 2), np.float32))", r"spatial\(\) must return the frame's shape"),
+    ("raise KeyError('x')", r"my_filter.py:10\): spatial\(\) raised KeyError: 'x'"),
+])
+def test_a_bad_spatial_hook_is_one_line(body, expected, exported, tmp_path, capsys, registry):
+    """A SpatialFilterMethod of one's own: its spatial() is checked before the accumulation reads it."""
+    from denoise.__main__ import main as denoise
+
+    path = tmp_path / "my_filter.py"
+    path.write_text(spatial_file(body))
+    assert denoise([str(exported), str(tmp_path / "out"), "--method-file", str(path), "--method", "mine"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and re.search(r"^python -m denoise: error: mine \(.*my_filter.py:(9|10)\): ", err), err
+    assert re.search(expected, err), err
+
+
+def test_a_spatial_method_without_options_accumulates(exported, tmp_path, registry):
+    """SpatialFilterMethod's --alpha and --k are added where the class declares none (NAME+temporal reads them)."""
+    from denoise.__main__ import main as denoise
+
+    path = tmp_path / "my_filter.py"
+    path.write_text(spatial_file("return arrays.tensor(arrays.color)"))
+    assert denoise([str(exported), str(tmp_path / "out"), "--method-file", str(path), "--method", "mine+temporal",
+                    "--alpha", "0.5"]) == 0
+
+
+def spatial_file(body: str) -> str:
+    """A SpatialFilterMethod of one's own whose spatial() (line 9) is ``body`` (line 10)."""
+    return ("import mitsuba as mi\nimport numpy as np\nfrom denoise.methods import SpatialFilterMethod\n\n\n"
+            "class S(SpatialFilterMethod):\n    name, description = 'mine', 'mine'\n\n"
+            f"    def spatial(self, arrays):\n        {body}\n")

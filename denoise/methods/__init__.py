@@ -20,7 +20,7 @@ from core.errors import UsageError
 from ..filters import OutlierParams
 from .asvgf import ASVGF
 from .atrous import Atrous
-from .base import DeclarationError, DenoisingMethod, Option, SpatialFilterMethod
+from .base import DeclarationError, DenoisingMethod, Option, SpatialFilterMethod, temporal_options
 from .bilateral import Bilateral
 from .oidn import OIDNMethod
 from .oidn_guided import OIDNGuided
@@ -73,6 +73,8 @@ def register(cls: type[DenoisingMethod]) -> type[DenoisingMethod]:
                                f"({cls.name} already names it in every command); choose another")
     if not isinstance(cls.options, tuple) or not all(isinstance(o, Option) for o in cls.options):
         raise DeclarationError(f"{cls.__name__}: options must be a tuple of denoise.methods.Option")
+    if issubclass(cls, SpatialFilterMethod) and not {"alpha", "k"} & {o.key for o in cls.options}:
+        cls.options = cls.options + temporal_options(cls.temporal_defaults)  # what its accumulation reads
     keys: dict[str, Option] = {}
     for option in cls.options:
         first = keys.setdefault(option.key, option)

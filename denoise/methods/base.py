@@ -344,33 +344,40 @@ class DenoisingMethod:
         except ToolkitError:
             raise
         except (Exception, SystemExit) as error:  # the method's own code failed: where, and what (Ctrl-C stays one)
-            raise MethodError(f"{self.name} ({self.hook_origin(error)}): filter() raised "
+            raise MethodError(f"{self.name} ({self.hook_origin(error)}): {self.hook().__name__}() raised "
                               f"{type(error).__name__}: {error}") from None
-        height, width = frame.beauty.shape[:2]
-        if not isinstance(result, mi.TensorXf):
-            raise MethodError(f"{self.name} ({self.hook_origin()}): filter() must return a mi.TensorXf "
-                              f"(arrays.tensor(...)), got {type(result).__module__}.{type(result).__qualname__}")
-        if tuple(result.shape) != (height, width, 3):
-            raise MethodError(f"{self.name} ({self.hook_origin()}): filter() must return the frame's shape "
-                              f"({height}, {width}, 3), got {tuple(result.shape)}")
+        self.check_result(result, frame.beauty.shape[:2])
         if albedo is not None:
             result = remodulate(result, albedo)
         dr.eval(result.array)
         image = np.array(result, np.float32)
         if not np.isfinite(image).all():
             bad = int(image.size - np.count_nonzero(np.isfinite(image)))
-            raise MethodError(f"{self.name} ({self.hook_origin()}): filter() returned {bad} NaN or infinite "
-                              "values (a result must be finite)")
+            raise MethodError(f"{self.name} ({self.hook_origin()}): {self.hook().__name__}() returned {bad} "
+                              "NaN or infinite values (a result must be finite)")
         self.previous, self.previous_ids = frame, ids
         return image
 
-    def hook_origin(self, error: BaseException | None = None) -> str:
-        """``file:line`` of the method's own hook (``filter``, or ``spatial`` where
-        only that is overridden): the last line of that file in ``error``'s
-        traceback, else the hook's ``def``."""
+    def check_result(self, result, size: tuple[int, int]) -> None:
+        """A one-line :class:`MethodError` unless the hook's ``result`` is a
+        ``mi.TensorXf`` of ``size`` (height, width) by 3."""
+        if not isinstance(result, mi.TensorXf):
+            raise MethodError(f"{self.name} ({self.hook_origin()}): {self.hook().__name__}() must return a "
+                              f"mi.TensorXf (arrays.tensor(...)), got {type(result).__module__}."
+                              f"{type(result).__qualname__}")
+        if tuple(result.shape) != (*size, 3):
+            raise MethodError(f"{self.name} ({self.hook_origin()}): {self.hook().__name__}() must return the "
+                              f"frame's shape {(*size, 3)}, got {tuple(result.shape)}")
+
+    def hook(self) -> Callable:
+        """The method's own hook: ``filter``, or ``spatial`` where only that is overridden."""
         hook = type(self).filter
-        if hook is SpatialFilterMethod.filter:
-            hook = type(self).spatial
+        return type(self).spatial if hook is SpatialFilterMethod.filter else hook
+
+    def hook_origin(self, error: BaseException | None = None) -> str:
+        """``file:line`` of the method's own hook (:meth:`hook`): the last line of
+        that file in ``error``'s traceback, else the hook's ``def``."""
+        hook = self.hook()
         try:
             path, line = Path(inspect.getsourcefile(hook)), inspect.getsourcelines(hook)[1]
         except (OSError, TypeError):
@@ -410,6 +417,7 @@ class SpatialFilterMethod(DenoisingMethod):
 
     def filter(self, arrays, frame, index, valid):
         result = self.spatial(arrays)
+        self.check_result(result, frame.beauty.shape[:2])
         if index is not None:
             result = accumulate(result, self.history, index, valid, self.temporal_params)
         self.history = result
