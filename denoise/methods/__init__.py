@@ -20,14 +20,14 @@ from core.errors import UsageError
 from ..filters import OutlierParams
 from .asvgf import ASVGF
 from .atrous import Atrous
-from .base import DeclarationError, DenoisingMethod, Option, SpatialFilterMethod, temporal_options
+from .base import DeclarationError, DenoisingMethod, MethodError, Option, SpatialFilterMethod, temporal_options
 from .bilateral import Bilateral
 from .oidn import OIDNMethod
 from .oidn_guided import OIDNGuided
 from .svgf import SVGF
 
-__all__ = ["METHODS", "DeclarationError", "DenoisingMethod", "Option", "SpatialFilterMethod", "benchmark_names",
-           "declared_options", "from_name", "make", "method_names", "register", "resolve"]
+__all__ = ["METHODS", "DeclarationError", "DenoisingMethod", "MethodError", "Option", "SpatialFilterMethod",
+           "benchmark_names", "declared_options", "from_name", "make", "method_names", "register", "resolve"]
 
 #: what a method's name may be: lower-case words joined by '_' or '-' ('+' joins names)
 NAME = re.compile(r"[a-z0-9][a-z0-9_-]*")
