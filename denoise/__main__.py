@@ -24,7 +24,7 @@ from imaging.colour import side_by_side, tone_map
 from imaging.image_io import read_exr_rgb, write_image, write_video
 from renderer.variants import set_variant
 
-from .methods import METHODS, Option, declared_options, from_name, method_names, resolve
+from .methods import METHODS, DeclarationError, Option, declared_options, from_name, method_names, resolve
 from .methods.base import RADIANCE_LIMIT
 from .methods.user import add_method_file_option, load_method_files
 from .pipeline import denoise_folder
@@ -72,6 +72,12 @@ def check_options_apply(name: str, given: dict) -> None:
                               and (resolve(n)[1]["temporal"] or not option.temporal)), users[0][0])
             raise UsageError(f"{flag} is an option of {', '.join(name for name, _ in users)}, not of {method} "
                              f"(add --method {suggested}, or leave {flag} out)")
+    preset = {key: value for key, value in named.items() if key not in ("temporal", "demodulate", "outliers")}
+    for key, value in preset.items():
+        if key in given and given[key] != value:
+            flag = next(o.flag for o in cls.options if o.key == key)
+            raise UsageError(f"{flag} {given[key]}: {name} means {flag} {value} (use --method {method} "
+                             f"{flag} {given[key]}, or leave {flag} out)")
     if "temporal" in given and (not cls.temporal_by_nature):
         raise UsageError(f"--no-temporal: {name} " + (f"accumulates by its name; use {method}" if named["temporal"]
                                                         else "has no history already"))
@@ -109,11 +115,16 @@ def add_method_options(parser: argparse.ArgumentParser) -> set[str]:
             help_text += " (default " + "; ".join(f"{shown} for {', '.join(names)}"
                                                   for shown, names in defaults.items()) + ")"
         where = parser if option.group is None else titled[option.group]
-        if option.action is not None:
-            where.add_argument(flag, dest=option.key, action=option.action, default=argparse.SUPPRESS, help=help_text)
-        else:
-            where.add_argument(flag, dest=option.key, type=option.parse, choices=option.choices,
-                               metavar=option.metavar, default=argparse.SUPPRESS, help=help_text)
+        try:
+            if option.action is not None:
+                where.add_argument(flag, dest=option.key, action=option.action, default=argparse.SUPPRESS,
+                                   help=help_text)
+            else:
+                where.add_argument(flag, dest=option.key, type=option.parse, choices=option.choices,
+                                   metavar=option.metavar, default=argparse.SUPPRESS, help=help_text)
+        except argparse.ArgumentError:  # the command's own flag (--help, --method, --png, ...)
+            raise DeclarationError(f"{option.origin}: {', '.join(name for name, _ in users) or 'every method'} "
+                                   f"declares {flag}, which is {PROG}'s own option; choose another key") from None
     return {option.key for option, _ in declared.values()}
 
 
@@ -122,10 +133,10 @@ def _parser() -> tuple[argparse.ArgumentParser, set[str]]:
                             formatter_class=argparse.RawDescriptionHelpFormatter, epilog=methods_help())
     parser.add_argument("source", type=Path, metavar="IN_DIR", help="the frame folder")
     parser.add_argument("target", type=Path, metavar="OUT_DIR", help="where result_i.exr are written")
-    parser.add_argument("--method", choices=method_names(), default="atrous+temporal",
-                        help="the filter (default: atrous+temporal)")
+    parser.add_argument("--method", type=method_name, default="atrous+temporal", metavar="NAME",
+                        help="the filter: any name of the list below, with demod+ or outliers+ before it "
+                             "(default: atrous+temporal)")
     add_method_file_option(parser)
-    keys = add_method_options(parser)
     group = parser.add_argument_group("previews")
     group.add_argument("--png", action="store_true", help="also write result_i.png (tone-mapped sRGB) beside the EXRs")
     group.add_argument("--video", type=Path, metavar="OUT.mp4",
@@ -134,7 +145,14 @@ def _parser() -> tuple[argparse.ArgumentParser, set[str]]:
                        help="ground truth folder (beauty_i.exr) for the video's third panel")
     group.add_argument("--fps", type=ascii_int, default=4, help="video frames per second (default 4)")
     parser.add_argument("--variant", help="Mitsuba variant (default: llvm_ad_rgb where usable)")
+    keys = add_method_options(parser)  # last: a method's flag that is one of the command's own is refused
     return parser, keys
+
+
+def method_name(name: str) -> str:
+    """``--method``'s value: any name :func:`resolve` takes (one line naming the known ones otherwise)."""
+    resolve(name)
+    return name
 
 
 def _main(argv: list[str] | None) -> int:

@@ -81,7 +81,7 @@ def test_a_method_defined_here_is_listed_and_runs(registered_box, exported, tmp_
     assert exit_code.value.code == 0
     text = capsys.readouterr().out
     assert "  box " in text and "a box filter defined by tests/test_methods.py" in text
-    assert "box (box):" in text and "--box-radius" in text and "{" + ",".join(method_names()) + "}" in text
+    assert "box (box):" in text and "--box-radius" in text and "--method NAME" in text  # NAME: any of the list
     assert list(METHODS)[-1] == "box"
     assert "`box`" in method_list() and "box" in benchmark_names()
 
@@ -186,7 +186,7 @@ def test_a_range_changed_in_its_declaration_is_followed_everywhere(monkeypatch, 
     from denoise.methods.asvgf import ASVGF
     from denoise.methods.listing import method_list
 
-    narrowed = tuple(replace(o, high=5.0) if o.key == "clip_width" else o for o in ASVGF.options)
+    narrowed = tuple(replace(o, high=5.0, span=(o.span[0], 5.0)) if o.key == "clip_width" else o for o in ASVGF.options)
     monkeypatch.setattr(ASVGF, "options", narrowed)
 
     with pytest.raises(SystemExit):
@@ -242,3 +242,53 @@ def test_one_name_one_meaning_in_every_command(tmp_path, capsys):
         with pytest.raises(Exception, match=message):
             check_options_apply(name, flags)
     check_options_apply("svgf", {"temporal": False})
+
+
+@pytest.mark.parametrize("name", ["demod+outliers+atrous+temporal", "outliers+bilateral", "demod+svgf", "oidn",
+                                  "oidn-fast", "oidn+temporal", "atrous+temporal"])
+def test_denoise_takes_every_name_resolve_takes(name):
+    """``python -m denoise --method`` takes the names of every command (docs/scores.md), prefixes included."""
+    from denoise.__main__ import _parser
+    from denoise.methods import resolve
+
+    resolve(name)
+    assert _parser()[0].parse_args(["in", "out", "--method", name]).method == name
+
+
+def test_an_unknown_method_name_is_one_line(tmp_path, capsys):
+    from denoise.__main__ import main
+
+    assert main([str(tmp_path), str(tmp_path / "out"), "--method", "atrous+later"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("python -m denoise: error: unknown method 'atrous+later'; known:")
+
+
+@pytest.mark.parametrize(("name", "quality", "refused"), [("oidn-fast", "high", True), ("oidn-balanced", "fast", True),
+                                                          ("oidn-fast", "fast", False), ("oidn", "fast", False)])
+def test_an_option_that_contradicts_the_preset_is_refused(name, quality, refused, tmp_path, capsys):
+    """``oidn-fast`` means --oidn-quality fast in every command: another quality is one line."""
+    from denoise.__main__ import main
+
+    code = main([str(tmp_path / "none"), str(tmp_path / "out"), "--method", name, "--oidn-quality", quality])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1, err
+    if refused:
+        assert err == (f"python -m denoise: error: --oidn-quality {quality}: {name} means --oidn-quality "
+                       f"{name.split('-')[1]} (use --method oidn --oidn-quality {quality}, or leave --oidn-quality "
+                       "out)\n")
+    else:  # past the method's checks: the missing folder is the error
+        assert "none" in err and "oidn" not in err, err
+
+
+def test_the_live_page_lists_every_method_name():
+    """The live page offers every ``python -m denoise --method`` name (``oidn`` included) and raw."""
+    from denoise.live.methods import METHOD_NAMES, page_names
+
+    assert set(method_names()) <= set(page_names()) and "oidn" in METHOD_NAMES and METHOD_NAMES[0] == "raw"
+
+
+def test_a_prefixed_name_runs_in_python_m_denoise(exported, tmp_path):
+    from denoise.__main__ import main
+
+    assert main([str(exported), str(tmp_path / "out"), "--method", "demod+outliers+atrous+temporal"]) == 0
+    assert (tmp_path / "out" / "result_1.exr").exists()

@@ -4,6 +4,7 @@ file is one line naming the file and line, exit 2."""
 from __future__ import annotations
 
 import re
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -100,6 +101,35 @@ BROKEN = {
 }
 
 
+def method_file(body: str = "return arrays.tensor(arrays.color)", options: str = "()", name: str = "mine") -> str:
+    """A method file whose ``filter`` (line 11) is ``body`` (line 12)."""
+    return ("import drjit as dr\nimport mitsuba as mi\nimport numpy as np\nfrom denoise.methods import "
+            f"DenoisingMethod, Option\n\n\nclass M(DenoisingMethod):\n    name, description = {name!r}, 'mine'\n"
+            f"    options = {options}\n\n    def filter(self, arrays, frame, index, valid):\n        {body}\n")
+
+
+BROKEN.update({
+    "exit at import": ("import sys\nraise SystemExit(0)\n", r"my_filter.py:2: SystemExit: 0"),
+    "exit(3) at import": ("import sys\nsys.exit(3)\n", r"my_filter.py:2: SystemExit: 3"),
+    "key twice": (method_file(options="(Option('w', 1, 'w', kind=int),\n               Option('w', 2, 'w', kind=int))"),
+                  r"my_filter.py:10: M declares the option 'w' twice \(first at .*my_filter.py:9\)"),
+    "span outside": (method_file(options="(Option('w', 1.0, 'w', low=0.0, high=2.0, step=0.1, span=(0.0, 5.0)),)"),
+                     r"my_filter.py:9: option 'w': span \(0.0, 5.0\) reaches outside the range"),
+    "keyword key": (method_file(options="(Option('class', 1.0, 'w'),)"),
+                    r"my_filter.py:9: option 'class': the key must be a Python name that is not a keyword"),
+    "dashed key": (method_file(options="(Option('my-key', 1.0, 'w'),)"),
+                   r"my_filter.py:9: option 'my-key': the key must be a Python name"),
+    **{f"flag {flag}": (method_file(options=options),
+                        rf"my_filter.py:9: mine declares --{flag}, which is python -m denoise's own option")
+       for flag, options in (("help", "(Option('help', 1.0, 'h'),)"),
+                             ("method", "(Option('method', 'x', 'm', kind=str),)"),
+                             ("png", "(Option('png', False, 'p', kind=None, action='store_true'),)"))},
+    **{f"name {name}": (method_file(name=name), rf"my_filter.py:7: M: the method name '{re.escape(name)}' ")
+       for name in ("atrous+temporal", "raw", "oidn-fast", "svgf", "demod+outliers+atrous+temporal", "my+temporal",
+                    "My", "a b", "temporal")},
+})
+
+
 @pytest.mark.parametrize("case", list(BROKEN))
 def test_a_broken_method_file_is_one_line(case, tmp_path, capsys, registry):
     from denoise.__main__ import main
@@ -111,3 +141,148 @@ def test_a_broken_method_file_is_one_line(case, tmp_path, capsys, registry):
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "Traceback" not in err, err
     assert re.search(f"^python -m denoise: error: {re.escape(str(tmp_path))}/{expected}", err), err
+
+
+
+#: what filter() does (line 12 of method_file) and the one line that says so
+BAD_FILTERS = {
+    "raises": ("raise ValueError('boom')", r"mine \(.*my_filter.py:12\): filter\(\) raised ValueError: boom"),
+    "exits": ("raise SystemExit(0)", r"mine \(.*my_filter.py:12\): filter\(\) raised SystemExit: 0"),
+    "None": ("return None", r"my_filter.py:11\): filter\(\) must return a mi.TensorXf .*got builtins.NoneType"),
+    "str": ("return 'image'", r"my_filter.py:11\): filter\(\) must return a mi.TensorXf .*got builtins.str"),
+    "numpy": ("return np.zeros(frame.beauty.shape, np.float32)", r"must return a mi.TensorXf .*numpy.ndarray"),
+    "float64": ("return mi.TensorXf64(np.zeros(frame.beauty.shape))", r"must return a mi.TensorXf .*TensorXf64"),
+    "5x2": ("return mi.TensorXf(np.zeros((5, 2), np.float32))",
+            r"mine \(.*my_filter.py:11\): filter\(\) must return the frame's shape \(18, 32, 3\), got \(5, 2\)"),
+    "3 rows": ("return mi.TensorXf(np.zeros((3, 32, 3), np.float32))", r"got \(3, 32, 3\)"),
+    "nan": ("return mi.TensorXf(np.full(frame.beauty.shape, np.nan, np.float32))",
+            r"mine \(.*my_filter.py:11\): filter\(\) returned 1728 NaN or infinite values"),
+    "inf": ("return arrays.tensor(arrays.color / 0.0)", r"filter\(\) returned \d+ NaN or infinite values"),
+}
+
+
+@pytest.mark.parametrize("case", list(BAD_FILTERS))
+def test_a_bad_filter_is_one_line(case, exported, tmp_path, capsys, registry):
+    """python -m denoise and denoise.score --compare: a filter that raises, exits or returns
+    anything but a finite TensorXf of the frame's shape is one line naming the method and its line."""
+    from denoise.__main__ import main as denoise
+    from denoise.score import main as score
+    from export import reference_folder
+
+    body, expected = BAD_FILTERS[case]
+    path = tmp_path / "my_filter.py"
+    path.write_text(method_file(body))
+    files = ["--method-file", str(path)]
+    out = tmp_path / "out"
+    assert denoise([str(exported), str(out), *files, "--method", "mine"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "Traceback" not in err, err
+    assert re.search(r"^python -m denoise: error: mine \(.*my_filter.py:1[12]\): filter\(\) ", err), err
+    assert re.search(expected, err), err
+    assert not (out / "result_0.exr").exists()
+    results = tmp_path / "results"  # the noisy frames as results to score
+    results.mkdir()
+    for beauty in exported.glob("beauty_*.exr"):
+        shutil.copy(beauty, results / beauty.name.replace("beauty", "result"))
+    assert score([str(results), "--reference", str(reference_folder(exported)), "--frames", str(exported), *files,
+                  "--compare", "mine", "raw"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and re.search(r"^python -m denoise.score: error: mine \(", err), err
+    assert re.search(expected, err), err
+
+
+def test_a_good_filter_still_runs(exported, tmp_path, capsys, registry):
+    from denoise.__main__ import main as denoise
+
+    path = tmp_path / "my_filter.py"
+    path.write_text(method_file())
+    assert denoise([str(exported), str(tmp_path / "out"), "--method-file", str(path), "--method", "mine"]) == 0
+
+
+@pytest.mark.parametrize("command", ["denoise", "denoise.score", "benchmarks.denoise", "denoise.live"])
+def test_a_flag_clash_is_one_line_in_every_command(command, tmp_path):
+    """A method file's option named as a command's own option: one line (python -m denoise, the
+    one command that adds methods' options), never argparse's traceback."""
+    path = tmp_path / "my_filter.py"
+    path.write_text(method_file(options="(Option('help', 1.0, 'h'),\n               Option('png', 1.0, 'p'))"))
+    done = subprocess.run([sys.executable, "-m", command, "--method-file", str(path), "--help"], cwd=ROOT,
+                          capture_output=True, text=True, timeout=300)
+    assert "Traceback" not in done.stderr and "ArgumentError" not in done.stderr, done.stderr
+    if command == "denoise":
+        assert done.returncode == 2 and done.stderr.count("\n") == 1, done.stderr
+        assert "my_filter.py:9: mine declares --help, which is python -m denoise's own option" in done.stderr
+    else:
+        assert done.returncode == 0, done.stderr
+
+
+@pytest.mark.parametrize("case", ["raises", "None", "nan"])
+def test_a_bad_filter_stops_the_live_server_in_one_line(case, tmp_path):
+    """python -m denoise.live: the first frame that the method cannot filter stops the
+    server with the same one line (exit 2; the page loses its connection), no traceback."""
+    import asyncio
+
+    import aiohttp
+
+    from core.libllvm import find_libllvm
+
+    if find_libllvm() is None:
+        pytest.skip("no usable libLLVM: the live page needs a JIT variant")
+    body, expected = BAD_FILTERS[case]
+    path = tmp_path / "my_filter.py"
+    path.write_text(method_file(body))
+    process = subprocess.Popen([sys.executable, "-m", "denoise.live", "showcase", "--size", "32", "18", "--variant",
+                                "llvm_ad_rgb", "--port", "0", "--method-file", str(path), "--method", "mine"],
+                               cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        url = process.stdout.readline().split("open ", 1)[1].split()[0]
+
+        async def view():
+            async with aiohttp.ClientSession() as session:
+                async with session.ws_connect(url + "ws", headers={"Origin": url.rstrip("/")}) as ws:
+                    while not ws.closed and (await asyncio.wait_for(ws.receive(), 240)).type not in (
+                            aiohttp.WSMsgType.CLOSE, aiohttp.WSMsgType.CLOSED, aiohttp.WSMsgType.ERROR):
+                        pass
+
+        asyncio.run(view())
+        err = process.communicate(timeout=60)[1]
+    finally:
+        if process.poll() is None:
+            process.kill()
+            process.wait(10)
+    assert process.returncode == 2 and err.count("\n") == 1 and "Traceback" not in err, err
+    assert re.search(r"^python -m denoise.live: error: mine \(.*my_filter.py:1[12]\): filter\(\) ", err), err
+    assert re.search(expected, err.replace("(18, 32, 3)", "")), err
+
+
+@pytest.mark.parametrize(("body", "expected"), [
+    ("return None", r"spatial\(\) must return a mi.TensorXf .*got builtins.NoneType"),
+    ("return mi.TensorXf(np.zeros((5, 2), np.float32))", r"spatial\(\) must return the frame's shape"),
+    ("raise KeyError('x')", r"my_filter.py:10\): spatial\(\) raised KeyError: 'x'"),
+])
+def test_a_bad_spatial_hook_is_one_line(body, expected, exported, tmp_path, capsys, registry):
+    """A SpatialFilterMethod of one's own: its spatial() is checked before the accumulation reads it."""
+    from denoise.__main__ import main as denoise
+
+    path = tmp_path / "my_filter.py"
+    path.write_text(spatial_file(body))
+    assert denoise([str(exported), str(tmp_path / "out"), "--method-file", str(path), "--method", "mine"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and re.search(r"^python -m denoise: error: mine \(.*my_filter.py:(9|10)\): ", err), err
+    assert re.search(expected, err), err
+
+
+def test_a_spatial_method_without_options_accumulates(exported, tmp_path, registry):
+    """SpatialFilterMethod's --alpha and --k are added where the class declares none (NAME+temporal reads them)."""
+    from denoise.__main__ import main as denoise
+
+    path = tmp_path / "my_filter.py"
+    path.write_text(spatial_file("return arrays.tensor(arrays.color)"))
+    assert denoise([str(exported), str(tmp_path / "out"), "--method-file", str(path), "--method", "mine+temporal",
+                    "--alpha", "0.5"]) == 0
+
+
+def spatial_file(body: str) -> str:
+    """A SpatialFilterMethod of one's own whose spatial() (line 9) is ``body`` (line 10)."""
+    return ("import mitsuba as mi\nimport numpy as np\nfrom denoise.methods import SpatialFilterMethod\n\n\n"
+            "class S(SpatialFilterMethod):\n    name, description = 'mine', 'mine'\n\n"
+            f"    def spatial(self, arrays):\n        {body}\n")

@@ -20,9 +20,9 @@ RAW = "raw"
 
 def page_names() -> list[str]:
     """What the page lists, in its order: ``raw``, the benchmark's names, then
-    the names of a registered method that has none (one of one's own)."""
+    every other name ``python -m denoise --method`` lists (``oidn``, a method of one's own)."""
     names = [RAW] + [name for name in benchmark_names() if not name.startswith(("demod+", "outliers+"))]
-    return names + [name for name in method_names() if name not in names and not resolve(name)[0].benchmark]
+    return names + [name for name in method_names() if name not in names]
 
 @dataclass(frozen=True)
 class Slider:

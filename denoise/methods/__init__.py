@@ -8,6 +8,7 @@ subclass, imported here and passed to :func:`register` below.
 """
 from __future__ import annotations
 
+import re
 import sys
 
 if sys.argv[:1] == ["-m"]:  # first: `python -m denoise.methods` imports this before its __main__
@@ -19,15 +20,20 @@ from core.errors import UsageError
 from ..filters import OutlierParams
 from .asvgf import ASVGF
 from .atrous import Atrous
-from .base import DeclarationError, DenoisingMethod, Option, SpatialFilterMethod
+from .base import DeclarationError, DenoisingMethod, MethodError, Option, SpatialFilterMethod, temporal_options
 from .bilateral import Bilateral
 from .learned_asvgf import LearnedASVGF
 from .oidn import OIDNMethod
 from .oidn_guided import OIDNGuided
 from .svgf import SVGF
 
-__all__ = ["METHODS", "DeclarationError", "DenoisingMethod", "Option", "SpatialFilterMethod", "benchmark_names",
-           "declared_options", "from_name", "make", "method_names", "register", "resolve"]
+__all__ = ["METHODS", "DeclarationError", "DenoisingMethod", "MethodError", "Option", "SpatialFilterMethod",
+           "benchmark_names", "declared_options", "from_name", "make", "method_names", "register", "resolve"]
+
+#: what a method's name may be: lower-case words joined by '_' or '-' ('+' joins names)
+NAME = re.compile(r"[a-z0-9][a-z0-9_-]*")
+#: the words of names that are no method's: the noisy input, and what joins a method's name
+RESERVED = frozenset({"raw", "temporal", "demod", "outliers"})
 
 #: every method by its ``name``, in the order ``--help`` and the docs list them
 METHODS: dict[str, type[DenoisingMethod]] = {}
@@ -56,11 +62,26 @@ def register(cls: type[DenoisingMethod]) -> type[DenoisingMethod]:
         raise DeclarationError(f"{cls!r}: a method is a subclass of denoise.methods.DenoisingMethod")
     if not cls.name or not cls.description:
         raise DeclarationError(f"{cls.__name__}: a method needs a name and a one-line description")
-    if cls.name in METHODS and METHODS[cls.name] is not cls:
-        raise DeclarationError(f"{cls.__name__}: the method name {cls.name!r} is taken by "
-                               f"{METHODS[cls.name].__name__}")
-    if not all(isinstance(o, Option) for o in cls.options):
+    if not isinstance(cls.name, str) or not NAME.fullmatch(cls.name):
+        raise DeclarationError(f"{cls.__name__}: the method name {cls.name!r} must be lower-case letters, digits, "
+                               "'_' and '-', starting with a letter or digit ('+' joins names: atrous+temporal)")
+    if cls.name in RESERVED:
+        raise DeclarationError(f"{cls.__name__}: the method name {cls.name!r} is a word of every command's "
+                               f"method names ({', '.join(sorted(RESERVED))}); choose another")
+    taken = _names().get(cls.name, (cls, {}))[0]
+    if taken is not cls:
+        raise DeclarationError(f"{cls.__name__}: the method name {cls.name!r} is taken by {taken.__name__} "
+                               f"({cls.name} already names it in every command); choose another")
+    if not isinstance(cls.options, tuple) or not all(isinstance(o, Option) for o in cls.options):
         raise DeclarationError(f"{cls.__name__}: options must be a tuple of denoise.methods.Option")
+    if issubclass(cls, SpatialFilterMethod) and not {"alpha", "k"} & {o.key for o in cls.options}:
+        cls.options = cls.options + temporal_options(cls.temporal_defaults)  # what its accumulation reads
+    keys: dict[str, Option] = {}
+    for option in cls.options:
+        first = keys.setdefault(option.key, option)
+        if first is not option:
+            raise DeclarationError(f"{option.origin}: {cls.__name__} declares the option {option.key!r} twice "
+                                   f"(first at {first.origin})")
     declared = declared_options()
     for option in cls.options:
         if option.flag in declared:
@@ -71,11 +92,6 @@ def register(cls: type[DenoisingMethod]) -> type[DenoisingMethod]:
                                        f"{other} at {where.origin} (same key, kind, help, unit and group needed)")
     METHODS[cls.name] = cls
     return cls
-
-
-#: the methods of this package, in the order of ``--help``
-for method in (Bilateral, Atrous, SVGF, ASVGF, LearnedASVGF, OIDNMethod, OIDNGuided):
-    register(method)
 
 
 def make(name: str, **props) -> DenoisingMethod:
@@ -135,3 +151,8 @@ def method_names() -> tuple[str, ...]:
 def benchmark_names() -> tuple[str, ...]:
     """The names ``python -m benchmarks.denoise`` runs, method by method."""
     return tuple(name for cls in METHODS.values() for name in cls.benchmark)
+
+
+#: the methods of this package, in the order of ``--help``
+for method in (Bilateral, Atrous, SVGF, ASVGF, LearnedASVGF, OIDNMethod, OIDNGuided):
+    register(method)

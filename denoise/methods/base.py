@@ -10,16 +10,19 @@ override :meth:`SpatialFilterMethod.spatial` alone.
 """
 from __future__ import annotations
 
+import inspect
+import keyword
 import math
 import traceback
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
+from pathlib import Path
 
 import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from core.errors import FrameError, UsageError
+from core.errors import FrameError, ToolkitError, UsageError
 from core.numbers import ascii_float, ascii_int
 from export.frames import FrameData
 
@@ -102,14 +105,21 @@ class Option:
 
     def declaration_problem(self) -> str | None:
         """What is wrong with this declaration, or None."""
-        if not self.key.isidentifier():
-            return "the key must be a Python name (the parameter's field)"
+        if not isinstance(self.key, str) or not self.key.isidentifier() or keyword.iskeyword(self.key):
+            return "the key must be a Python name that is not a keyword (the parameter's field)"
         if self.kind not in (float, int, str, None) or (self.kind is None) != (self.action is not None):
             return "kind must be float, int or str, or None with an action"
         if self.low is not None and self.high is not None and not self.low <= self.high:
             return f"low {self.low!r} is above high {self.high!r}"
         if self.step is not None and (self.kind not in (float, int) or not self.step > 0):
             return "a slider step needs a number option and a step > 0"
+        if self.span is not None and not (isinstance(self.span, tuple) and len(self.span) == 2
+                                          and all(isinstance(v, (int, float)) for v in self.span)
+                                          and self.span[0] <= self.span[1]):
+            return f"span must be (low end, high end) of a slider, got {self.span!r}"
+        if self.span is not None and ((self.low is not None and self.span[0] < self.low)
+                                      or (self.high is not None and self.span[1] > self.high)):
+            return f"span {self.span!r} reaches outside the range ({self.range_text()})"
         if self.step is not None and self.slider_range() is None:
             return "a slider needs finite ends: give low and high, or span"
         if self.action is None and self.default is not None and self.default_text is None:
@@ -172,6 +182,11 @@ class Option:
         if self.high is not None:
             high = min(high, self.high - (self.step if self.open_high else 0.0))
         return low, high
+
+
+class MethodError(ToolkitError):
+    """A method's ``filter`` that raised or returned something unusable (names
+    the method and its file and line)."""
 
 
 class DeclarationError(UsageError):
@@ -324,12 +339,53 @@ class DenoisingMethod:
         if self.temporal and self.previous is not None:
             index, valid = reproject(position, ids, self.previous_ids, frame.object_to_world,
                                      self.previous.object_to_world, self.previous.world_to_screen)
-        result = self.filter(FrameArrays(color, tensor(frame.normal), position), frame, index, valid)
+        try:
+            result = self.filter(FrameArrays(color, tensor(frame.normal), position), frame, index, valid)
+        except ToolkitError:
+            raise
+        except (Exception, SystemExit) as error:  # the method's own code failed: where, and what (Ctrl-C stays one)
+            raise MethodError(f"{self.name} ({self.hook_origin(error)}): {self.hook().__name__}() raised "
+                              f"{type(error).__name__}: {error}") from None
+        self.check_result(result, frame.beauty.shape[:2])
         if albedo is not None:
             result = remodulate(result, albedo)
         dr.eval(result.array)
+        image = np.array(result, np.float32)
+        if not np.isfinite(image).all():
+            bad = int(image.size - np.count_nonzero(np.isfinite(image)))
+            raise MethodError(f"{self.name} ({self.hook_origin()}): {self.hook().__name__}() returned {bad} "
+                              "NaN or infinite values (a result must be finite)")
         self.previous, self.previous_ids = frame, ids
-        return np.array(result, np.float32)
+        return image
+
+    def check_result(self, result, size: tuple[int, int]) -> None:
+        """A one-line :class:`MethodError` unless the hook's ``result`` is a
+        ``mi.TensorXf`` of ``size`` (height, width) by 3."""
+        if not isinstance(result, mi.TensorXf):
+            raise MethodError(f"{self.name} ({self.hook_origin()}): {self.hook().__name__}() must return a "
+                              f"mi.TensorXf (arrays.tensor(...)), got {type(result).__module__}."
+                              f"{type(result).__qualname__}")
+        if tuple(result.shape) != (*size, 3):
+            raise MethodError(f"{self.name} ({self.hook_origin()}): {self.hook().__name__}() must return the "
+                              f"frame's shape {(*size, 3)}, got {tuple(result.shape)}")
+
+    def hook(self) -> Callable:
+        """The method's own hook: ``filter``, or ``spatial`` where only that is overridden."""
+        hook = type(self).filter
+        return type(self).spatial if hook is SpatialFilterMethod.filter else hook
+
+    def hook_origin(self, error: BaseException | None = None) -> str:
+        """``file:line`` of the method's own hook (:meth:`hook`): the last line of
+        that file in ``error``'s traceback, else the hook's ``def``."""
+        hook = self.hook()
+        try:
+            path, line = Path(inspect.getsourcefile(hook)), inspect.getsourcelines(hook)[1]
+        except (OSError, TypeError):
+            return "?"
+        if error is not None:
+            lines = [f.lineno for f in traceback.extract_tb(error.__traceback__) if Path(f.filename) == path]
+            line = lines[-1] if lines else line
+        return f"{path}:{line}"
 
     def filter(self, arrays: FrameArrays, frame: FrameData, index: mi.UInt32 | None,
                valid: mi.Bool | None) -> mi.TensorXf:
@@ -361,6 +417,7 @@ class SpatialFilterMethod(DenoisingMethod):
 
     def filter(self, arrays, frame, index, valid):
         result = self.spatial(arrays)
+        self.check_result(result, frame.beauty.shape[:2])
         if index is not None:
             result = accumulate(result, self.history, index, valid, self.temporal_params)
         self.history = result

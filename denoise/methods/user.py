@@ -55,7 +55,7 @@ def load_method_file(path: Path) -> list[type[DenoisingMethod]]:
         exec(code, module.__dict__)  # noqa: S102  the user's own method file, named on their command line
     except DeclarationError:
         raise
-    except Exception as error:  # an exception at import: where in the file, and what
+    except (Exception, SystemExit) as error:  # an exception (or exit()) at import: where, and what; Ctrl-C stays one
         raise DeclarationError(f"{path}:{_line_of(error, path)}: {type(error).__name__}: {error}") from None
     defined = [value for value in vars(module).values() if isinstance(value, type)
                and issubclass(value, DenoisingMethod) and value.__module__ == module.__name__ and value.name]
