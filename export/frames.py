@@ -160,7 +160,7 @@ def _read_exr(path: Path) -> dict:
     try:
         with _quiet_stderr():
             channels = read_exr(path)
-    except FileNotFoundError:
+    except (FileNotFoundError, FrameError):
         raise
     except Exception as error:  # OpenEXR reports damage as RuntimeError/OSError without the name
         reason = " ".join(str(error).split()) or type(error).__name__
@@ -196,20 +196,25 @@ def read_frame(folder: Path, index: int) -> FrameData:
                              f"{expected[1]}x{expected[0]}")
     matrix_path = folder / f"matrix_{index}.mat"
     objects, camera, screen = read_matrices(matrix_path)
-    raw_ids = single["ID"]
-    finite = np.isfinite(raw_ids)
-    ids = np.rint(np.where(finite, raw_ids, -1)).astype(np.int64)
-    if not finite.all():
-        raise FrameError(f"{paths['ID']}: NaN or inf object ids")
-    if np.any(np.abs(raw_ids - ids) > 1e-3):
-        raise FrameError(f"{paths['ID']}: object ids must be whole numbers, "
-                         f"found {raw_ids[np.abs(raw_ids - ids) > 1e-3][0]:g}")
-    if ids.size and (ids.min() < -1 or ids.max() >= len(objects)):
-        bad = int(ids.max()) if ids.max() >= len(objects) else int(ids.min())
-        raise FrameError(f"{paths['ID']}: object id {bad}, but {matrix_path.name} has matrices for "
-                         f"{len(objects)} objects (ids -1 to {len(objects) - 1})")
+    ids = check_ids(single["ID"], paths["ID"], matrix_path, len(objects))
     return FrameData(rgb["beauty"], rgb["normal"], rgb["position"], single["depth"],
-                     ids.astype(np.int32), objects, camera, screen, albedo)
+                     ids, objects, camera, screen, albedo)
+
+
+def check_ids(raw_ids: np.ndarray, path: Path, matrix_path: Path, objects: int) -> np.ndarray:
+    """The ID buffer as int32, checked in floating point before the cast (a
+    cast of 1e30 is undefined and warns): finite whole numbers -1..objects-1."""
+    if not np.isfinite(raw_ids).all():
+        raise FrameError(f"{path}: NaN or inf object ids")
+    rounded = np.rint(raw_ids.astype(np.float64))
+    fractional = np.abs(raw_ids - rounded) > 1e-3
+    if fractional.any():
+        raise FrameError(f"{path}: object ids must be whole numbers, found {raw_ids[fractional][0]:g}")
+    if rounded.size and (rounded.min() < -1 or rounded.max() >= objects):
+        bad = rounded.max() if rounded.max() >= objects else rounded.min()
+        raise FrameError(f"{path}: object id {bad:.15g}, but {matrix_path.name} has matrices for "
+                         f"{objects} objects (ids -1 to {objects - 1})")
+    return rounded.astype(np.int32)
 
 
 def write_frame(folder: Path, index: int, frame: FrameData) -> None:
