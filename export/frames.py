@@ -39,6 +39,7 @@ from pathlib import Path
 import numpy as np
 
 from core.errors import FrameError
+from core.inputs import NotAnInputFile, read_input
 from imaging.image_io import atomic_path, read_exr, write_exr
 from mi_plugins.camera_basis import course_camera_basis
 
@@ -94,8 +95,15 @@ def same_size(path: Path, shape: tuple, other: Path, other_shape: tuple) -> None
         raise FrameError(f"{path}: {shape[1]}x{shape[0]} pixels, but {other} has {other_shape[1]}x{other_shape[0]}")
 
 
+#: the largest matrix file read: a million objects' matrices
+MAX_MATRIX_BYTES = 4 + (1_000_000 + 2) * 64
+
+
 def read_matrices(path: Path) -> tuple[list[np.ndarray], np.ndarray, np.ndarray]:
-    data = path.read_bytes()
+    try:
+        data = read_input(path, MAX_MATRIX_BYTES)  # a regular file: a pipe would block the read
+    except NotAnInputFile as error:
+        raise FrameError(f"{path}: {error}") from None
     if len(data) < 4:
         raise FrameError(f"{path}: expected an int32 object count, found {len(data)} bytes")
     count = int(np.frombuffer(data[:4], "<i4")[0])

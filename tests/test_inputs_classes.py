@@ -312,15 +312,21 @@ def test_a_pipe_as_a_frame_file_is_one_line(exported, tmp_path):
     shutil.copytree(exported, copy)
     (copy / "beauty_1.exr").unlink()
     os.mkfifo(copy / "beauty_1.exr")
+    matrices = tmp_path / "fifo_matrix"
+    shutil.copytree(exported, matrices)
+    (matrices / "matrix_1.mat").unlink()
+    os.mkfifo(matrices / "matrix_1.mat")
     results = tmp_path / "results"
     results.mkdir()
     shutil.copy(exported / "beauty_0.exr", results / "result_0.exr")
     os.mkfifo(results / "result_1.exr")
     commands = {"denoise": ["-m", "denoise", str(copy), str(tmp_path / "out"), "--method", "svgf"],
-                "score": ["-m", "denoise.score", str(results), "--reference", f"{exported}_reference"]}
+                "score": ["-m", "denoise.score", str(results), "--reference", f"{exported}_reference"],
+                "matrix": ["-m", "denoise", str(matrices), str(tmp_path / "out2"), "--method", "svgf"]}
     for name, argv in commands.items():
         done = subprocess.run([sys.executable, *argv], cwd=ROOT, capture_output=True, text=True, timeout=120)
-        bad = copy / "beauty_1.exr" if name == "denoise" else results / "result_1.exr"
+        bad = {"denoise": copy / "beauty_1.exr", "score": results / "result_1.exr",
+               "matrix": matrices / "matrix_1.mat"}[name]
         assert done.returncode == 2 and done.stderr.count("\n") == 1, (name, done.stderr)
         assert f"{bad}: a pipe, not a regular file" in done.stderr, (name, done.stderr)
 
