@@ -478,3 +478,8 @@ def test_a_missing_data_folder_is_one_line(tmp_path, capsys):
             status = live(["box", "--port", str(busy.getsockname()[1]), "--data", str(data)])
         err = capsys.readouterr().err
         assert status == 2 and err.count("\n") == 1 and f"--data {data}: " in err, err
+        done = subprocess.run([sys.executable, "render.py", "lamps", "-size", "4", "4", "--out", str(tmp_path / "r"),
+                               "--data", str(data)], cwd=ROOT, capture_output=True, text=True, timeout=120)
+        lines = [line for line in done.stderr.splitlines() if "using scalar_rgb instead" not in line]
+        assert done.returncode == 2 and len(lines) == 1 and f"--data {data}: " in lines[0], done.stderr
+        assert not (tmp_path / "r").exists()
