@@ -12,8 +12,9 @@ folder the results were made from: its positions, ids and matrices) also
 ``temporal``, the relMSE between a result and the previous one
 back-projected onto it, and the stability figure: its mean over the
 ground truth's (1 = as steady as the truth). A reference that is no ground
-truth (a frame folder, or an export's truth of no more samples than the
-frames) is refused (:mod:`export.ground_truth`). ``--compare METHOD ...`` runs
+truth (a frame folder, an export's truth of no more samples than the
+frames, or the truth of another sequence than ``--frames``, by the export's
+records) is refused (:mod:`export.ground_truth`). ``--compare METHOD ...`` runs
 our methods (``python -m denoise``'s, named as in ``benchmarks.denoise``:
 ``svgf``, ``atrous+temporal``, ``oidn``, ...; ``raw`` is the noisy input) on
 the same frames and scores them beside the results. Every number comes from

@@ -6,7 +6,9 @@
 pixel). A folder given as the truth is refused when it is a frame folder (an
 export's, by its record, or any in the course's layout, by its G-buffers),
 or when its record says it has no more samples per pixel than the frames it
-would judge: every figure against it would be a figure against noise.
+would judge: every figure against it would be a figure against noise; and
+when its record names another sequence than the frame folder's
+``sequence.json`` (another spec, size or frame count: its key differs).
 Folders without records (a truth rendered elsewhere) are taken as they are.
 """
 from __future__ import annotations
