@@ -49,6 +49,17 @@ def data_dir(explicit: str | Path | None = None) -> Path | None:
     return data if os.environ.get(ENVIRONMENT) or data.is_dir() else None
 
 
+def check_data_flag(data: str | Path | None) -> None:
+    """``--data`` where given is an existing folder, whether or not a scene is
+    looked up in it (a mistyped folder was otherwise ignored in silence)."""
+    if data is None:
+        return
+    path = Path(data)
+    if not path.is_dir():
+        raise UsageError(f"--data {data}: {'a file, not a folder' if path.exists() else 'does not exist'} "
+                         f"(the course's data folder)")
+
+
 def resolve_scene(name: str, data: Path | None) -> Path:
     """A scene by path, or by name in ``scenes/`` then the course data folder ``data``.
 

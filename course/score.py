@@ -27,6 +27,7 @@ from tqdm import tqdm
 
 from core.entry import ArgumentParser, finish, run
 from core.errors import FrameError, UsageError
+from core.inputs import check_outside
 from course import ENVIRONMENT, root
 from imaging.image_io import IMAGE_DECODE_ERRORS, atomic_path, check_writable, read_png, write_image
 from imaging.metrics import MAX_BAD_FRACTION, TOLERANCE, bad_pixels, flip_error, flip_heat_map
@@ -199,8 +200,9 @@ def _main(argv: list[str] | None) -> int:
     report = args.report or args.folder / "score.md"
     if report.suffix.lower() != ".md":  # never onto an image being scored
         raise UsageError(f"--report writes Markdown: name it .md, got {report}")
-    if report.resolve().parent == reference.resolve():
-        raise UsageError(f"--report {report}: inside the reference folder; write it elsewhere")
+    # the report and its images (beside it, in a folder of its stem) never go into the reference, at any depth
+    check_outside({"--report": report, "--report's images": report.parent / report.stem},
+                  {"--reference": reference})
     check_writable("--report", report)
 
     with tqdm(total=count, desc="scoring", unit="image", delay=1.0, leave=False,

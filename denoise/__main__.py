@@ -19,7 +19,7 @@ from core.entry import ArgumentParser, finish, run
 from core.errors import FrameError, UsageError
 from core.inputs import check_outside
 from core.numbers import ascii_int
-from export.ground_truth import check_ground_truth
+from export.ground_truth import check_ground_truth, check_not_an_export_folder, reference_folder
 from imaging.colour import side_by_side, tone_map
 from imaging.image_io import read_exr_rgb, write_image, write_video
 from renderer.variants import set_variant
@@ -170,11 +170,13 @@ def _main(argv: list[str] | None) -> int:
     if args.video is not None and args.video.suffix.lower() != ".mp4":
         raise UsageError(f"--video writes H.264 MP4: name it .mp4, got {args.video}")
     check_outside({"OUT_DIR": args.target, "--video": args.video},
-                  {"IN_DIR": args.source, "--reference": args.reference})
+                  {"IN_DIR": args.source, "--reference": args.reference,
+                   "IN_DIR's ground truth": reference_folder(args.source)})
+    check_not_an_export_folder("OUT_DIR", args.target)
     if args.reference is not None and not args.reference.is_dir():
         raise FrameError(f"{args.reference}: not a folder")
     if args.reference is not None:
-        check_ground_truth("--reference", args.reference, args.source)
+        check_ground_truth("--reference", args.reference, args.source, frames_flag="IN_DIR")
     set_variant(args.variant, jit=True)
     panels: list[list] = []
 

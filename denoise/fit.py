@@ -56,6 +56,7 @@ from core.inputs import check_outside
 from core.numbers import ascii_float, ascii_int
 from export import Spec, export, reference_folder
 from export.frames import frame_indices, read_frame, same_size
+from export.ground_truth import check_ground_truth
 from imaging.image_io import atomic_path, check_writable, read_exr_rgb
 from imaging.metrics import relmse
 from renderer.bands import GROUP_SIGNALS
@@ -268,8 +269,11 @@ def _main(argv: list[str] | None) -> int:
     if not (0.0 < args.rate <= 10.0):
         raise UsageError(f"--rate must be in (0, 10], got {args.rate}")
 
-    for spec in specs:  # a fit never writes onto a spec it reads
+    for spec in specs:  # a fit never writes onto a spec it reads, nor into the frames it trains on
         check_outside({"--out": args.out, "--work": args.work}, {"SPEC.json": spec})
+        frames = args.work / Path(spec).stem
+        check_outside({"--out": args.out}, {f"frame folder (--work) of {Path(spec).name}": frames,
+                                            f"ground truth (--work) of {Path(spec).name}": reference_folder(frames)})
     if args.out.suffix.lower() != ".json":
         raise UsageError(f"--out {args.out}: the parameter file is JSON; give a name ending in .json")
     if args.evaluate is not None:
@@ -281,6 +285,7 @@ def _main(argv: list[str] | None) -> int:
         if missing:
             raise UsageError(f"{args.evaluate}: no ground truth for frame {missing[0]} "
                              f"(no {truth / f'beauty_{missing[0]}.exr'}; python -m export renders it)")
+        check_ground_truth("--evaluate's ground truth", truth, args.evaluate, frames_flag="--evaluate")
         check_switch_frame(args.switch_frame, len(indices))
         set_variant("llvm_ad_rgb", jit=True)
         print_evaluation(args.evaluate, args.switch_frame)

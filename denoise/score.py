@@ -12,8 +12,9 @@ folder the results were made from: its positions, ids and matrices) also
 ``temporal``, the relMSE between a result and the previous one
 back-projected onto it, and the stability figure: its mean over the
 ground truth's (1 = as steady as the truth). A reference that is no ground
-truth (a frame folder, or an export's truth of no more samples than the
-frames) is refused (:mod:`export.ground_truth`). ``--compare METHOD ...`` runs
+truth (a frame folder, an export's truth of no more samples than the
+frames, or the truth of another sequence than ``--frames``, by the export's
+records) is refused (:mod:`export.ground_truth`). ``--compare METHOD ...`` runs
 our methods (``python -m denoise``'s, named as in ``benchmarks.denoise``:
 ``svgf``, ``atrous+temporal``, ``oidn``, ...; ``raw`` is the noisy input) on
 the same frames and scores them beside the results. Every number comes from
@@ -96,21 +97,28 @@ def check_pattern(pattern: str) -> str:
 def read_rgb(path: Path) -> np.ndarray:
     """An EXR's R, G, B as float32 (H, W, 3); a damaged file, or one with NaN
     or infinite values (which no figure can score), is one line naming it."""
-    if not path.is_file():
+    if not path.exists():
         raise FrameError(f"{path}: missing")
     try:
         image = read_exr_rgb(path)
+    except FrameError:  # a pipe or a device: said by the reader, before any read
+        raise
     except KeyError as error:
         raise FrameError(f"{path}: no {error.args[0]} channel (expected R, G, B)") from None
     except Exception as error:  # OpenEXR reports damage as RuntimeError/OSError without the name
         raise FrameError(f"{path}: not a readable EXR ({' '.join(str(error).split()) or type(error).__name__})") \
             from None
+    check_finite(path, image)
+    return image
+
+
+def check_finite(path: Path, image: np.ndarray, what: str = "") -> None:
+    """One line naming ``path`` where ``image`` has NaN or infinite values, which no figure can score."""
     bad = ~np.isfinite(image)
     if bad.any():
         nan, inf = int(np.isnan(image).any(-1).sum()), int((bad & ~np.isnan(image)).any(-1).sum())
-        raise FrameError(f"{path}: {nan} pixels NaN and {inf} infinite of {image.shape[0] * image.shape[1]} "
-                         "(relMSE and FLIP need finite values)")
-    return image
+        raise FrameError(f"{path}: {nan} pixels NaN and {inf} infinite of {image.shape[0] * image.shape[1]}"
+                         f"{what} (relMSE and FLIP need finite values)")
 
 
 def reference_indices(reference: Path) -> list[int]:
@@ -147,7 +155,7 @@ def result_paths(results: Path, pattern: str, indices: list[int]) -> list[Path]:
                              f"{name}")
         first[name] = index
     paths = [results / name for name in names]
-    missing = [p for p in paths if not p.is_file()]
+    missing = [p for p in paths if not p.exists()]
     if missing:
         more = f" (and {len(missing) - 1} more of the reference's {len(paths)} frames)" if len(missing) > 1 else ""
         raise FrameError(f"{missing[0]}: missing{more}")
@@ -236,6 +244,9 @@ def score_sequence(results: Path, reference: Path, frames_folder: Path | None = 
     frames = reference_temporal = None
     if frames_folder is not None:
         frames = read_frames(frames_folder, indices, named_truth)
+        if RAW in compare:  # the noisy input scored as it is, so as the results are: finite or refused
+            for index, frame in zip(indices, frames):
+                check_finite(frames_folder / f"beauty_{index}.exr", frame.beauty, f", which --compare {RAW} scores")
         reference_temporal = temporal_relmse(frames, truth)
     label = results.name or str(results)
     label = f"{label} (results)" if label in compare else label

@@ -8,9 +8,12 @@ from core.entry import ArgumentParser, run
 from core.errors import UsageError
 from core.inputs import check_outside
 from core.numbers import ascii_int
+from course import check_data_flag
 from renderer.variants import set_variant
 
 from . import __doc__ as PACKAGE_DOC
+from .cluster import check_scheduler
+from .ground_truth import reference_folder
 from .runners import export_sequences, sequences_for
 from .sequence import DEFAULT_BATCH_SPP
 from .spec import Spec
@@ -37,14 +40,30 @@ def _parser() -> argparse.ArgumentParser:
     return parser
 
 
+def check_not_spec_folders(out: Path, spec_paths: list[Path]) -> None:
+    """No frame or ground-truth folder of the export is a folder holding a spec
+    it reads (``python -m export DIR/x.json DIR`` mixed frames into the specs)."""
+    targets = {"OUT": out} if len(spec_paths) == 1 else {f"OUT/{p.stem}": out / p.stem for p in spec_paths}
+    folders = {path.parent.resolve(): path for path in spec_paths}
+    for label, target in targets.items():
+        for role, folder in ((label, target), (f"{label}'s ground truth", reference_folder(target))):
+            if folder.resolve() in folders:
+                raise UsageError(f"{role} {folder} is the folder of the input SPEC.json "
+                                 f"{folders[folder.resolve()]}; write outputs elsewhere")
+
+
 def _main(argv: list[str] | None) -> int:
     args = _parser().parse_args(argv)
     if len(args.paths) < 2:
         raise UsageError("expected one or more SPEC.json files, then the output folder")
     *spec_paths, out = args.paths
     check_outside({"OUT": out}, {"--data": args.data})
+    check_data_flag(args.data)
     for path in spec_paths:
         check_outside({"OUT": out}, {"SPEC.json": path})
+    check_not_spec_folders(out, spec_paths)
+    if args.scheduler is not None:
+        check_scheduler(args.scheduler)
     if args.workers is not None and not 1 <= args.workers <= 1024:
         raise UsageError(f"--workers: expected 1..1024, found {args.workers}")
     overrides = dict(frames=args.frames, size=tuple(args.size) if args.size else None, spp=args.spp,

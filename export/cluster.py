@@ -16,8 +16,10 @@ cluster start one single-threaded worker per core:
 """
 from __future__ import annotations
 
+import ipaddress
 import logging
 import os
+import re
 import signal
 import sys
 import threading
@@ -50,6 +52,38 @@ def dask_setup(worker) -> None:
     reaches the export alone, which then stops the cluster (in the group every
     worker would print a traceback, and Mitsuba its warning on stdout)."""
     os.setpgid(0, 0)
+
+
+#: ``tcp://HOST:PORT`` or ``HOST:PORT``; an IPv6 host in brackets
+SCHEDULER = re.compile(r"(?:tcp://)?(?P<host>\[[^\]/]*\]|[^:/\[\]]+):(?P<port>\d{1,5})")
+#: a host name: dot-separated labels of letters, digits and hyphens
+HOST_NAME = re.compile(r"(?!-)[A-Za-z0-9-]{1,63}(?<!-)(?:\.(?!-)[A-Za-z0-9-]{1,63}(?<!-))*")
+
+
+def check_scheduler(address: str) -> str:
+    """A Dask scheduler address, ``tcp://HOST:PORT`` or ``HOST:PORT`` with a
+    host name or an IP address and a port 1..65535, checked before Dask
+    parses it (its own errors are tracebacks); one line naming the flag."""
+    usage = "expected tcp://HOST:PORT or HOST:PORT (e.g. tcp://127.0.0.1:8786)"
+    match = SCHEDULER.fullmatch(address)
+    if match is None:
+        raise UsageError(f"--scheduler {address!r}: {usage}")
+    host, port = match["host"], int(match["port"])
+    if host.startswith("["):
+        try:
+            ipaddress.IPv6Address(host[1:-1])
+        except ValueError:
+            raise UsageError(f"--scheduler {address!r}: {host} is not an IPv6 address; {usage}") from None
+    elif not HOST_NAME.fullmatch(host) or len(host) > 253:
+        raise UsageError(f"--scheduler {address!r}: {host!r} is not a host name or an IP address; {usage}")
+    elif re.fullmatch(r"[\d.]+", host):
+        try:
+            ipaddress.IPv4Address(host)
+        except ValueError:
+            raise UsageError(f"--scheduler {address!r}: {host} is not an IPv4 address; {usage}") from None
+    if not 1 <= port <= 65535:
+        raise UsageError(f"--scheduler {address!r}: port {port} is not 1..65535")
+    return address
 
 
 @contextmanager

@@ -39,6 +39,7 @@ from pathlib import Path
 import numpy as np
 
 from core.errors import FrameError
+from core.inputs import NotAnInputFile, read_input
 from imaging.image_io import atomic_path, read_exr, write_exr
 from mi_plugins.camera_basis import course_camera_basis
 
@@ -94,8 +95,15 @@ def same_size(path: Path, shape: tuple, other: Path, other_shape: tuple) -> None
         raise FrameError(f"{path}: {shape[1]}x{shape[0]} pixels, but {other} has {other_shape[1]}x{other_shape[0]}")
 
 
+#: the largest matrix file read: a million objects' matrices
+MAX_MATRIX_BYTES = 4 + (1_000_000 + 2) * 64
+
+
 def read_matrices(path: Path) -> tuple[list[np.ndarray], np.ndarray, np.ndarray]:
-    data = path.read_bytes()
+    try:
+        data = read_input(path, MAX_MATRIX_BYTES)  # a regular file: a pipe would block the read
+    except NotAnInputFile as error:
+        raise FrameError(f"{path}: {error}") from None
     if len(data) < 4:
         raise FrameError(f"{path}: expected an int32 object count, found {len(data)} bytes")
     count = int(np.frombuffer(data[:4], "<i4")[0])
@@ -160,7 +168,7 @@ def _read_exr(path: Path) -> dict:
     try:
         with _quiet_stderr():
             channels = read_exr(path)
-    except FileNotFoundError:
+    except (FileNotFoundError, FrameError):
         raise
     except Exception as error:  # OpenEXR reports damage as RuntimeError/OSError without the name
         reason = " ".join(str(error).split()) or type(error).__name__
@@ -196,20 +204,25 @@ def read_frame(folder: Path, index: int) -> FrameData:
                              f"{expected[1]}x{expected[0]}")
     matrix_path = folder / f"matrix_{index}.mat"
     objects, camera, screen = read_matrices(matrix_path)
-    raw_ids = single["ID"]
-    finite = np.isfinite(raw_ids)
-    ids = np.rint(np.where(finite, raw_ids, -1)).astype(np.int64)
-    if not finite.all():
-        raise FrameError(f"{paths['ID']}: NaN or inf object ids")
-    if np.any(np.abs(raw_ids - ids) > 1e-3):
-        raise FrameError(f"{paths['ID']}: object ids must be whole numbers, "
-                         f"found {raw_ids[np.abs(raw_ids - ids) > 1e-3][0]:g}")
-    if ids.size and (ids.min() < -1 or ids.max() >= len(objects)):
-        bad = int(ids.max()) if ids.max() >= len(objects) else int(ids.min())
-        raise FrameError(f"{paths['ID']}: object id {bad}, but {matrix_path.name} has matrices for "
-                         f"{len(objects)} objects (ids -1 to {len(objects) - 1})")
+    ids = check_ids(single["ID"], paths["ID"], matrix_path, len(objects))
     return FrameData(rgb["beauty"], rgb["normal"], rgb["position"], single["depth"],
-                     ids.astype(np.int32), objects, camera, screen, albedo)
+                     ids, objects, camera, screen, albedo)
+
+
+def check_ids(raw_ids: np.ndarray, path: Path, matrix_path: Path, objects: int) -> np.ndarray:
+    """The ID buffer as int32, checked in floating point before the cast (a
+    cast of 1e30 is undefined and warns): finite whole numbers -1..objects-1."""
+    if not np.isfinite(raw_ids).all():
+        raise FrameError(f"{path}: NaN or inf object ids")
+    rounded = np.rint(raw_ids.astype(np.float64))
+    fractional = np.abs(raw_ids - rounded) > 1e-3
+    if fractional.any():
+        raise FrameError(f"{path}: object ids must be whole numbers, found {raw_ids[fractional][0]:g}")
+    if rounded.size and (rounded.min() < -1 or rounded.max() >= objects):
+        bad = rounded.max() if rounded.max() >= objects else rounded.min()
+        raise FrameError(f"{path}: object id {bad:.15g}, but {matrix_path.name} has matrices for "
+                         f"{objects} objects (ids -1 to {objects - 1})")
+    return rounded.astype(np.int32)
 
 
 def write_frame(folder: Path, index: int, frame: FrameData) -> None:

@@ -6,11 +6,15 @@
 pixel). A folder given as the truth is refused when it is a frame folder (an
 export's, by its record, or any in the course's layout, by its G-buffers),
 or when its record says it has no more samples per pixel than the frames it
-would judge: every figure against it would be a figure against noise.
+would judge: every figure against it would be a figure against noise; and
+when its record names another sequence than the frame folder's
+``sequence.json`` (another spec, size or frame count: its key differs).
 Folders without records (a truth rendered elsewhere) are taken as they are.
 """
 from __future__ import annotations
 
+import hashlib
+import json
 from pathlib import Path
 
 from core.errors import UsageError
@@ -24,10 +28,30 @@ GROUND_TRUTH_RECORD = "ground_truth.json"
 RECORD_LIMIT = 1 << 20
 
 
+#: the settings of ``sequence.json`` that decide no pixel: left out of the sequence's key
+NOT_IN_KEY = ("versions", "seeds", "scene_file", "scene_sha256", "spp_per_render")
+
+
+def settings_key(settings: dict) -> str:
+    """The key of a sequence with these settings (``sequence.json``): the root of
+    its seeds, and what its ground truth's record names as the frames it judges."""
+    kept = {name: value for name, value in settings.items() if name not in NOT_IN_KEY}
+    return hashlib.sha256(json.dumps(kept, sort_keys=True).encode()).hexdigest()
+
+
 def reference_folder(target: Path) -> Path:
     """Where the export writes the ground truth of the frame folder ``target``."""
     target = Path(target)
     return target.parent / f"{target.name}_reference"
+
+
+def check_not_an_export_folder(flag: str, output: Path) -> None:
+    """Refuses an output folder that holds an export's frames or ground truth (by
+    their records): results written there would be read back as its input."""
+    for record, what in ((SEQUENCE_RECORD, "frames"), (GROUND_TRUTH_RECORD, "ground truth")):
+        if (Path(output) / record).exists():
+            raise UsageError(f"{flag} {output} holds an export's {what} ({record}), an input; "
+                             f"write outputs elsewhere")
 
 
 def read_record(path: Path) -> dict | None:
@@ -43,8 +67,34 @@ def whole_number(value) -> int | None:
     return value if isinstance(value, int) and not isinstance(value, bool) else None
 
 
-def check_ground_truth(flag: str, reference: Path, frames_folder: Path | None = None) -> None:
-    """Refuses, in one line, a ``reference`` that is not a ground truth for ``frames_folder``'s frames."""
+def described(record: dict) -> str:
+    """A record's sequence in words: its frame count and size where it has them."""
+    spec = record.get("spec") if isinstance(record.get("spec"), dict) else record
+    frames, size = whole_number(spec.get("frames")), record.get("size")
+    words = [f"{frames} frames"] if frames is not None else []
+    if isinstance(size, list) and len(size) == 2:
+        words.append(f"{size[0]}x{size[1]}")
+    return ", ".join(words) or "other settings"
+
+
+def check_same_sequence(flag: str, reference: Path, record: dict, frames_flag: str, frames_folder: Path,
+                        frames: dict) -> None:
+    """Refuses a ground truth whose record names another sequence than the frame folder's record."""
+    truth_key = record.get("key")
+    if not isinstance(truth_key, str) or frames.get("format") != record.get("format"):
+        return  # records of another export format: no evidence either way
+    if settings_key(frames) != truth_key:
+        named = record.get("frames_folder")
+        of = f"the frames {named}" if isinstance(named, str) else "another sequence"
+        raise UsageError(f"{flag} {reference} is the ground truth of {of} ({described(record)}), not of "
+                         f"{frames_flag} {frames_folder} ({described(frames)}): their records "
+                         f"({GROUND_TRUTH_RECORD}, {SEQUENCE_RECORD}) name other sequences")
+
+
+def check_ground_truth(flag: str, reference: Path, frames_folder: Path | None = None,
+                       frames_flag: str = "--frames") -> None:
+    """Refuses, in one line, a ``reference`` that is not a ground truth for
+    ``frames_folder``'s frames (``frames_flag`` names that folder in the message)."""
     if (reference / SEQUENCE_RECORD).is_file():
         truth = reference_folder(reference)
         hint = f"; its ground truth is {truth}" if truth.is_dir() else ""
@@ -63,3 +113,5 @@ def check_ground_truth(flag: str, reference: Path, frames_folder: Path | None = 
     if truth_spp is not None and frames_spp is not None and truth_spp <= frames_spp:
         raise UsageError(f"{flag} {reference}: a ground truth of {truth_spp} samples per pixel cannot judge "
                          f"{judged}, rendered at {frames_spp}")
+    if frames is not None:
+        check_same_sequence(flag, reference, record, frames_flag, frames_folder, frames)

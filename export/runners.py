@@ -8,7 +8,7 @@ from pathlib import Path
 
 import mitsuba as mi
 
-from core.errors import SpecError, UsageError
+from core.errors import SceneError, SpecError, UsageError
 from course import data_dir, resolve_scene
 
 from .cluster import cluster_description, dask_client, run_futures
@@ -55,7 +55,11 @@ def sequences_for(specs: list[tuple[str, Spec]], out: Path, data: Path | None = 
             path = resolve_scene(spec.scene, data_dir(data)).resolve()
         except UsageError as error:
             raise SpecError(f"{where}: scene: {error}") from None
-        spec.check_scene(course_scene(str(path)), where)
+        try:
+            scene = course_scene(str(path))
+        except SceneError as error:  # the scene file's own line, named as the spec's scene
+            raise SpecError(f"{where}: scene: {error}") from None
+        spec.check_scene(scene, where)
         target = out if len(specs) == 1 else out / name
         result.append(Sequence(name, spec, str(path), str(target), batch_spp, whitted, variant or mi.variant()))
     check_distinct_folders(result)

@@ -9,11 +9,10 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
-import json
 from importlib.metadata import version
 from pathlib import Path
 
-from .ground_truth import reference_folder
+from .ground_truth import reference_folder, settings_key
 from .spec import Spec
 
 #: bump when the way frames are rendered changes (seeds, batching, passes)
@@ -63,15 +62,10 @@ class Sequence:
     @property
     def key(self) -> str:
         """A hash of the sequence's settings: the root of its seeds."""
-        settings = self.settings()
-        settings.pop("versions")
-        settings.pop("seeds")
-        settings.pop("scene_file")  # the same scene moved elsewhere renders the same noise
-        settings.pop("scene_sha256")
-        # below the limit a pass is one render, as without it; above, other seeds (recorded
-        # after the first folders were made: not part of their seeds)
-        settings.pop("spp_per_render")
-        return hashlib.sha256(json.dumps(settings, sort_keys=True).encode()).hexdigest()
+        # without the versions, the seeds' description, the scene's path (the same scene moved
+        # elsewhere renders the same noise) and its hash, and the samples per render (below the
+        # limit a pass is one render, as without it; recorded after the first folders were made)
+        return settings_key(self.settings())
 
     def batches(self) -> list[tuple[str, int]]:
         """(half, spp) of each reference batch: half "a" first, then "b"; each half

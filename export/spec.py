@@ -91,6 +91,30 @@ def _check_rotation(value, name: str, source: str) -> None:
                         f"{MIN_AXIS_LENGTH:g} to {MAX_AXIS_LENGTH:g}")
     _number(rotate["degrees"], f"{name}.degrees", source)
 
+#: a scene by name (``box``, ``scene06``); anything else is a ``.txt`` scene file
+SCENE_NAME = r"\w[\w.-]*"
+#: the flags of ``python -m export`` that replace a spec's key: key -> (flag, low, high)
+OVERRIDES = {"frames": ("--frames", 1, MAX_FRAMES), "spp": ("--spp", 1, MAX_SPP),
+             "reference_spp": ("--reference-spp", 2, MAX_SPP), "size": ("--size", 1, MAX_SIDE)}
+
+
+def check_override(key: str, value) -> None:
+    """A flag's value for the spec's ``key``, checked and named as the flag (``--reference-spp: ...``)."""
+    if key not in OVERRIDES:
+        raise SpecError(f"{key}: not a key a flag replaces (known: {', '.join(OVERRIDES)})")
+    flag, low, high = OVERRIDES[key]
+    if key == "size":
+        if not isinstance(value, (list, tuple)) or len(value) != 2:
+            raise SpecError(f"{flag}: expected W H, found {value!r}")
+        for name, side in zip(("W", "H"), value):
+            _int(side, f"{flag} {name}", "", low, high)
+        return
+    _int(value, flag, "", low, high)
+    if key == "reference_spp" and value % 2:
+        raise SpecError(f"{flag}: expected an even number (two equal halves estimate the reference's noise), "
+                        f"found {value}")
+
+
 @dataclasses.dataclass(frozen=True)
 class Spec:
     scene: str
@@ -118,8 +142,11 @@ class Spec:
             raise SpecError(str(error)) from None
         if not isinstance(data, dict):
             raise SpecError(f"{path}: expected a JSON object, found {type(data).__name__}")
-        data.update({k: v for k, v in overrides.items() if v is not None})
-        spec = Spec.from_dict(data, str(path))
+        Spec.from_dict(data, str(path))  # the spec as written: a flag does not hide a damaged key
+        given = {k: v for k, v in overrides.items() if v is not None}
+        for key, value in given.items():
+            check_override(key, value)
+        spec = Spec.from_dict({**data, **given}, str(path))
         object.__setattr__(spec, "source", str(path))  # frozen; not a field
         return spec
 
@@ -145,8 +172,9 @@ class Spec:
 
     def check(self, source: str = "spec") -> None:
         """Raises :class:`SpecError` for anything out of range, before any work."""
-        if not isinstance(self.scene, str) or not self.scene:
-            raise SpecError(f"{_key_in(source, 'scene')}: expected a scene name or path, found {self.scene!r}")
+        if not isinstance(self.scene, str) or not (self.scene.endswith(".txt") or re.fullmatch(SCENE_NAME, self.scene)):
+            raise SpecError(f"{_key_in(source, 'scene')}: expected a scene name (box, scene06) or a .txt scene "
+                            f"file, found {self.scene!r}")
         _int(self.frames, "frames", source, 1, MAX_FRAMES)
         if not isinstance(self.size, (list, tuple)) or len(self.size) != 2:
             raise SpecError(f"{_key_in(source, 'size')}: expected [width, height], found {self.size!r}")

@@ -166,7 +166,8 @@ def claim_folder(sequence: Sequence, force: bool = False) -> None:
 def ground_truth_record(sequence: Sequence) -> dict:
     """What the reference folder holds: the ground truth of which frames, at how many samples per pixel."""
     return {"format": EXPORT_FORMAT, "holds": "ground truth", "frames_folder": Path(sequence.target).name,
-            "key": sequence.key, "spp": sequence.spec.reference_spp, "frames_spp": sequence.spec.spp}
+            "key": sequence.key, "spp": sequence.spec.reference_spp, "frames_spp": sequence.spec.spp,
+            "frames": sequence.spec.frames, "size": list(sequence.spec.size)}
 
 
 def recover(sequence: Sequence) -> None:

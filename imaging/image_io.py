@@ -12,6 +12,7 @@ from __future__ import annotations
 import errno
 import functools
 import os
+import stat
 import struct
 import subprocess
 import warnings
@@ -24,7 +25,7 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
-from core.errors import NO_ROOM, OutputError, SceneError, write_failure  # noqa: F401 (NO_ROOM re-exported)
+from core.errors import NO_ROOM, FrameError, OutputError, SceneError, write_failure  # noqa: F401 (NO_ROOM re-exported)
 
 #: Longest file name (bytes) where the folder's file system does not say
 DEFAULT_NAME_MAX = 255
@@ -304,9 +305,18 @@ def exr_complete(path: Path, lines_per_chunk: int) -> bool:
 
 
 def read_exr(path: str | Path) -> dict[str, np.ndarray]:
-    """Reads every channel of an EXR as float32 (H, W) arrays, keyed by channel name."""
+    """Reads every channel of an EXR as float32 (H, W) arrays, keyed by channel name.
+    A pipe, device or socket is a :class:`FrameError` before any read (a pipe
+    that no one writes would block the reader forever)."""
     import OpenEXR  # noqa: PLC0415  OpenEXR loads on use: --help and the paths without it stay quick
 
+    try:
+        mode = os.stat(path).st_mode
+    except OSError:
+        mode = None  # missing or unreadable: OpenEXR's own error, as before
+    if mode is not None and not stat.S_ISREG(mode) and not stat.S_ISDIR(mode):
+        kind = "a pipe" if stat.S_ISFIFO(mode) else "a socket" if stat.S_ISSOCK(mode) else "a device"
+        raise FrameError(f"{path}: {kind}, not a regular file")
     with OpenEXR.File(str(path), separate_channels=True) as exr:
         return {name: np.asarray(channel.pixels, np.float32) for name, channel in exr.channels().items()}
 

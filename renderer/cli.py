@@ -26,7 +26,7 @@ from core.entry import ArgumentParser, one_line, run
 from core.errors import ToolkitError, UsageError, describe
 from core.inputs import NotAnInputFile, read_input
 from core.numbers import ascii_int
-from course import ENVIRONMENT as COURSE_ENVIRONMENT, data_dir, resolve_scene
+from course import ENVIRONMENT as COURSE_ENVIRONMENT, check_data_flag, data_dir, resolve_scene
 
 from . import checks
 from .job import render, with_outputs_in, write_outputs
@@ -145,6 +145,7 @@ def jobs_from_args(args: argparse.Namespace) -> list:
     """The render jobs one command line asks for (checked: numbers here, limits
     and outputs in :func:`checked_jobs`)."""
     checks.check_numbers(args.size[0], args.size[1], args.bounces, args.spp)
+    check_data_flag(args.data)  # given, it exists: also where no scene is looked up in it
     base = dict(width=args.size[0], height=args.size[1], bounces=args.bounces, shadows=args.shadows,
                 jitter=args.jitter, filter=args.filter, spp=args.spp, stats=args.stats)
     single_outputs = dict(output=Path(args.output) if args.output else None,

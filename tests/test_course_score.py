@@ -167,3 +167,15 @@ def test_a_report_that_is_not_markdown_is_refused_before_anything_is_written(cou
     assert status == 2
     assert err.count("\n") == 1 and "--report writes Markdown: name it .md" in err
     assert (folder / "a01.png").read_bytes() == before and not (folder / "a01").exists()
+
+
+@pytest.mark.parametrize("where", ["r.md", "sub/r.md", "sub/deeper/r.md"])
+def test_a_report_never_goes_into_the_reference(course, tmp_path, capsys, where):
+    """The report and its images folder, at any depth of --reference: one line, nothing written."""
+    names = ["a01.png", "a01n.png"]
+    reference = copy_of(course / "sample_out", tmp_path / "ref", names)
+    mine = copy_of(course / "sample_out", tmp_path / "mine", names)
+    before = sorted(reference.rglob("*"))
+    status, _, err = score(capsys, mine, "--reference", reference, "--report", reference / where)
+    assert status == 2 and err.count("\n") == 1 and "is inside the input folder --reference" in err, err
+    assert sorted(reference.rglob("*")) == before

@@ -2,6 +2,7 @@
 limits and one error shape; frame numbers far apart; every PNG mode read as its pixels."""
 from __future__ import annotations
 
+import json
 import re
 import struct
 import subprocess
@@ -230,3 +231,255 @@ def test_export_and_fit_never_write_onto_their_inputs(tmp_path, capsys, command)
         err = capsys.readouterr().err
         assert status == 2 and err.count("\n") == 1 and f"{words[name]} " in err and "the input" in err, (name, err)
     assert spec.read_text() == '{"scene": "lamps", "frames": 2}' and list(data.iterdir()) == []
+
+
+# A frame folder and a ground truth given together belong to one sequence (by the export's records)
+def _another_sequence(exported: Path, where: Path) -> Path:
+    """A copy of ``exported`` whose sequence.json records other settings (as SEQ2's would)."""
+    import shutil
+
+    shutil.copytree(exported, where)
+    record = json.loads((where / "sequence.json").read_text())
+    record["spec"]["seed"] += 1
+    (where / "sequence.json").write_text(json.dumps(record))
+    return where
+
+
+@pytest.mark.parametrize("command", ["score --frames", "denoise --reference", "fit --evaluate"])
+def test_a_ground_truth_of_another_sequence_is_refused(exported, tmp_path, capsys, command):
+    import shutil
+
+    from denoise.__main__ import main as denoise_main
+    from denoise.fit import main as fit_main
+    from denoise.score import main as score_main
+    from export.ground_truth import reference_folder
+
+    truth = reference_folder(exported)
+    other = _another_sequence(exported, tmp_path / "other")
+    results = tmp_path / "results"
+    results.mkdir()
+    for i in (0, 1):
+        shutil.copy(exported / f"beauty_{i}.exr", results / f"result_{i}.exr")
+    assert score_main([str(results), "--reference", str(truth), "--frames", str(exported)]) == 0
+    capsys.readouterr()
+    if command == "score --frames":
+        status = score_main([str(results), "--reference", str(truth), "--frames", str(other)])
+        flag = "--frames"
+    elif command == "denoise --reference":
+        status = denoise_main([str(other), str(tmp_path / "out"), "--method", "svgf", "--video",
+                               str(tmp_path / "v.mp4"), "--reference", str(truth)])
+        flag = "IN_DIR"
+    else:
+        shutil.copytree(truth, reference_folder(other))
+        status = fit_main(["--evaluate", str(other), "--switch-frame", "1"])
+        flag = "--evaluate"
+    out, err = capsys.readouterr()
+    assert status == 2 and err.count("\n") == 1, (out, err)
+    assert "is the ground truth of the frames glossy_shadow" in err and f"not of {flag} {other}" in err, err
+    assert not (tmp_path / "out").exists() and not (tmp_path / "v.mp4").exists()
+
+
+BAD_SCHEDULERS = ["bogus", "127.0.0.1", "tcp://", "tcp://[::1", "inproc://x", "ucx://127.0.0.1:1", "",
+                  "tcp://127.0.0.1:0", "localhost:65536", "999.1.1.1:8786", "tcp://[::g]:8786", "-a:1"]
+
+
+@pytest.mark.parametrize("address", BAD_SCHEDULERS)
+def test_a_bad_scheduler_address_is_one_line(tmp_path, capsys, address):
+    from export.cli import main
+
+    spec = tmp_path / "seq.json"
+    spec.write_text('{"scene": "box", "frames": 1, "size": [4, 4], "reference_spp": 2}')
+    status = main([str(spec), str(tmp_path / "out"), "--scheduler", address])
+    err = capsys.readouterr().err
+    assert status == 2 and err.count("\n") == 1 and "--scheduler" in err and "Traceback" not in err, err
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("address", ["tcp://127.0.0.1:8786", "localhost:8786", "tcp://[::1]:8786",
+                                     "scheduler.lab.example:1"])
+def test_a_good_scheduler_address_passes(address):
+    from export.cluster import check_scheduler
+
+    assert check_scheduler(address) == address
+
+
+def test_a_pipe_as_a_frame_file_is_one_line(exported, tmp_path):
+    """A FIFO named beauty_1.exr: refused before any read (reading it blocked forever)."""
+    import os
+    import shutil
+
+    copy = tmp_path / "fifo"
+    shutil.copytree(exported, copy)
+    (copy / "beauty_1.exr").unlink()
+    os.mkfifo(copy / "beauty_1.exr")
+    matrices = tmp_path / "fifo_matrix"
+    shutil.copytree(exported, matrices)
+    (matrices / "matrix_1.mat").unlink()
+    os.mkfifo(matrices / "matrix_1.mat")
+    results = tmp_path / "results"
+    results.mkdir()
+    shutil.copy(exported / "beauty_0.exr", results / "result_0.exr")
+    os.mkfifo(results / "result_1.exr")
+    commands = {"denoise": ["-m", "denoise", str(copy), str(tmp_path / "out"), "--method", "svgf"],
+                "score": ["-m", "denoise.score", str(results), "--reference", f"{exported}_reference"],
+                "matrix": ["-m", "denoise", str(matrices), str(tmp_path / "out2"), "--method", "svgf"]}
+    for name, argv in commands.items():
+        done = subprocess.run([sys.executable, *argv], cwd=ROOT, capture_output=True, text=True, timeout=120)
+        bad = {"denoise": copy / "beauty_1.exr", "score": results / "result_1.exr",
+               "matrix": matrices / "matrix_1.mat"}[name]
+        assert done.returncode == 2 and done.stderr.count("\n") == 1, (name, done.stderr)
+        assert f"{bad}: a pipe, not a regular file" in done.stderr, (name, done.stderr)
+
+
+@pytest.mark.parametrize("value", [1e30, -1e30, 3e9, 7.0])
+def test_an_id_out_of_range_is_one_line_without_a_warning(tmp_path, value):
+    import warnings
+
+    from export.frames import FrameData, read_frame, write_frame
+    from imaging.image_io import write_exr
+
+    rgb = np.ones((2, 3, 3), np.float32)
+    write_frame(tmp_path, 0, FrameData(rgb, rgb, rgb, np.ones((2, 3), np.float32), np.zeros((2, 3), np.int32),
+                                       [np.eye(4)], np.eye(4), np.eye(4)))
+    ids = np.zeros((2, 3), np.float32)
+    ids[1, 2] = value
+    write_exr(tmp_path / "ID_0.exr", {"": ids})
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(FrameError) as error:
+            read_frame(tmp_path, 0)
+    assert str(error.value).startswith(f"{tmp_path / 'ID_0.exr'}: object id ") and "\n" not in str(error.value)
+    assert f"object id {np.float32(value):.15g}," in str(error.value)
+
+
+# No output into an input: a spec's folder, the frames a fit trains on, a sequence's ground truth
+@pytest.mark.parametrize("case", ["export OUT is the spec's folder", "export OUT's truth is the spec's folder",
+                                  "fit --out in its frames", "fit --out in its truth",
+                                  "denoise OUT is IN_DIR's truth", "denoise OUT holds an export's truth",
+                                  "denoise OUT holds an export's frames"])
+def test_no_output_goes_into_an_input(tmp_path, capsys, case):
+    from denoise.__main__ import main as denoise
+    from denoise.fit import main as fit
+    from export.cli import main as export
+
+    folder = tmp_path / "specs_reference" if "truth is" in case else tmp_path / "specs"
+    folder.mkdir()
+    spec = folder / "seq.json"
+    spec.write_text('{"scene": "box", "frames": 2, "size": [4, 4], "reference_spp": 2}')
+    seq, truth = tmp_path / "seq", tmp_path / "seq_reference"
+    seq.mkdir()
+    target = truth if "IN_DIR's truth" in case else tmp_path / "other"
+    if case.startswith("denoise"):
+        target.mkdir()
+        if "holds" in case:
+            (target / ("ground_truth.json" if "truth" in case else "sequence.json")).write_text("{}")
+    before = sorted(tmp_path.rglob("*"))
+    if case.startswith("export"):
+        status = export([str(spec), str(tmp_path / "specs"), "--local"])
+    elif case.startswith("fit"):
+        inside = "seq" if "frames" in case else "seq_reference"
+        status = fit([str(spec), "--steps", "1", "--work", str(tmp_path), "--out", str(tmp_path / inside / "p.json")])
+    else:
+        status = denoise([str(seq), str(target), "--method", "svgf"])
+    err = capsys.readouterr().err
+    assert status == 2 and err.count("\n") == 1 and "write outputs elsewhere" in err, err
+    assert sorted(tmp_path.rglob("*")) == before
+
+
+#: a damaged key, and the flag that replaces it: the spec as written is refused
+HIDDEN = {"frames a string": ('"frames": "8"', dict(frames=2), "frames"),
+          "frames -1": ('"frames": -1', dict(frames=2), "frames"),
+          "frames 0": ('"frames": 0', dict(frames=2), "frames"),
+          "frames true": ('"frames": true', dict(frames=2), "frames"),
+          "frames 1e30": ('"frames": 1e30', dict(frames=2), "frames"),
+          "size negative": ('"size": [-32, 18]', dict(size=(8, 6)), "size[0]"),
+          "size of three": ('"size": [32, 18, 1]', dict(size=(8, 6)), "size"),
+          "size 1e9": ('"size": [1000000000, 1000000000]', dict(size=(8, 6)), "size[0]"),
+          "reference_spp 2**62": (f'"reference_spp": {2 ** 62}', dict(reference_spp=2), "reference_spp")}
+
+
+@pytest.mark.parametrize("name", HIDDEN)
+def test_a_flag_does_not_hide_a_damaged_key(tmp_path, name):
+    text, flags, key = HIDDEN[name]
+    path = tmp_path / "spec.json"
+    path.write_text('{"scene": "box", ' + text + "}")
+    with pytest.raises(SpecError) as error:
+        Spec.load(path, **flags)
+    assert str(error.value).startswith(f"{path}: {key}") and "\n" not in str(error.value), error.value
+
+
+@pytest.mark.parametrize("flags, words", [(dict(reference_spp=1), "--reference-spp: expected 2..1048576, found 1"),
+                                          (dict(reference_spp=3), "--reference-spp: expected an even number"),
+                                          (dict(frames=0), "--frames: expected 1..100000, found 0"),
+                                          (dict(size=(0, 6)), "--size W: expected 1..16384, found 0"),
+                                          (dict(spp=0), "--spp: expected 1..1048576, found 0")])
+def test_a_bad_flag_is_named_as_the_flag(tmp_path, flags, words):
+    path = tmp_path / "spec.json"
+    path.write_text('{"scene": "box"}')
+    with pytest.raises(SpecError) as error:
+        Spec.load(path, **flags)
+    assert str(error.value).startswith(words) and "\n" not in str(error.value)
+
+
+@pytest.mark.parametrize("scene", ["../../../../etc/passwd", "/etc/passwd", "a/b", "..", ""])
+def test_a_spec_scene_is_a_name_or_a_txt_file(tmp_path, capsys, scene):
+    from export.cli import main
+
+    path = tmp_path / "spec.json"
+    path.write_text(json.dumps({"scene": scene}))
+    status = main([str(path), str(tmp_path / "out"), "--local"])
+    err = capsys.readouterr().err
+    assert status == 2 and err.count("\n") == 1, err
+    assert f"{path}: scene: expected a scene name (box, scene06) or a .txt scene file" in err, err
+    assert "root:" not in err and not (tmp_path / "out").exists()
+
+
+def test_noisy_raw_input_is_refused_by_compare_raw(exported, tmp_path, capsys):
+    """--compare raw on frames with NaN beauty: one line, as NaN results are, no NumPy warning."""
+    import shutil
+
+    from denoise.score import main
+    from export.ground_truth import reference_folder
+    from imaging.image_io import read_exr_rgb, write_exr
+
+    frames, results = tmp_path / "nan_frames", tmp_path / "results"
+    shutil.copytree(exported, frames)
+    beauty = read_exr_rgb(frames / "beauty_1.exr")
+    beauty[0, 0] = np.nan
+    beauty[1, 1] = np.inf
+    write_exr(frames / "beauty_1.exr", {"": beauty})
+    results.mkdir()
+    for i in (0, 1):
+        shutil.copy(exported / f"beauty_{i}.exr", results / f"result_{i}.exr")
+    status = main([str(results), "--reference", str(reference_folder(exported)), "--frames", str(frames),
+                   "--compare", "raw"])
+    out, err = capsys.readouterr()
+    assert status == 2 and err.count("\n") == 1 and "Warning" not in err, err
+    assert f"{frames / 'beauty_1.exr'}: 1 pixels NaN and 1 infinite of 576, which --compare raw scores" in err, err
+
+
+def test_a_missing_data_folder_is_one_line(tmp_path, capsys):
+    import socket
+
+    from denoise.live.app import main as live
+    from export.cli import main as export
+
+    spec = tmp_path / "seq.json"
+    spec.write_text('{"scene": "box", "frames": 1, "size": [4, 4], "reference_spp": 2}')
+    (tmp_path / "file").write_text("")
+    for data in (tmp_path / "missing", tmp_path / "file"):
+        status = export([str(spec), str(tmp_path / "out"), "--local", "--data", str(data)])
+        err = capsys.readouterr().err
+        assert status == 2 and err.count("\n") == 1 and f"--data {data}: " in err, err
+        assert not (tmp_path / "out").exists()
+        with socket.socket() as busy:  # were --data passed over, the port would be the error
+            busy.bind(("127.0.0.1", 0))
+            busy.listen()
+            status = live(["box", "--port", str(busy.getsockname()[1]), "--data", str(data)])
+        err = capsys.readouterr().err
+        assert status == 2 and err.count("\n") == 1 and f"--data {data}: " in err, err
+        done = subprocess.run([sys.executable, "render.py", "lamps", "-size", "4", "4", "--out", str(tmp_path / "r"),
+                               "--data", str(data)], cwd=ROOT, capture_output=True, text=True, timeout=120)
+        lines = [line for line in done.stderr.splitlines() if "using scalar_rgb instead" not in line]
+        assert done.returncode == 2 and len(lines) == 1 and f"--data {data}: " in lines[0], done.stderr
+        assert not (tmp_path / "r").exists()

@@ -13,7 +13,7 @@ import mi_plugins
 from core.entry import ArgumentParser, run
 from core.errors import UsageError
 from core.numbers import ascii_int
-from course import data_dir, resolve_scene
+from course import check_data_flag, data_dir, resolve_scene
 from denoise.methods.user import add_method_file_option, load_method_files
 from renderer.variants import set_variant
 
@@ -72,6 +72,7 @@ def _main(argv: list[str] | None) -> int:
                          f"login, so it serves this machine only), found {args.host!r}")
     if not 0 <= args.port <= 65535:
         raise UsageError(f"--port: expected 0..65535, found {args.port}")
+    check_data_flag(args.data)
 
     from .server import check_port  # noqa: PLC0415  aiohttp loads on use: --help and the paths without it stay quick
 

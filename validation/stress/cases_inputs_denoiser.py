@@ -88,8 +88,55 @@ def png_modes(folder: Path) -> list[str]:
     return problems
 
 
+def flags_addresses_and_records(folder: Path) -> list[str]:
+    """A flag over a damaged key, a flag out of range, a scene path out of a spec,
+    scheduler addresses, a missing --data, outputs into a spec's folder or a truth,
+    ids beyond any integer: one line each, before any work."""
+    import warnings  # noqa: PLC0415  only this case turns warnings into errors
+
+    from core.errors import FrameError  # noqa: PLC0415  as above
+    from denoise.__main__ import main as denoise  # noqa: PLC0415  as above
+    from export.cli import main as export  # noqa: PLC0415  as above
+    from export.frames import FrameData, read_frame, write_frame  # noqa: PLC0415  as above
+    from imaging.image_io import write_exr  # noqa: PLC0415  as above
+
+    good, bad = folder / "good.json", folder / "bad.json"
+    good.write_text('{"scene": "lamps", "frames": 2, "size": [8, 6], "reference_spp": 2}')
+    bad.write_text('{"scene": "lamps", "frames": "8"}')
+    (folder / "passwd.json").write_text('{"scene": "../../../../etc/passwd"}')
+    out = [folder / "out", "--local"]
+    cases = {"--frames over a damaged frames": ([bad, *out, "--frames", "2"], "bad.json: frames: expected an integer"),
+             "--reference-spp 1": ([good, *out, "--reference-spp", "1"], "--reference-spp: expected 2..")}
+    cases["a scene path out of the spec"] = ([folder / "passwd.json", *out], "passwd.json: scene: expected a scene")
+    cases["--data missing"] = ([good, *out, "--data", folder / "missing"], "does not exist")
+    cases["OUT is the spec's folder"] = ([good, folder, "--local"], "is the folder of the input SPEC.json")
+    for address in ("bogus", "127.0.0.1", "tcp://", "tcp://[::1", "inproc://x", "ucx://127.0.0.1:1"):
+        cases[f"--scheduler {address}"] = ([good, folder / "out", "--scheduler", address], "--scheduler")
+    frames = folder / "seq"
+    rgb = np.ones((2, 3, 3), np.float32)
+    write_frame(frames, 0, FrameData(rgb, rgb, rgb, rgb[..., 0], np.zeros((2, 3), np.int32), [np.eye(4)],
+                                     np.eye(4), np.eye(4)))
+    problems = refusals("python -m export", export, cases) + refusals("python -m denoise", denoise, {
+        "results into IN_DIR's ground truth": ([frames, folder / "seq_reference", "--method", "svgf"],
+                                               "is the input IN_DIR's ground truth")})
+    write_exr(frames / "ID_0.exr", {"": np.full((2, 3), 1e30, np.float32)})
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            read_frame(frames, 0)
+        problems.append("an id of 1e30 was read")
+    except FrameError as error:
+        if "ID_0.exr: object id 1.0000000150" not in str(error):
+            problems.append(f"an id of 1e30: {error}")
+    except RuntimeWarning as warning:
+        problems.append(f"an id of 1e30 warned: {warning}")
+    return problems
+
+
 def denoiser_input_cases() -> list[SystemCase]:
     return [SystemCase("every JSON input: damaged specs are one line", damaged_json, fast=True, kind="inputs"),
             SystemCase("sizes, frame gaps, outputs into inputs: one line", sizes_gaps_and_outputs, fast=True,
                        kind="inputs"),
-            SystemCase("every PNG mode reads as its pixels", png_modes, fast=True, kind="inputs")]
+            SystemCase("every PNG mode reads as its pixels", png_modes, fast=True, kind="inputs"),
+            SystemCase("flags over damaged keys, scheduler addresses, --data, outputs into inputs, ids: one line",
+                       flags_addresses_and_records, fast=True, kind="inputs")]
