@@ -101,7 +101,7 @@ def write_front(results: dict, path: Path) -> Path:
     columns = min(len(panels), 4)
     rows = math.ceil(len(panels) / columns)
     figure, axes = plt.subplots(rows, columns, figsize=(4.2 * columns, 3.6 * rows), squeeze=False)
-    markers = "osD^v<>pPhX*"
+    markers = "osD^v<>pPhX*d8H1234"
     methods = list(dict.fromkeys(m for points in panels.values() for m in points))
     for axis, (name, points) in zip(axes.flat, panels.items()):
         for k, method in enumerate(methods):
