@@ -171,9 +171,11 @@ class ArgumentParser(argparse.ArgumentParser):
 
 
 def one_line(error: BaseException) -> str:
-    """``str(error)`` on one line (messages never span lines)."""
-    text = str(error) or type(error).__name__
-    return " ".join(text.split())
+    """``str(error)`` on one line (messages never span lines), with any other
+    control character (a NUL from a format spec, an escape sequence in a file
+    name) shown escaped, not sent to the terminal."""
+    text = " ".join((str(error) or type(error).__name__).split())
+    return "".join(c if c.isprintable() else c.encode("unicode_escape").decode("ascii") for c in text)
 
 
 def run(prog: str, body: Callable[[], int | None], interrupted: str = INTERRUPTED) -> int:

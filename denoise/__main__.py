@@ -30,6 +30,8 @@ from .methods.user import add_method_file_option, load_method_files
 from .pipeline import denoise_folder
 
 PROG = "python -m denoise"
+#: the video's frames per second where --fps is not given
+VIDEO_FPS = 4
 EXAMPLES = """examples:
   python -m denoise out/seq/lamps out/seq/lamps_denoised --method svgf --png
   python -m denoise out/seq/lamps out/den --method atrous+temporal --video out/den.mp4 \
@@ -143,7 +145,8 @@ def _parser() -> tuple[argparse.ArgumentParser, set[str]]:
                        help="input | output (| reference) per frame, tone-mapped sRGB, H.264")
     group.add_argument("--reference", type=Path, metavar="REF_DIR",
                        help="ground truth folder (beauty_i.exr) for the video's third panel")
-    group.add_argument("--fps", type=ascii_int, default=4, help="video frames per second (default 4)")
+    group.add_argument("--fps", type=ascii_int,
+                       help=f"video frames per second (default {VIDEO_FPS}; with --video only)")
     parser.add_argument("--variant", help="Mitsuba variant (default: llvm_ad_rgb where usable)")
     keys = add_method_options(parser)  # last: a method's flag that is one of the command's own is refused
     return parser, keys
@@ -163,10 +166,12 @@ def _main(argv: list[str] | None) -> int:
     given = {k: v for k, v in vars(args).items() if k in keys}
     check_options_apply(args.method, given)
     method = from_name(args.method, **given)  # each parameter checked against its declaration
+    for flag, value in (("--reference", args.reference), ("--fps", args.fps)):
+        if value is not None and args.video is None:
+            raise UsageError(f"{flag} is used by --video only")
+    args.fps = VIDEO_FPS if args.fps is None else args.fps
     if args.fps < 1 or args.fps > 240:
         raise UsageError(f"--fps must be from 1 to 240, got {args.fps}")
-    if args.reference is not None and args.video is None:
-        raise UsageError("--reference is used by --video only")
     if args.video is not None and args.video.suffix.lower() != ".mp4":
         raise UsageError(f"--video writes H.264 MP4: name it .mp4, got {args.video}")
     check_outside({"OUT_DIR": args.target, "--video": args.video},

@@ -452,6 +452,9 @@ def test_denoise_benchmarks_refuse_bad_arguments_first(module, argv, message):
     (["--method", "svgf", "--sigma-luminance", "nan"], "svgf: --sigma-luminance must be"),
     (["--method", "svgf", "--normal-exponent", "-3"], "svgf: --normal-exponent must be"),
     (["--video", "out.gif"], "name it .mp4"),
+    (["--fps", "8"], "--fps is used by --video only"),
+    (["--reference", "ref"], "--reference is used by --video only"),
+    (["--video", "v.mp4", "--fps", "0"], "--fps must be from 1 to 240"),
 ])
 def test_denoise_rejects_bad_parameters(tmp_path, capsys, flags, message):
     """Each out-of-range parameter: one line, exit 2, before any frame is read."""
@@ -460,6 +463,7 @@ def test_denoise_rejects_bad_parameters(tmp_path, capsys, flags, message):
     assert main([str(tmp_path / "none"), str(tmp_path / "out")] + flags) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and err.startswith("python -m denoise: error: ") and message in err
+    assert err.strip().isprintable()  # a control character in a message is shown escaped
 
 
 def _small_folder(folder, count=2, size=(5, 4), objects=1):

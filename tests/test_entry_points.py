@@ -373,3 +373,12 @@ def test_every_entry_point_ends_through_finish():
         if "finish(" not in last:
             missing.append(relative.as_posix())
     assert missing == []
+
+
+@pytest.mark.parametrize("text", ["result_\x00.exr: missing", "out/\x1b[31mred\x1b[0m.mp4: exists", "a\nb\tc"])
+def test_an_error_line_shows_control_characters_escaped(text):
+    """A NUL from a format spec or an escape sequence in a file name reaches no terminal raw."""
+    from core.entry import one_line
+
+    line = one_line(ValueError(text))
+    assert line.isprintable() and "\n" not in line
