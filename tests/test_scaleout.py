@@ -131,15 +131,24 @@ def test_killed_worker_is_replaced_and_the_result_is_unchanged(tmp_path, in_proc
 
 def test_kill_check_fails_when_dask_may_not_retry(tmp_path, in_process):
     """The kill test on purpose-broken fault tolerance (no retries allowed):
-    the same kill ends the export with KilledWorker instead."""
+    the same kill ends the export with KilledWorker instead. A kill can lose
+    the race with its task's own result (a short batch finishes between the
+    look at the worker and the SIGKILL; then nothing is lost), so it is
+    tried up to three times: one KilledWorker shows the check bites."""
     import dask
     from distributed import KilledWorker
 
-    killed = {}
-    with dask.config.set({"distributed.scheduler.allowed-failures": 0}):
-        with pytest.raises(KilledWorker):
-            export_with(tmp_path / "seq", workers=2, after_task=worker_killer(killed))
-    assert killed
+    outcomes = []
+    for attempt in range(3):
+        killed = {}
+        with dask.config.set({"distributed.scheduler.allowed-failures": 0}):
+            try:
+                export_with(tmp_path / f"seq{attempt}", workers=2, after_task=worker_killer(killed))
+            except KilledWorker:
+                return
+        assert killed, "no worker was busy after any result: the test did not kill anything"
+        outcomes.append(killed)
+    pytest.fail(f"no KilledWorker in three kills without retries: {outcomes}")
 
 
 def test_dataset_of_two_specs_and_the_cli(tmp_path, capsys):
