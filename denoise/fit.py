@@ -41,8 +41,6 @@ if __name__ == "__main__":  # first: ./.venv's Python, the libLLVM, then Dr.Jit 
 import argparse
 import json
 import math
-import multiprocessing
-import signal
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -50,7 +48,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from core.entry import ArgumentParser, finish, hold_signals, run
+from core.entry import ArgumentParser, finish, run
 from core.errors import UsageError
 from core.inputs import check_outside
 from core.numbers import ascii_float, ascii_int
@@ -59,12 +57,12 @@ from export.frames import frame_indices, read_frame, same_size
 from export.ground_truth import check_ground_truth
 from imaging.image_io import atomic_path, check_writable, read_exr_rgb
 from imaging.metrics import relmse
-from renderer.bands import GROUP_SIGNALS
 from renderer.variants import set_variant
 
 from .filters import FrameArrays, demodulate, remodulate, reproject
 from .methods import from_name, make
 from .methods.asvgf import FITTED_OPTIONS, FilterValues, asvgf, fitted, hand_set
+from .worker_process import ignore_group_signals, run_in_worker
 
 ROOT = Path(__file__).resolve().parent.parent
 TRAINING = sorted((ROOT / "scenes" / "sequences" / "training").glob("*.json"))
@@ -331,8 +329,7 @@ def fit_worker(connection, *arguments) -> None:
     and then ignoring them: the parent alone answers a terminal's signals and
     stops this process, which prints nothing of its own (a thread of a native
     library may run with them unblocked); sends ("done", the result) or ("error", its line)."""
-    for signum in GROUP_SIGNALS:
-        signal.signal(signum, signal.SIG_IGN)
+    ignore_group_signals()
     set_variant("llvm_ad_rgb", quiet=True)
     try:
         connection.send(("done", fit_steps(*arguments)))
@@ -341,35 +338,9 @@ def fit_worker(connection, *arguments) -> None:
 
 
 def fit_interruptibly(targets: list[Path], switch_frame: int, steps: int, rate: float, quiet: bool):
-    """:func:`fit_steps` in a worker process that this one waits for: a step is
-    one native backward pass of up to minutes, which no signal interrupts, so
-    Ctrl-C and SIGTERM reach this process instead, which ends the worker."""
-    context = multiprocessing.get_context("spawn")  # no fork after Dr.Jit started its threads
-    receiver, sender = context.Pipe(duplex=False)
-    worker = context.Process(target=fit_worker, args=(sender, targets, switch_frame, steps, rate, quiet), daemon=True)
-    message = None
-    try:
-        with hold_signals():  # a signal waits until the worker exists, then ends it below
-            signal.pthread_sigmask(signal.SIG_BLOCK, GROUP_SIGNALS)  # what a terminal sends the group
-            try:
-                worker.start()
-            finally:
-                signal.pthread_sigmask(signal.SIG_UNBLOCK, GROUP_SIGNALS)
-        sender.close()
-        while worker.is_alive() and not receiver.poll(0.1):
-            pass
-        if receiver.poll():
-            message = receiver.recv()
-    finally:
-        if message is None and worker.is_alive():
-            worker.kill()
-        if worker.pid is not None:
-            worker.join()
-    if message is None:
-        raise UsageError(f"the fit's worker process stopped without a result (exit code {worker.exitcode})")
-    if message[0] == "error":
-        raise UsageError(message[1])
-    return message[1]
+    """:func:`fit_steps` in a worker process that this one waits for
+    (:func:`denoise.worker_process.run_in_worker`: Ctrl-C and SIGTERM end it)."""
+    return run_in_worker(fit_worker, (targets, switch_frame, steps, rate, quiet), "the fit")[0]
 
 
 def main(argv: list[str] | None = None) -> int:

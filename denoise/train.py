@@ -26,26 +26,24 @@ if __name__ == "__main__":  # first: ./.venv's Python, the libLLVM, then Dr.Jit 
 import argparse
 import datetime
 import json
-import multiprocessing
 import os
 import shlex
-import signal
 import sys
 import time
 from pathlib import Path
 
-from core.entry import ArgumentParser, finish, hold_signals, run
+from core.entry import ArgumentParser, finish, run
 from core.errors import UsageError
 from core.inputs import check_outside
 from core.numbers import ascii_float, ascii_int
 from export import export
 from imaging.image_io import atomic_path, check_writable
-from renderer.bands import GROUP_SIGNALS
 from renderer.variants import set_variant
 
 from . import training
 from .methods.learned_asvgf import WEIGHTS_FILE
 from .training import HELD_OUT, ROOT, TRAINING, Settings
+from .worker_process import ignore_group_signals, run_in_worker
 
 DOCS = ROOT / "docs"
 
@@ -132,8 +130,7 @@ def train_worker(connection, folders: list[Path], settings: Settings, checkpoint
     then ignoring them: the parent alone answers a terminal's signals and
     ends this process. Sends ("step", step, loss, held-out loss, seconds) per
     step, then ("done", theta, curve, seconds), or ("error", its line)."""
-    for signum in GROUP_SIGNALS:
-        signal.signal(signum, signal.SIG_IGN)
+    ignore_group_signals()
     set_variant("llvm_ad_rgb", quiet=True)
     try:
         connection.send(("done", *training.train(folders, settings, checkpoint,
@@ -143,47 +140,18 @@ def train_worker(connection, folders: list[Path], settings: Settings, checkpoint
 
 
 def train_interruptibly(folders: list[Path], settings: Settings, checkpoint: Path, quiet: bool):
-    """:func:`denoise.training.train` in a worker this process waits for, printing its steps."""
-    context = multiprocessing.get_context("spawn")  # no fork after Dr.Jit started its threads
-    receiver, sender = context.Pipe(duplex=False)
-    worker = context.Process(target=train_worker, args=(sender, folders, settings, checkpoint), daemon=True)
-    message = None
-    try:
-        with hold_signals():  # a signal waits until the worker exists, then ends it below
-            signal.pthread_sigmask(signal.SIG_BLOCK, GROUP_SIGNALS)
-            try:
-                worker.start()
-            finally:
-                signal.pthread_sigmask(signal.SIG_UNBLOCK, GROUP_SIGNALS)
-        sender.close()
-        started = time.monotonic()
-        while message is None and worker.is_alive() or receiver.poll():
-            if not receiver.poll(0.1):
-                continue
-            try:
-                received = receiver.recv()
-            except EOFError:
-                break
-            if received[0] == "step":
-                _, step, loss, held, seconds = received
-                if not quiet:
-                    held = "none" if held is None else f"{held:.6f}"
-                print(f"step {step + 1}/{settings.steps}: loss {loss:.6f}  held-out {held}  "
-                          f"({seconds:.1f} s in all, {time.monotonic() - started:.0f} s this run)",
-                          file=sys.stderr, flush=True)
-            else:
-                message = received
-                break
-    finally:
-        if message is None and worker.is_alive():
-            worker.kill()
-        if worker.pid is not None:
-            worker.join()
-    if message is None:
-        raise UsageError(f"the training's worker process stopped without a result (exit code {worker.exitcode})")
-    if message[0] == "error":
-        raise UsageError(message[1])
-    return message[1:]
+    """:func:`denoise.training.train` in a worker this process waits for
+    (:func:`denoise.worker_process.run_in_worker`), printing its steps."""
+    started = time.monotonic()
+
+    def report(message: tuple) -> None:
+        _, step, loss, held, seconds = message
+        if not quiet:
+            held = "none" if held is None else f"{held:.6f}"
+            print(f"step {step + 1}/{settings.steps}: loss {loss:.6f}  held-out {held}  "
+                  f"({seconds:.1f} s in all, {time.monotonic() - started:.0f} s this run)", file=sys.stderr, flush=True)
+
+    return run_in_worker(train_worker, (folders, settings, checkpoint), "the training", report)
 
 
 def main(argv: list[str] | None = None) -> int:
