@@ -222,3 +222,15 @@ def test_ctrl_c_keeps_the_checkpoint_and_a_rerun_resumes(tiny, tmp_path):
     assert data["record"]["steps"] == steps + 1 and len(data["record"]["curve"]) == steps + 1
     assert plot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     (work / "w.checkpoint.npz").unlink()
+
+
+def test_quiet_training_prints_nothing(tiny, tmp_path):
+    """--quiet: stderr empty on success (its step lines were printed all the same)."""
+    spec, work = tiny
+    out = tmp_path / "q.json"
+    done = subprocess.run([sys.executable, "-m", "denoise.train", str(spec), "--work", str(work), "--out", str(out),
+                           "--plot", str(tmp_path / "q.png"), "--hidden", "4", "--steps", "1", "--restart",
+                           "--quiet"], cwd=ROOT, capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0 and done.stderr == "", done.stderr
+    assert json.loads(out.read_text())["record"]["steps"] == 1
+    (work / "q.checkpoint.npz").unlink(missing_ok=True)
