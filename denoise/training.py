@@ -1,10 +1,11 @@
 """Training ``learned-asvgf``'s network end to end through asvgf's temporal and spatial pipeline.
 
 The data: sequences the project renders itself (``python -m export``), by
-default ``scenes/sequences/training/network/*.json`` (14 small sequences of
-the showcase and mirrors scenes, which no benchmark sequence uses), each with
-an independently seeded ground truth of 32 samples per pixel: an unbiased
-(Noise2Noise) target, its noise averaging out over pixels and steps.
+default ``scenes/sequences/training/network/*.json`` (18 sequences of 320×180,
+the benchmark's size, on the showcase and mirrors scenes and the course's arch
+and bunny, which no benchmark sequence uses), each with an independently seeded
+ground truth of 128 samples per pixel: an unbiased (Noise2Noise) target, its
+noise averaging out over pixels and steps.
 :func:`check_specs` refuses a sequence without ground truth and any benchmark
 sequence or scene (``scenes/sequences/*.json``). :data:`HELD_OUT` sequences
 are not trained on: their loss is reported at each step.
@@ -14,7 +15,7 @@ A step: :data:`BATCH` training sequences drawn at random, each cropped to
 random exposure; :func:`denoise.methods.learned_asvgf.learned_asvgf` runs over
 all of its frames in ``llvm_ad_rgb`` with the network's weights as Dr.Jit
 Floats with gradients, the history carried from frame to frame, and
-``dr.backward`` of the mean relMSE (every frame, against its target) gives
+``dr.backward`` of the mean relMSE (every frame from :data:`LOSS_FROM` on, against its target) gives
 the gradient through the filter of every frame and the slow histories fed
 back to the frames after. Adam (NumPy, :class:`Adam`) updates the weights.
 The draws come from ``numpy.random.default_rng((seed, step))``: a resumed run
@@ -27,7 +28,7 @@ import math
 import os
 import platform
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import drjit as dr
@@ -44,6 +45,7 @@ from .filters import FrameArrays, demodulate, remodulate, reproject
 from .methods import make
 from .methods.asvgf import fitted
 from .methods.learned_asvgf import FEATURES, OUTPUTS, TEMPORAL_FEATURES, Network, learned_asvgf
+from .svgf_common import levels_for
 
 ROOT = Path(__file__).resolve().parent.parent
 TRAINING = sorted((ROOT / "scenes" / "sequences" / "training" / "network").glob("*.json"))
@@ -52,7 +54,10 @@ BENCHMARK = sorted((ROOT / "scenes" / "sequences").glob("*.json"))
 #: sequences whose loss is reported and never trained on
 HELD_OUT = ("mirrors_switch", "showcase_disocclusion")
 #: training sequences per step, and the size each is cropped to (one size: one set of kernels)
-BATCH, CROP = 4, (128, 72)
+BATCH, CROP = 4, (160, 90)
+#: the loss counts the frames from this one on: a first frame (no history anywhere) has errors
+#: several times the others', which would drown what the frames with a history teach
+LOSS_FROM = 1
 #: the range of the random exposure (a factor on colour and target)
 EXPOSURE = (0.5, 2.0)
 #: the output layer's biases at the start: asvgf as fitted, nearly none of the temporal blend
@@ -135,6 +140,7 @@ class Prepared:
     albedo: object  # mi.TensorXf or None
     albedo_luminance: object  # mi.Float or None
     target: mi.TensorXf
+    levels: int  # the À-Trous levels of the whole frame's width, which a crop keeps
 
 
 def augmented(frames: list[Frame], crop: tuple[int, int] | None, x0: int, y0: int, flip_x: bool, flip_y: bool,
@@ -142,7 +148,8 @@ def augmented(frames: list[Frame], crop: tuple[int, int] | None, x0: int, y0: in
     """``frames`` cropped to ``crop`` (None: whole) at (x0, y0), flipped, times
     ``exposure``; the back projection follows the crop and the flips (a pixel
     whose previous place left the crop has no history). The filter's weights
-    read world-space normals and positions, which a flip of the pixel grid leaves as they are."""
+    read world-space normals and positions, which a flip of the pixel grid leaves as they are.
+    A crop is filtered with the whole frame's À-Trous levels, as the method filters that frame."""
     height, width = frames[0].color.shape[:2]
     w, h = crop if crop is not None else (width, height)
     xs, ys = np.arange(x0, x0 + w), np.arange(y0, y0 + h)
@@ -168,7 +175,8 @@ def augmented(frames: list[Frame], crop: tuple[int, int] | None, x0: int, y0: in
         lum = None if albedo is None else upload(
             (np.clip(albedo, 0.0, 1.0) @ np.array([0.2126, 0.7152, 0.0722], np.float32)).ravel(), mi.Float)
         out.append(Prepared(FrameArrays(tensor(f.color * exposure), tensor(f.normal), tensor(f.position)), index,
-                            valid, None if albedo is None else upload(albedo), lum, tensor(f.target * exposure)))
+                            valid, None if albedo is None else upload(albedo), lum, tensor(f.target * exposure),
+                            levels_for(width)))
     return out
 
 
@@ -250,14 +258,16 @@ def initial(features: tuple[str, ...], hidden: int, seed: int) -> np.ndarray:
 def sequence_loss(frames: list[Prepared], network) -> object:
     """Mean relMSE of ``learned_asvgf`` with ``network`` (a :class:`Recorder`) over ``frames`` (a Dr.Jit Float)."""
     params = fitted()
+    params = params if params.levels is not None else replace(params, levels=frames[0].levels)
     history, total = None, 0.0
-    for f in frames:
+    for number, f in enumerate(frames):
         result, history = learned_asvgf(f.buffers, params, network, history if f.index is not None else None,
                                         f.index, f.valid, f.albedo_luminance)
         if f.albedo is not None:
             result = remodulate(result, f.albedo)
-        total = total + relmse_loss(result, f.target)
-    return total / len(frames)
+        if number >= LOSS_FROM or len(frames) <= LOSS_FROM:
+            total = total + relmse_loss(result, f.target)
+    return total / max(len(frames) - LOSS_FROM, 1)
 
 
 class Adam:

@@ -234,3 +234,51 @@ def test_quiet_training_prints_nothing(tiny, tmp_path):
     assert done.returncode == 0 and done.stderr == "", done.stderr
     assert json.loads(out.read_text())["record"]["steps"] == 1
     (work / "q.checkpoint.npz").unlink(missing_ok=True)
+
+
+def synthetic_frames(count: int, height: int, width: int) -> list:
+    """Frames of smooth random colour on a plane facing the camera, each pixel's history the same pixel."""
+    from denoise.training import Frame
+
+    rng = np.random.default_rng(3)
+    ys, xs = np.mgrid[0:height, 0:width].astype(np.float32)
+    position = np.stack([xs / width, ys / width, np.zeros_like(xs)], axis=-1)
+    normal = np.broadcast_to(np.array([0, 0, 1], np.float32), position.shape).copy()
+    frames = []
+    for i in range(count):
+        target = np.full((height, width, 3), 0.5, np.float32)
+        color = (target * rng.exponential(1.0, target.shape)).astype(np.float32)
+        previous = None if i == 0 else np.arange(height * width).reshape(height, width)
+        frames.append(Frame(color, normal, position, None, target, previous))
+    return frames
+
+
+def test_a_crop_is_filtered_with_the_whole_frames_levels(variant_llvm_ad_rgb):
+    """A 32-pixel crop of a 320-pixel frame gets the 320-pixel frame's À-Trous
+    levels (3), as the method filters that frame; the crop's own width would give 1."""
+    from denoise.svgf_common import levels_for
+    from denoise.training import augmented
+
+    frames = synthetic_frames(2, 6, 320)
+    prepared = augmented(frames, (32, 6), 100, 0, True, False, 1.0)
+    assert levels_for(320) == 3 and levels_for(32) == 1
+    assert [p.levels for p in prepared] == [3, 3]
+
+
+def test_the_loss_leaves_out_the_first_frame(variant_llvm_ad_rgb):
+    """The first frame's target does not move the loss, a later frame's does."""
+    from denoise.methods.learned_asvgf import FEATURES
+    from denoise.training import LOSS_FROM, Recorder, augmented, initial, sequence_loss
+
+    assert LOSS_FROM == 1
+    theta = initial(FEATURES, 4, seed=0)
+
+    def loss(change_frame=None):
+        frames = synthetic_frames(3, 8, 16)
+        if change_frame is not None:
+            frames[change_frame].target[:] = 2.0
+        prepared = augmented(frames, None, 0, 0, False, False, 1.0)
+        return float(sequence_loss(prepared, Recorder(theta, FEATURES, 4, gradients=False))[0])
+
+    assert loss(0) == loss()
+    assert loss(1) > 1.5 * loss()

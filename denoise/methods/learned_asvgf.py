@@ -13,9 +13,11 @@ was clipped, the relative noise, the albedo) and gives four numbers
   asvgf's fitted σ times ``exp(2 tanh(o / 2))`` (a factor from e⁻² to e²);
 - ``wide_blend``: the blend between the wide level and the last regular one,
   ``sigmoid(logit(asvgf's blend) + o)``;
-- ``temporal_blend``: how much of the current frame replaces the slow history
-  before the À-Trous levels, ``sigmoid(o)`` (its output is trained near 0 and
-  grows where the history misleads).
+- ``temporal_blend``: how much of the fast history replaces the slow one
+  before the À-Trous levels, ``sigmoid(o)`` (it starts near 0 and grows where
+  the slow history misleads). The fast history, not the current frame: it
+  answers a change within a frame or two with a fraction of the 1-spp
+  frame's noise, which the first level would feed back into the history.
 
 With the output layer at 0 the method is asvgf with a wide blend within 1 %
 of asvgf's; the trained weights (``denoise/learned_asvgf.json``, written by
@@ -232,7 +234,7 @@ def learned_asvgf(frame: FrameArrays, p: ASVGFParams, network: Callable[[dict], 
     sigma_first, sigma_coarse = p.sigma_luminance * scale(o[0]), p.sigma_luminance * scale(o[1])
     base = dr.clip((dr.detach(length) - 1.0) / p.wide_frames, BLEND_MARGIN, 1.0 - BLEND_MARGIN)
     wide_blend = sigmoid(dr.log(base / (1.0 - base)) + o[2])
-    color = dr.lerp(slow, frame.color, sigmoid(o[3]))
+    color = dr.lerp(slow, fast, sigmoid(o[3]))
     dr.eval(sigma_first, sigma_coarse, wide_blend, color)
     feedback = color
     levels = p.levels if p.levels is not None else levels_for(frame.width)
