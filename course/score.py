@@ -9,8 +9,9 @@ and the mean FLIP error. An image meets the course's bar when at most 0.5 %
 of its pixels are that far off; a missing image fails. The command prints a
 table, writes a Markdown report with thumbnails (and a FLIP heat map for
 each failing image) and exits with 1 when some image fails, else 0. A
-missing folder, an unreadable PNG or an image of another size is one line
-and exit code 2.
+missing folder, an unreadable PNG, another format under a .png name, a PNG
+with transparent pixels or an image of another size is one line and exit
+code 2 (every PNG mode and bit depth is read as its pixels).
 """
 from __future__ import annotations
 
