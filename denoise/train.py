@@ -32,7 +32,7 @@ import sys
 import time
 from pathlib import Path
 
-from core.entry import ArgumentParser, finish, run
+from core.entry import ArgumentParser, finish, printable, run
 from core.errors import UsageError
 from core.inputs import check_outside
 from core.numbers import ascii_float, ascii_int
@@ -120,7 +120,7 @@ def _main(argv: list[str] | None) -> int:
     training.plot_curve(plot, curve, f"{args.out.name}: {settings.hidden} hidden units, "
                                      f"{len(settings.features)} inputs")
     if not args.quiet:
-        print(f"final loss {curve[-1][1]:.6f} (held out {curve[-1][2]}); weights written to {args.out}, "
+        print(f"final loss {curve[-1][1]:.6f} (held out {curve[-1][2]}); weights written to {printable(args.out)}, "
               f"curves to {plot}", file=sys.stderr)
     return 0
 

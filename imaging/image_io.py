@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import errno
 import functools
+import io
 import os
 import stat
 import struct
@@ -305,7 +306,12 @@ def write_exr(path: str | Path, layers: Mapping[str, np.ndarray]) -> None:
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
     with atomic_path(path, ".exr") as tmp:
         with OpenEXR.File(header, channels) as exr:
-            exr.write(str(tmp))
+            if utf8_path(tmp):
+                exr.write(str(tmp))
+            else:  # OpenEXR takes only a UTF-8 path: the file through Python's own, whatever its bytes
+                data = io.BytesIO()
+                exr.write(data)
+                tmp.write_bytes(data.getvalue())
         if not exr_complete(tmp, EXR_ZIP_LINES):
             # OpenEXR's stream fails its last flush silently (a full disk under a small image)
             raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(tmp))
@@ -354,8 +360,18 @@ def read_exr(path: str | Path) -> dict[str, np.ndarray]:
     if mode is not None and not stat.S_ISREG(mode) and not stat.S_ISDIR(mode):
         kind = "a pipe" if stat.S_ISFIFO(mode) else "a socket" if stat.S_ISSOCK(mode) else "a device"
         raise FrameError(f"{path}: {kind}, not a regular file")
-    with OpenEXR.File(str(path), separate_channels=True) as exr:
+    source = str(path) if utf8_path(path) else io.BytesIO(Path(path).read_bytes())
+    with OpenEXR.File(source, separate_channels=True) as exr:
         return {name: np.asarray(channel.pixels, np.float32) for name, channel in exr.channels().items()}
+
+
+def utf8_path(path: str | Path) -> bool:
+    """Whether ``path`` is text OpenEXR can open (a file name's bytes that are not UTF-8 are not)."""
+    try:
+        str(path).encode()
+        return True
+    except UnicodeEncodeError:
+        return False
 
 
 def read_exr_rgb(path: str | Path) -> np.ndarray:
