@@ -26,7 +26,7 @@ if __name__ == "__main__":  # first: ./.venv's Python, the libLLVM, then Dr.Jit 
     start("python -m benchmarks.denoise_front", "benchmarks.denoise_front" if __package__ else None)
 
 from core import entry
-from core.entry import ArgumentParser
+from core.entry import ArgumentParser, printable
 from core.errors import UsageError
 from core.json_input import JSONInputError, read_json
 from imaging.image_io import atomic_path
@@ -150,7 +150,8 @@ def main(argv: list[str] | None = None) -> int:
     if not isinstance(results, dict) or not isinstance(results.get("results"), list):
         raise UsageError(f"{args.json}: not the JSON of python -m benchmarks.denoise (no 'results' list)")
     path = write_front(results, args.out)
-    print(f"{path}: Pareto front over all sequences, fastest first: {', '.join(pareto(front_points(results)['all']))}")
+    front = ", ".join(pareto(front_points(results)["all"]))
+    print(f"{printable(path)}: Pareto front over all sequences, fastest first: {front}")
     return 0
 
 

@@ -42,7 +42,7 @@ if __name__ == "__main__":  # first: ./.venv's Python, the libLLVM, then Dr.Jit 
 import mitsuba as mi
 
 from benchmarks.records import check_json, stamp, write_json
-from core.entry import ArgumentParser
+from core.entry import ArgumentParser, printable
 from course import root as course_root
 from imaging.image_io import atomic_path
 from renderer.variants import set_variant
@@ -122,7 +122,7 @@ def main(argv: list[str] | None = None) -> int:
     results = measure(scene_paths(args.course, args.quick), size, spps, reference,
                       progress=lambda line: print(line, file=sys.stderr))
     for path in write_outputs(results, args.out):
-        print(path)
+        print(printable(path))
 
     results.update(variant=mi.variant(), **stamp(["python -m benchmarks.error_vs_time", *(argv or sys.argv[1:])]))
     if args.json:

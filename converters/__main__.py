@@ -35,7 +35,7 @@ import mitsuba as mi
 
 from converters.render_flags import RenderJob, check_numbers, check_samples
 from converters.scene_flags import DEFAULTS, with_scene_flags
-from core.entry import ArgumentParser, finish, run
+from core.entry import ArgumentParser, finish, printable, run
 from core.errors import OutputError, UsageError
 from core.numbers import ascii_int
 
@@ -148,6 +148,10 @@ def plan_targets(scenes: list[Path], output: Path) -> list[tuple[Path, Path]]:
         if target.is_dir():
             raise OutputError(f"{target} is a folder; cannot write the XML file there")
         meshes = target.parent / f"{target.stem}_meshes"
+        if printable(target.stem) != target.stem:  # XML 1.0 holds neither, and reads a newline as a space
+            raise UsageError(f"-o {printable(target)}: the XML names its meshes folder {printable(meshes.name)}, "
+                             "and an XML file cannot hold a control character or a byte that is not UTF-8: "
+                             "choose another name")
         if meshes.exists() and not meshes.is_dir():
             raise OutputError(f"{meshes} is a file; the converter writes the meshes into a folder of that name")
     for folder in dict.fromkeys(target.parent for _, target in pairs):
@@ -180,7 +184,7 @@ def _main(argv: list[str] | None) -> int:
               "imaging.filters.downsample_3x to get render.py's image", file=sys.stderr)
     for source, target in pairs:
         for path in convert(source, target, root=Path.cwd(), settings=settings):
-            print(path)
+            print(printable(path))
     return 0
 
 

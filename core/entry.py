@@ -174,8 +174,16 @@ def one_line(error: BaseException) -> str:
     """``str(error)`` on one line (messages never span lines), with any other
     control character (a NUL from a format spec, an escape sequence in a file
     name) shown escaped, not sent to the terminal."""
-    text = " ".join((str(error) or type(error).__name__).split())
-    return "".join(c if c.isprintable() else c.encode("unicode_escape").decode("ascii") for c in text)
+    return printable(" ".join((str(error) or type(error).__name__).split()))
+
+
+def printable(value: object) -> str:
+    """``str(value)`` (a path, a file's name) as printable text: a newline, a tab, an escape
+    sequence or another control character is shown escaped (``\\n``, ``\\x1b``) and a byte of a
+    file name that is not UTF-8 as ``\\xff``, so that a name the user chose never splits a line
+    on stdout or drives the terminal. Every path a command echoes goes through it."""
+    return "".join(c if c.isprintable() else f"\\x{ord(c) - 0xDC00:02x}" if "\udc80" <= c <= "\udcff"
+                   else c.encode("unicode_escape").decode("ascii") for c in str(value))
 
 
 def run(prog: str, body: Callable[[], int | None], interrupted: str = INTERRUPTED) -> int:

@@ -9,8 +9,9 @@ and the mean FLIP error. An image meets the course's bar when at most 0.5 %
 of its pixels are that far off; a missing image fails. The command prints a
 table, writes a Markdown report with thumbnails (and a FLIP heat map for
 each failing image) and exits with 1 when some image fails, else 0. A
-missing folder, an unreadable PNG or an image of another size is one line
-and exit code 2.
+missing folder, an unreadable PNG, another format under a .png name, a PNG
+with transparent pixels or an image of another size is one line and exit
+code 2 (every PNG mode and bit depth is read as its pixels).
 """
 from __future__ import annotations
 
@@ -19,13 +20,15 @@ if __name__ == "__main__":  # first: ./.venv's Python, the libLLVM, then Dr.Jit 
     start("python -m course.score", "course.score")
 
 import argparse
+import os
 from dataclasses import dataclass
 from pathlib import Path
+from urllib.parse import quote
 
 import numpy as np
 from tqdm import tqdm
 
-from core.entry import ArgumentParser, finish, run
+from core.entry import ArgumentParser, finish, printable, run
 from core.errors import FrameError, UsageError
 from core.inputs import check_outside
 from course import ENVIRONMENT, root
@@ -149,27 +152,31 @@ def write_report(report: Path, scores: list[ImageScore], folder: Path, reference
     (full size, linked from its thumbnail)."""
     assets = report.parent / report.stem
     assets.mkdir(parents=True, exist_ok=True)
-    link = assets.name
-    lines = [f"# Scores of {folder}", "",
-             f"Against `{reference}` ({len(scores)} images). {verdict(scores)}.", "",
+
+    def link(name: str) -> str:  # percent-encoded: a space, a bracket or a byte that is not UTF-8 stays a link
+        return quote(os.fsencode(f"{assets.name}/{name}"))
+
+    lines = [f"# Scores of {printable(folder)}", "",
+             f"Against `{printable(reference)}` ({len(scores)} images). {printable(verdict(scores))}.", "",
              f"| image | pixels > {TOLERANCE}/255 off | mean FLIP | course's bar | reference | yours | FLIP heat map |",
              "|---|---|---|---|---|---|---|"]
     for s in scores:
         stem = Path(s.name).stem
         write_image(assets / f"{stem}_reference.png", thumbnail(read_image(reference / s.name)))
-        cells = [f"![reference]({link}/{stem}_reference.png)"]
+        cells = [f"![reference]({link(f'{stem}_reference.png')})"]
+        name = printable(s.name)
         if s.missing:
-            lines.append(f"| {s.name} | missing | | fails | {cells[0]} | | |")
+            lines.append(f"| {name} | missing | | fails | {cells[0]} | | |")
             continue
         write_image(assets / f"{stem}_yours.png", thumbnail(read_image(folder / s.name)))
-        cells.append(f"![yours]({link}/{stem}_yours.png)")
+        cells.append(f"![yours]({link(f'{stem}_yours.png')})")
         if s.heat_map is not None:
             write_image(assets / f"{stem}_flip.png", s.heat_map)
             write_image(assets / f"{stem}_flip_small.png", thumbnail(s.heat_map))
-            cells.append(f"[![FLIP]({link}/{stem}_flip_small.png)]({link}/{stem}_flip.png)")
+            cells.append(f"[![FLIP]({link(f'{stem}_flip_small.png')})]({link(f'{stem}_flip.png')})")
         else:
             cells.append("")
-        lines.append(f"| {s.name} | {s.bad} ({100 * s.bad / s.pixels:.3f} %) | {s.flip:.5f} | "
+        lines.append(f"| {name} | {s.bad} ({100 * s.bad / s.pixels:.3f} %) | {s.flip:.5f} | "
                      f"{'meets' if s.passes else '**fails**'} | " + " | ".join(cells) + " |")
     with atomic_path(report, ".md") as tmp:
         tmp.write_text("\n".join(lines) + "\n")
@@ -208,10 +215,10 @@ def _main(argv: list[str] | None) -> int:
     with tqdm(total=count, desc="scoring", unit="image", delay=1.0, leave=False,
               disable=None) as bar:
         scores = score_folder(args.folder, reference, on_image=lambda _: bar.update())
-    print("\n".join(table(scores)))
-    print(verdict(scores))
+    print("\n".join(printable(line) for line in table(scores)))
+    print(printable(verdict(scores)))
     write_report(report, scores, args.folder, reference)
-    print(f"report: {report}")
+    print(f"report: {printable(report)}")
     return 0 if all(s.passes for s in scores) else 1
 
 

@@ -15,7 +15,7 @@ import sys
 import textwrap
 from pathlib import Path
 
-from core.entry import ArgumentParser, finish, run
+from core.entry import ArgumentParser, finish, printable, run
 from core.errors import FrameError, UsageError
 from core.inputs import check_outside
 from core.numbers import ascii_int
@@ -205,8 +205,8 @@ def _main(argv: list[str] | None) -> int:
                             require_albedo=getattr(args, "demodulate", False))
     if args.video is not None:
         write_video(args.video, [side_by_side(row) for row in panels], fps=args.fps)
-    extra = (" with PNG previews" if args.png else "") + (f", video {args.video}" if args.video else "")
-    print(f"{len(report.written)} frames -> {args.target}{extra}")
+    extra = (" with PNG previews" if args.png else "") + (f", video {printable(args.video)}" if args.video else "")
+    print(f"{len(report.written)} frames -> {printable(args.target)}{extra}")
     if report.replaced_values:
         print(f"{PROG}: note: {report.replaced_values} beauty values in {report.frames_with_replaced} "
               f"frames were NaN, infinite or beyond +-{RADIANCE_LIMIT:g}: filtered as 0 or +-{RADIANCE_LIMIT:g}",

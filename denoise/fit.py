@@ -48,7 +48,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from core.entry import ArgumentParser, finish, run
+from core.entry import ArgumentParser, finish, printable, run
 from core.errors import UsageError
 from core.inputs import check_outside
 from core.numbers import ascii_float, ascii_int
@@ -214,7 +214,7 @@ def response(values: list[float], switch: int) -> str:
 
 def print_evaluation(folder: Path, switch: int) -> None:
     for label, at in (("as rendered", None), (f"light dimmed to 20 % from frame {switch}", switch)):
-        print(f"{folder.name}, {label}: relMSE per frame")
+        print(f"{printable(folder.name)}, {label}: relMSE per frame")
         for name, (dimmed, undimmed) in evaluate(folder, at).items():
             rows = [("", dimmed)] if at is None else [(" (as dimmed)", dimmed), (" (/0.2)", undimmed)]
             for suffix, values in rows:
@@ -301,7 +301,7 @@ def _main(argv: list[str] | None) -> int:
     best, hand_set_loss = fit_interruptibly(targets, args.switch_frame, args.steps, args.rate, args.quiet)
     write_parameters(args.out, best[1], best[0], hand_set_loss, specs)
     if not args.quiet:
-        print(f"lowest loss {best[0]:.6f} (hand-set {hand_set_loss:.6f}); parameters written to {args.out}")
+        print(f"lowest loss {best[0]:.6f} (hand-set {hand_set_loss:.6f}); parameters written to {printable(args.out)}")
     return 0
 
 

@@ -32,7 +32,7 @@ import sys
 import time
 from pathlib import Path
 
-from core.entry import ArgumentParser, finish, run
+from core.entry import ArgumentParser, finish, printable, run
 from core.errors import UsageError
 from core.inputs import check_outside
 from core.numbers import ascii_float, ascii_int
@@ -67,6 +67,10 @@ def _parser() -> argparse.ArgumentParser:
     return parser
 
 
+#: the largest --seed (a 32-bit word: every generator and record takes it)
+SEED_MAX = 2 ** 32 - 1
+
+
 def _main(argv: list[str] | None) -> int:
     args = _parser().parse_args(argv)
     if not 1 <= args.steps <= 100000:
@@ -75,6 +79,10 @@ def _main(argv: list[str] | None) -> int:
         raise UsageError(f"--rate must be in (0, 1], got {args.rate}")
     if not 1 <= args.hidden <= 256:
         raise UsageError(f"--hidden must be from 1 to 256, got {args.hidden}")
+    if not 0 <= args.seed <= SEED_MAX:  # NumPy's generator takes no negative seed (it failed in the worker)
+        raise UsageError(f"--seed must be from 0 to {SEED_MAX}, got {args.seed}")
+    if args.plot is not None and args.plot.suffix.lower() != ".png":
+        raise UsageError(f"--plot writes PNG: name it .png, got {printable(args.plot)}")
     if args.out.suffix.lower() != ".json":
         raise UsageError(f"--out {args.out}: the weights file is JSON; give a name ending in .json")
     plot = args.plot if args.plot is not None else DOCS / f"{args.out.stem}_loss.png"
@@ -120,8 +128,8 @@ def _main(argv: list[str] | None) -> int:
     training.plot_curve(plot, curve, f"{args.out.name}: {settings.hidden} hidden units, "
                                      f"{len(settings.features)} inputs")
     if not args.quiet:
-        print(f"final loss {curve[-1][1]:.6f} (held out {curve[-1][2]}); weights written to {args.out}, "
-              f"curves to {plot}", file=sys.stderr)
+        print(f"final loss {curve[-1][1]:.6f} (held out {curve[-1][2]}); weights written to {printable(args.out)}, "
+              f"curves to {printable(plot)}", file=sys.stderr)
     return 0
 
 

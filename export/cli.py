@@ -4,7 +4,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from core.entry import ArgumentParser, run
+from core.entry import ArgumentParser, printable, run
 from core.errors import UsageError
 from core.inputs import check_outside
 from core.numbers import ascii_int
@@ -74,9 +74,9 @@ def _main(argv: list[str] | None) -> int:
     manifest = out / "dataset.json"
     done = export_sequences(sequences, args.force, args.scheduler, args.workers, args.local, manifest)
     for sequence in sequences:
-        print(f"{len(done[sequence.name])} frames rendered into {sequence.target} "
-              f"(ground truth in {sequence.reference})")
-    print(f"manifest: {manifest}")
+        print(f"{len(done[sequence.name])} frames rendered into {printable(sequence.target)} "
+              f"(ground truth in {printable(sequence.reference)})")
+    print(f"manifest: {printable(manifest)}")
     return 0
 
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import errno
 import functools
+import io
 import os
 import stat
 import struct
@@ -178,18 +179,54 @@ def write_video(path: str | Path, frames: list[np.ndarray], fps: int = 2) -> Non
 
 
 def read_png(path: str | Path) -> np.ndarray:
-    """Reads a PNG of any mode and bit depth Pillow reads as uint8 RGB (H, W, 3)
-    (16 bits per channel rounded to 8, grey repeated, a palette looked up). Pillow's warning about images of more
-    than 89 million pixels stays off stderr (the size goes into the caller's
-    error, e.g. a score's "10000x10000 pixels, but the reference has 800x800");
-    beyond twice that Pillow refuses it, a :data:`IMAGE_DECODE_ERRORS` error."""
+    """The scores' one reader: a PNG of any mode and bit depth as uint8 RGB (H, W, 3), as its pixels
+    (:func:`image_rgba`). What has no one meaning is a :class:`FrameError` naming the file: another
+    format under the name (the content decides, not the extension: a JPEG's lossy pixels are not
+    what was rendered) and transparent or translucent pixels (what they show depends on the
+    viewer's background)."""
+    rgba, kind = image_rgba(path)
+    if kind != "PNG":
+        raise FrameError(f"{path}: a {kind} file, not a PNG (the content decides, not the name: write it as PNG)")
+    seen = int((rgba[..., 3] < 255).sum())
+    if seen:
+        raise FrameError(f"{path}: {seen} pixels of {rgba.shape[1]}x{rgba.shape[0]} are transparent or "
+                         "translucent (alpha < 255); what they show depends on the background: write opaque RGB")
+    return np.ascontiguousarray(rgba[..., :3])
+
+
+def image_rgba(path: str | Path) -> tuple[np.ndarray, str]:
+    """Any image Pillow reads as uint8 RGBA (H, W, 4), with its format as Pillow found it in the
+    content. Every bit depth is rounded to the nearest 8-bit value: 16 bits per channel (which
+    Pillow truncates to the high byte, or clips to 255 for grey) are read whole by libpng through
+    Mitsuba's Bitmap; grey is repeated, a palette and its transparency looked up. Pillow's warning
+    about images of more than 89 million pixels stays off stderr (the size goes into the caller's
+    error); beyond twice that Pillow refuses it, a :data:`IMAGE_DECODE_ERRORS` error."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", Image.DecompressionBombWarning)
         with Image.open(path) as image:
-            if image.mode.startswith("I"):  # 16-bit grey (I;16, I): converting clips it to 255, so scale it
+            kind, rawmode = image.format, (image.tile[0][3] if image.tile else "")
+            if kind == "PNG" and isinstance(rawmode, str) and rawmode.endswith(";16B"):
+                return deep_png(path), kind
+            if image.mode.startswith("I"):  # 16 or 32-bit grey of another format: scaled, not clipped
                 grey = np.rint(np.asarray(image, np.float64) * (255 / 65535)).clip(0, 255).astype(np.uint8)
-                return np.repeat(grey[..., None], 3, -1)
-            return np.asarray(image.convert("RGB"))  # every other mode: its colour (alpha is no colour)
+                return np.dstack([grey] * 3 + [np.full_like(grey, 255)]), kind
+            return np.asarray(image.convert("RGBA")), kind
+
+
+def deep_png(path: str | Path) -> np.ndarray:
+    """A PNG of 16 bits per channel as uint8 RGBA, each value rounded to the nearest 8-bit one."""
+    import mitsuba as mi  # noqa: PLC0415  only 16-bit PNGs need it; its importer chose the libLLVM first
+
+    try:
+        values = np.array(mi.Bitmap(str(path)), np.int64)
+    except RuntimeError as error:  # libpng's damage, as Pillow's would be
+        raise OSError(" ".join(str(error).split())) from None
+    values = (2 * values + 257) // 514  # round(v / 257)
+    if values.ndim == 2:
+        values = values[..., None]
+    colour = values[..., :-1] if values.shape[-1] in (2, 4) else values
+    alpha = values[..., -1:] if values.shape[-1] in (2, 4) else np.full(values.shape[:2] + (1,), 255)
+    return np.concatenate([np.broadcast_to(colour, values.shape[:2] + (3,)), alpha], -1).astype(np.uint8)
 
 
 #: What Pillow raises on damaged, truncated or hostile image files: OSError
@@ -223,8 +260,9 @@ def _read_cube_map(folder: Path, faces: tuple[str, ...], stamps: tuple) -> np.nd
     def read_face(face: str) -> np.ndarray:
         path = folder / f"{face}.png"
         try:
-            with Image.open(path) as image:
-                return np.asarray(image.convert("RGBX"))
+            rgbx = image_rgba(path)[0].copy()
+            rgbx[..., 3] = 255  # padding: a face's texel is its colour only, as the course's binary reads it
+            return rgbx
         except FileNotFoundError:
             raise SceneError(path, 1, 1, "expected a cube-map face image, found no file") from None
         except IMAGE_DECODE_ERRORS as error:
@@ -268,7 +306,12 @@ def write_exr(path: str | Path, layers: Mapping[str, np.ndarray]) -> None:
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
     with atomic_path(path, ".exr") as tmp:
         with OpenEXR.File(header, channels) as exr:
-            exr.write(str(tmp))
+            if utf8_path(tmp):
+                exr.write(str(tmp))
+            else:  # OpenEXR takes only a UTF-8 path: the file through Python's own, whatever its bytes
+                data = io.BytesIO()
+                exr.write(data)
+                tmp.write_bytes(data.getvalue())
         if not exr_complete(tmp, EXR_ZIP_LINES):
             # OpenEXR's stream fails its last flush silently (a full disk under a small image)
             raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(tmp))
@@ -317,8 +360,18 @@ def read_exr(path: str | Path) -> dict[str, np.ndarray]:
     if mode is not None and not stat.S_ISREG(mode) and not stat.S_ISDIR(mode):
         kind = "a pipe" if stat.S_ISFIFO(mode) else "a socket" if stat.S_ISSOCK(mode) else "a device"
         raise FrameError(f"{path}: {kind}, not a regular file")
-    with OpenEXR.File(str(path), separate_channels=True) as exr:
+    source = str(path) if utf8_path(path) else io.BytesIO(Path(path).read_bytes())
+    with OpenEXR.File(source, separate_channels=True) as exr:
         return {name: np.asarray(channel.pixels, np.float32) for name, channel in exr.channels().items()}
+
+
+def utf8_path(path: str | Path) -> bool:
+    """Whether ``path`` is text OpenEXR can open (a file name's bytes that are not UTF-8 are not)."""
+    try:
+        str(path).encode()
+        return True
+    except UnicodeEncodeError:
+        return False
 
 
 def read_exr_rgb(path: str | Path) -> np.ndarray:

@@ -14,6 +14,8 @@ import sys
 import mitsuba as mi
 from tqdm import tqdm
 
+from core.entry import printable
+
 #: Mitsuba messages not worth repeating to users of render.py
 _QUIET = ("SamplingIntegrator Python implementations will have terrible performance",)
 
@@ -99,12 +101,12 @@ class RenderProgress:
 
     def done(self, job, variant: str, seconds: dict[str, float], written, stats: dict | None = None) -> None:
         if stats:  # asked for explicitly: shown even with --quiet
-            tqdm.write(format_stats(job.scene.name, stats), file=sys.stdout)
+            tqdm.write(format_stats(printable(job.scene.name), stats), file=sys.stdout)
         if not self.enabled:
             return
-        files = " ".join(str(p) for p in written)
+        files = " ".join(printable(p) for p in written)
         # one line a scene, on stdout; tqdm.write lifts the bars (stderr) out of its way
-        tqdm.write(f"{job.scene.name}: {job.width}x{job.height} {variant}, render {seconds['render']:.3f} s "
+        tqdm.write(f"{printable(job.scene.name)}: {job.width}x{job.height} {variant}, render {seconds['render']:.3f} s "
                    f"(load {seconds['load']:.3f} s, write {seconds.get('write', 0.0):.3f} s) -> {files}",
                    file=sys.stdout)
         if self.jobs is not None:

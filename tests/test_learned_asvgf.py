@@ -165,6 +165,23 @@ def test_training_refuses_in_one_line(case, tmp_path, capsys):
     assert not out.exists() and not (tmp_path / "work").exists()  # refused before any rendering
 
 
+@pytest.mark.parametrize("flags, words", [
+    (["--seed", "-1"], "--seed must be from 0 to 4294967295, got -1"),
+    (["--seed", "4294967296"], "--seed must be from 0 to 4294967295"),
+    (["--plot", "curves.jpg"], "--plot writes PNG: name it .png"),
+])
+def test_training_flags_out_of_range_are_one_line_before_any_work(tmp_path, capsys, flags, words):
+    """A negative seed used to reach NumPy in the worker: its traceback, then 'stopped without a result'."""
+    from denoise.train import main
+
+    spec = write_spec(tmp_path, "tiny_showcase")
+    argv = [str(spec), "--work", str(tmp_path / "work"), "--out", str(tmp_path / "w.json"), "--steps", "1"]
+    assert main(argv + [str(tmp_path / f) if f.endswith(".jpg") else f for f in flags]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("python -m denoise.train: error: ") and words in err, err
+    assert not (tmp_path / "work").exists()
+
+
 @pytest.fixture(scope="module")
 def tiny(tmp_path_factory):
     """A tiny training sequence, exported once."""

@@ -15,7 +15,7 @@ import numpy as np
 
 from converters.description import ray_epsilons
 from converters.model import DirectionalLight, Plane, Scene, Sphere, Triangle, TriangleMesh
-from imaging.image_io import CUBE_FACES as FACES, read_png
+from imaging.image_io import read_cube_map
 from mi_plugins.camera_basis import course_camera_basis
 
 
@@ -39,7 +39,7 @@ class ReferenceTracer:
         self.epsilons = np.asarray(ray_epsilons(scene) + [0.0])  # per object (index -1: none)
         self.cube = None
         if scene.background.cube_map is not None:
-            self.cube = np.stack([read_png(scene.background.cube_map / f"{f}.png") for f in FACES]).astype(np.float64)
+            self.cube = read_cube_map(scene.background.cube_map)[..., :3].astype(np.float64)
 
     # -- camera ---------------------------------------------------------------
     def camera_rays(self, width: int, height: int) -> tuple[np.ndarray, np.ndarray]:

@@ -3,6 +3,7 @@ every JSON input one line through one reader, sizes that disagree, frame numbers
 far apart, outputs into input folders, every PNG mode read as its pixels."""
 from __future__ import annotations
 
+import os
 import time
 from pathlib import Path
 
@@ -12,6 +13,8 @@ from PIL import Image
 from validation.stress.cases_surfaces import refusals
 from validation.stress.cases_system import SystemCase
 
+#: the project's scene files
+SCENES = Path(__file__).resolve().parents[2] / "scenes"
 #: a spec's damage -> the words of its one line (the reader's limits and error shape)
 DAMAGED_SPECS = {
     "UTF-16": ('{"scene": "lamps"}'.encode("utf-16"), "UTF-16"),
@@ -72,19 +75,39 @@ def sizes_gaps_and_outputs(folder: Path) -> list[str]:
 
 
 def png_modes(folder: Path) -> list[str]:
-    """Every PNG mode Pillow writes, from the same pixels, reads as those pixels."""
+    """Every PNG mode Pillow writes, from the same pixels, reads as those pixels; 16 bits per channel
+    round to the nearest 8-bit value (not the high byte); transparent pixels and another format
+    under a .png name are one line each, through the scores' one reader."""
+    from mitsuba import Bitmap  # noqa: PLC0415  as above
+
+    from core.errors import FrameError  # noqa: PLC0415  as above
     from imaging.image_io import read_png  # noqa: PLC0415  as above
 
     grey = np.random.default_rng(1).integers(0, 256, (5, 7), np.uint8)
+    opaque = np.full_like(grey, 255)
     writes = {"L": Image.fromarray(grey), "I;16": Image.fromarray(grey.astype(np.uint16) * 257),
-              "LA": Image.fromarray(np.dstack([grey, grey]), "LA"), "RGB": Image.fromarray(np.dstack([grey] * 3)),
+              "LA": Image.fromarray(np.dstack([grey, opaque]), "LA"), "RGB": Image.fromarray(np.dstack([grey] * 3)),
               "P": Image.fromarray(np.dstack([grey] * 3)).quantize(256)}
     problems = []
     for mode, image in writes.items():
         image.save(folder / "a.png")
         error = np.abs(read_png(folder / "a.png")[..., 1].astype(int) - grey).max()
-        if error > (4 if mode == "P" else 1):
+        if error > (4 if mode == "P" else 0):
             problems.append(f"{mode}: off by {error}")
+    offset = np.where((grey == 0) | ((grey >= 128) & (grey < 255)), 128, -128)  # the high byte is off by one
+    deep = (grey.astype(np.int64) * 257 + offset).astype(np.uint16)
+    Bitmap(np.dstack([deep] * 3)).write(str(folder / "deep.png"))  # Pillow writes no 16-bit colour
+    if not np.array_equal(read_png(folder / "deep.png")[..., 0], grey):
+        problems.append("16-bit RGB: not rounded to its 8-bit values")
+    Image.fromarray(np.dstack([grey, grey, grey, np.where(grey > 9, 255, 0).astype(np.uint8)])).save(folder / "t.png")
+    Image.fromarray(np.dstack([grey] * 3)).save(folder / "j.png", "JPEG")
+    for name, words in (("t.png", "are transparent or translucent"), ("j.png", "a JPEG file, not a PNG")):
+        try:
+            read_png(folder / name)
+            problems.append(f"{name}: read, expected {words!r}")
+        except FrameError as error:
+            if words not in str(error):
+                problems.append(f"{name}: {error}")
     return problems
 
 
@@ -133,10 +156,45 @@ def flags_addresses_and_records(folder: Path) -> list[str]:
     return problems
 
 
+def odd_names_on_stdout(folder: Path) -> list[str]:
+    """A newline, an escape sequence and a byte that is not UTF-8 in the paths a user gives:
+    every line on stdout stays one printable line, and an EXR is written and read there."""
+    import contextlib  # noqa: PLC0415  as above
+    import io  # noqa: PLC0415  as above
+
+    from converters.__main__ import main as converters  # noqa: PLC0415  as above
+    from course.score import main as course_score  # noqa: PLC0415  as above
+    from denoise.__main__ import main as denoise  # noqa: PLC0415  as above
+    from export.frames import FrameData, write_frame  # noqa: PLC0415  as above
+
+    odd = os.fsdecode(b"x\ny\x1b[31m\xff")
+    for name in ("mine", "ref"):
+        (folder / name).mkdir()
+        Image.fromarray(np.zeros((4, 6, 3), np.uint8)).save(folder / name / f"a{odd}.png")
+    rgb = np.full((4, 6, 3), 0.5, np.float32)
+    write_frame(folder / odd, 0, FrameData(rgb, rgb, rgb, rgb[..., 0] + 1, np.zeros((4, 6), np.int32), [np.eye(4)],
+                                           np.eye(4), np.eye(4)))
+    runs = {"python -m course.score": (course_score, [folder / "mine", "--reference", folder / "ref", "--report",
+                                                      folder / f"{odd}.md"]),
+            "python -m converters": (converters, [SCENES / "mirrors.txt", "-o", folder / odd / "m.xml"]),
+            "python -m denoise": (denoise, [folder / odd, folder / f"{odd}2", "--method", "svgf"])}
+    problems = []
+    for prog, (main, argv) in runs.items():
+        out, err = io.StringIO(), io.StringIO()
+        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+            code = main([str(a) for a in argv])
+        lines = out.getvalue().splitlines()
+        if code != 0 or err.getvalue() or not lines or not all(line.isprintable() for line in lines):
+            problems.append(f"{prog}: exit {code}, stdout {out.getvalue()[-120:]!r}, stderr {err.getvalue()[-200:]!r}")
+    return problems
+
+
 def denoiser_input_cases() -> list[SystemCase]:
     return [SystemCase("every JSON input: damaged specs are one line", damaged_json, fast=True, kind="inputs"),
             SystemCase("sizes, frame gaps, outputs into inputs: one line", sizes_gaps_and_outputs, fast=True,
                        kind="inputs"),
             SystemCase("every PNG mode reads as its pixels", png_modes, fast=True, kind="inputs"),
             SystemCase("flags over damaged keys, scheduler addresses, --data, outputs into inputs, ids: one line",
-                       flags_addresses_and_records, fast=True, kind="inputs")]
+                       flags_addresses_and_records, fast=True, kind="inputs"),
+            SystemCase("odd names in paths: stdout one printable line each, EXR written and read",
+                       odd_names_on_stdout, fast=True, kind="inputs")]

@@ -34,7 +34,8 @@ TINY = {"scene": "lamps", "frames": 2, "size": [12, 8], "spp": 1, "reference_spp
 COMMON = ["0", "1", "2", "-1", "3", "1e9", "nan", "inf", "x", "", "-", "--", "--help", "10001", "4294967296",
           "seq", "seq_reference", "den", "missing", "dir", "file.txt", "tiny.json", "bad.json", "empty.json",
           "damaged", "pngs", "out", "new/out", "é", "s.json", "s.png", "r.md", "r.png", "p.json",
-          "--variant", "scalar_rgb", "nope_rgb", "mine.py", "broken.py", "cross-bilateral"]
+          "--variant", "scalar_rgb", "nope_rgb", "mine.py", "broken.py", "cross-bilateral", "modes",
+          "odd\nname\x1b[0m"]
 #: flags a command's --help shows that the fuzzer must not draw (they write into the checkout)
 NEVER = {"--write"}
 #: a method of one's own (docs/own_method.md's shape) and a file that is none
@@ -93,6 +94,10 @@ def _scratch() -> tuple[Path, Path]:
     (folder / "broken.py").write_text("class A(:\n    pass\n")
     (folder / "pngs").mkdir()
     write_image(folder / "pngs" / "a01.png", np.zeros((6, 8, 3), np.uint8))
+    (folder / "modes").mkdir()  # the scores' reader: a transparent PNG, a JPEG under a .png name
+    from PIL import Image  # noqa: PLC0415  Pillow loads with the scratch folder
+    Image.fromarray(np.zeros((6, 8, 4), np.uint8), "RGBA").save(folder / "modes" / "a01.png")
+    Image.fromarray(np.zeros((6, 8, 3), np.uint8)).save(folder / "modes" / "a01n.png", "JPEG")
     with contextlib.redirect_stdout(io.StringIO()):
         if export_main([str(folder / "tiny.json"), str(folder / "seq"), "--local"]):
             raise RuntimeError("the fuzzer's sequence could not be exported")
