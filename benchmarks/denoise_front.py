@@ -29,11 +29,10 @@ from core import entry
 from core.entry import ArgumentParser, printable
 from core.errors import UsageError
 from core.json_input import JSONInputError, read_json
+from denoise.temporal_metrics import QUALITY_FROM
 from imaging.image_io import atomic_path
 
 ROOT = Path(__file__).resolve().parents[1]
-#: the quality figures average frames from this one on (the first frames have no history yet)
-QUALITY_FROM = 4
 DEFAULT_JSON = ROOT / "docs" / "denoise" / "denoise.json"
 DEFAULT_FIGURE = ROOT / "docs" / "denoise" / "front.png"
 #: the largest results file read (a full run's is about 1 MB)

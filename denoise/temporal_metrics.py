@@ -11,6 +11,9 @@ from imaging.metrics import relmse
 
 from .filters import reproject
 
+#: the quality figures average frames from this one on (the first frames have no history yet)
+QUALITY_FROM = 4
+
 
 def back_projected(frames, images) -> list[tuple[np.ndarray, np.ndarray]]:
     """For frames 1.., (image t at the pixels that keep history, image t-1 at

@@ -1,9 +1,9 @@
 """Training ``learned-asvgf``'s network end to end through asvgf's temporal and spatial pipeline.
 
 The data: sequences the project renders itself (``python -m export``), by
-default ``scenes/sequences/training/network/*.json`` (18 sequences of 320×180,
-the benchmark's size, on the showcase and mirrors scenes and the course's arch
-and bunny, which no benchmark sequence uses), each with an independently seeded
+default ``scenes/sequences/training/network/*.json`` (15 sequences of 320×180,
+the benchmark's size, on the showcase and mirrors scenes and the course's
+bunny, which no benchmark sequence uses), each with an independently seeded
 ground truth of 128 samples per pixel: an unbiased (Noise2Noise) target, its
 noise averaging out over pixels and steps.
 :func:`check_specs` refuses a sequence without ground truth and any benchmark

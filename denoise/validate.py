@@ -1,0 +1,129 @@
+"""Trained networks judged on the held-out training sequences against a converged truth.
+
+    python -m denoise.validate [--work DIR] [--reference-spp N] [--methods NAME ...] [--network FILE ...]
+                               [--json FILE]
+
+The training's held-out loss is against the training's own noisy targets
+(Noise2Noise): fine for a curve, not for choosing between networks. This
+command renders the held-out sequences (:data:`denoise.training.HELD_OUT`)
+again with a ground truth of ``--reference-spp`` samples per pixel (512 by
+default; a rerun renders nothing), runs every method (``asvgf``, the
+committed networks and their ablations by default; ``--network FILE`` adds
+a weights file, named by its file name) and prints each one's mean relMSE
+over frames >= :data:`denoise.temporal_metrics.QUALITY_FROM` and its ratio to
+``asvgf``'s. Networks are chosen here; the benchmark's sequences only judge
+the one chosen.
+"""
+from __future__ import annotations
+
+if __name__ == "__main__":  # first: ./.venv's Python, the libLLVM, then Dr.Jit (see core.launcher)
+    from core.launcher import start
+    start("python -m denoise.validate", "denoise.validate")
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from core.entry import ArgumentParser, finish, printable, run
+from core.errors import UsageError
+from core.numbers import ascii_int
+from export import Spec, export, reference_folder
+from export.frames import frame_indices, read_frame
+from imaging.image_io import atomic_path, check_writable, read_exr_rgb
+from imaging.metrics import relmse
+from renderer.variants import set_variant
+
+from .methods import from_name, method_names
+from .temporal_metrics import QUALITY_FROM
+from .training import HELD_OUT, ROOT, TRAINING
+
+#: the methods judged when --methods is not given
+METHODS = ("asvgf", "learned-asvgf", "learned-asvgf-no-temporal-inputs", "learned-asvgf-half-hidden")
+#: the ground truth's samples per pixel when --reference-spp is not given
+REFERENCE_SPP = 512
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = ArgumentParser(prog="python -m denoise.validate", description=__doc__.split("\n\n")[0])
+    parser.add_argument("--work", type=Path, default=ROOT / "out" / "validate",
+                        help="where the held-out sequences are rendered (out/validate)")
+    parser.add_argument("--reference-spp", type=ascii_int, default=REFERENCE_SPP,
+                        help=f"the ground truth's samples per pixel, even ({REFERENCE_SPP})")
+    parser.add_argument("--methods", nargs="+", default=list(METHODS), metavar="NAME",
+                        help=f"methods of python -m denoise --method (default: {' '.join(METHODS)})")
+    parser.add_argument("--network", nargs="+", type=Path, default=[], metavar="FILE",
+                        help="weights files of learned-asvgf to judge besides, each named by its file name")
+    parser.add_argument("--json", type=Path, help="write every number as JSON")
+    return parser
+
+
+def judge(folder: Path, runners: dict) -> dict[str, list[float]]:
+    """Per method (a factory of a fresh method), its relMSE per frame of ``folder`` against its ground truth."""
+    indices = frame_indices(folder)
+    frames = [read_frame(folder, i) for i in indices]
+    truth = [read_exr_rgb(reference_folder(folder) / f"beauty_{i}.exr") for i in indices]
+    errors = {}
+    for name, make in runners.items():
+        method = make()
+        errors[name] = [relmse(method.step(frame), reference) for frame, reference in zip(frames, truth)]
+    return errors
+
+
+def table(results: dict[str, dict[str, list[float]]]) -> list[str]:
+    """A Markdown table: per sequence and method, the mean relMSE over frames >= QUALITY_FROM and its ratio to asvgf's."""
+    methods = list(next(iter(results.values())))
+    lines = ["| sequence | " + " | ".join(methods) + " |", "|---" * (len(methods) + 1) + "|"]
+    for sequence, errors in results.items():
+        means = {m: float(np.mean(e[QUALITY_FROM:])) for m, e in errors.items()}
+        base = means.get("asvgf")
+        cells = [f"{v:.4f}" + (f" ({v / base:.2f}×)" if base and m != "asvgf" else "") for m, v in means.items()]
+        lines.append(f"| {sequence} | " + " | ".join(cells) + " |")
+    return lines
+
+
+def _main(argv: list[str] | None) -> int:
+    args = _parser().parse_args(argv)
+    if not 2 <= args.reference_spp <= 1 << 16 or args.reference_spp % 2:
+        raise UsageError(f"--reference-spp must be even, from 2 to 65536, got {args.reference_spp}")
+    unknown = [m for m in args.methods if m not in method_names()]
+    if unknown:
+        raise UsageError(f"--methods: unknown {', '.join(unknown)} (known: {', '.join(method_names())})")
+    named = {}
+    for path in args.network:
+        if path.stem in named or path.stem in args.methods:
+            raise UsageError(f"--network {printable(path)}: a second method named {path.stem}")
+        named[path.stem] = path
+    if args.json is not None:
+        check_writable("--json", args.json)
+    specs = [p for p in TRAINING if p.stem in HELD_OUT]
+    if not specs:
+        raise UsageError(f"no held-out sequence ({', '.join(HELD_OUT)}) among the training specs")
+    set_variant(None, quiet=True)
+    runners = {m: (lambda m=m: from_name(m)) for m in args.methods}
+    runners.update({name: (lambda p=p: from_name("learned-asvgf", network=str(p))) for name, p in named.items()})
+    for name in list(runners):  # a bad weights file is one line before any rendering
+        runners[name]()
+    results = {}
+    for spec in specs:
+        folder = args.work / spec.stem
+        export(Spec.load(spec, reference_spp=args.reference_spp), folder)
+        print(f"{spec.stem}: judging {len(runners)} methods", file=sys.stderr, flush=True)
+        results[spec.stem] = judge(folder, runners)
+    print(f"mean relMSE over frames >= {QUALITY_FROM} against a {args.reference_spp}-spp truth (ratio to asvgf's):")
+    print("\n".join(table(results)))
+    if args.json is not None:
+        with atomic_path(args.json, ".json") as temporary:
+            Path(temporary).write_text(json.dumps({"reference_spp": args.reference_spp, "quality_from": QUALITY_FROM,
+                                                   "relmse": results}, indent=1) + "\n")
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    return run("python -m denoise.validate", lambda: _main(argv))
+
+
+if __name__ == "__main__":
+    finish(main())
