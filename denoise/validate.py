@@ -73,7 +73,7 @@ def judge(folder: Path, runners: dict) -> dict[str, list[float]]:
 
 
 def table(results: dict[str, dict[str, list[float]]]) -> list[str]:
-    """A Markdown table: per sequence and method, the mean relMSE over frames >= QUALITY_FROM and its ratio to asvgf's."""
+    """A Markdown table: per sequence and method, the mean relMSE over frames >= QUALITY_FROM, its ratio to asvgf's."""
     methods = list(next(iter(results.values())))
     lines = ["| sequence | " + " | ".join(methods) + " |", "|---" * (len(methods) + 1) + "|"]
     for sequence, errors in results.items():
