@@ -37,7 +37,7 @@ ENABLED = True
 
 
 def usable(*values) -> bool:
-    """Whether neighbour reads of ``values`` may be shifted planes: enabled, an
+    """Whether neighbour reads for a result made of ``values`` may be shifted planes: enabled, an
     LLVM variant (its arrays are the host memory NumPy maps; a CUDA array's
     ``numpy()`` is a copy) and no gradient tracked."""
     return (ENABLED and dr.backend_v(mi.Float) == dr.JitBackend.LLVM

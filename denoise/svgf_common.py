@@ -175,7 +175,7 @@ def atrous_level(frame: FrameArrays, color: mi.Vector3f, variance: mi.Float, ste
     the level's kernel also writes its output as the next level's planes
     (:meth:`FrameArrays.planes_of` finds them); else each tap gathers one
     4-float colour record and one 8-float guide record."""
-    shifted = usable(color, variance)
+    shifted = usable(color, variance, p.sigma_luminance, p.sigma_plane, p.normal_exponent)
     if shifted:
         dr.eval(color, variance)
         planes = frame.planes_of((color.x, color.y, color.z, variance), 2 * step)

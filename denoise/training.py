@@ -60,8 +60,8 @@ BATCH, CROP = 4, (160, 90)
 LOSS_FROM = 1
 #: the range of the random exposure (a factor on colour and target)
 EXPOSURE = (0.5, 2.0)
-#: the output layer's biases at the start: asvgf as fitted, nearly none of the temporal blend
-START_BIAS = (0.0, 0.0, 0.0, -5.0)
+#: the output layer's biases at the start: asvgf as fitted
+START_BIAS = (0.0, 0.0, 0.0)
 
 
 def check_specs(paths: list[Path]) -> list[tuple[Path, Spec]]:

@@ -155,3 +155,38 @@ def test_a_steady_frame_maps_no_new_memory(variant_vectorised_rgb, buffers, monk
     assert new == 0 and made  # the third frame took every plane from the pool
     monkeypatch.setattr(neighbours, "ENABLED", False)
     assert np.array_equal(outputs[-1], np.array(svgf(FrameArrays(*tensors(c, n, x)), p)[0]))
+
+
+def test_a_level_differentiated_in_its_sigma_alone_uses_the_gathers(variant_llvm_ad_rgb, buffers, monkeypatch):
+    """A per-pixel σ with a gradient and a colour without one (learned-asvgf's
+    first level on a first frame, in training): the level's gradient in σ is
+    finite and the gathers' (the shifted planes take no part in a gradient)."""
+    import drjit as dr
+    import mitsuba as mi
+
+    from denoise.filters import FrameArrays, luminance
+    from denoise.svgf_common import atrous_level
+
+    c, n, x, _ = buffers
+    pixels = c.shape[0] * c.shape[1]
+
+    def gradient():
+        frame = FrameArrays(*tensors(c, n, x))
+        sigma = mi.Float(np.full(pixels, 1.5, np.float32))
+        dr.enable_grad(sigma)
+        values = type("Values", (), {"sigma_luminance": sigma, "normal_exponent": 33.9, "sigma_plane": 0.3})
+        values_without_gradient = type("Values", (), {"sigma_luminance": 1.5, "normal_exponent": 33.9,
+                                                      "sigma_plane": 0.3})
+        colour = frame.color
+        variance = dr.square(luminance(colour)) * 0.25
+        out, _ = atrous_level(frame, colour, variance, 1, values)
+        dr.eval(out)
+        # another frame's level before the backward pass: it may reuse the planes' memory
+        later = FrameArrays(*tensors(c * 7.0 + 1.0, n, x))
+        dr.eval(atrous_level(later, later.color, luminance(later.color), 1, values_without_gradient)[0])
+        dr.backward(dr.mean(luminance(out)))
+        return np.array(dr.grad(sigma))
+
+    first, gathered = both_ways(monkeypatch, gradient)
+    assert np.isfinite(first).all() and np.abs(first).max() > 0
+    assert np.array_equal(first, gathered)

@@ -5,19 +5,19 @@ unchanged, with its fitted parameters). Then, per pixel, a small multilayer
 perceptron reads what that step knows (:data:`FEATURES`: the history length,
 the temporal gradient λ, whether the history was lost, how far the current
 frame and the fast history lie from the slow one, how much the slow history
-was clipped, the relative noise, the albedo) and gives four numbers
+was clipped, the relative noise, the albedo) and gives three numbers
 (:data:`OUTPUTS`):
 
 - ``sigma_first``, ``sigma_coarse``: the luminance weight's σ of the first
   À-Trous level and of the coarser ones (the wide level included), as
   asvgf's fitted σ times ``exp(2 tanh(o / 2))`` (a factor from e⁻² to e²);
 - ``wide_blend``: the blend between the wide level and the last regular one,
-  ``sigmoid(logit(asvgf's blend) + o)``;
-- ``temporal_blend``: how much of the fast history replaces the slow one
-  before the À-Trous levels, ``sigmoid(o)`` (it starts near 0 and grows where
-  the slow history misleads). The fast history, not the current frame: it
-  answers a change within a frame or two with a fraction of the 1-spp
-  frame's noise, which the first level would feed back into the history.
+  ``sigmoid(logit(asvgf's blend) + o)``.
+
+How much of the history to trust is asvgf's own (its λ and clips): a
+fourth output that blended the fast history into the slow one, trained so,
+lowered the error on the held-out training sequences and raised it frame
+after frame on scenes it had not seen (``docs/learned_asvgf.md``).
 
 With the output layer at 0 the method is asvgf with a wide blend within 1 %
 of asvgf's; the trained weights (``denoise/learned_asvgf.json``, written by
@@ -58,7 +58,7 @@ FEATURES = ("inverse_length", "gradient", "disoccluded", "current_change", "fast
 #: the inputs that come from the history (the "no temporal inputs" ablation drops them)
 TEMPORAL_FEATURES = ("inverse_length", "gradient", "disoccluded", "current_change", "fast_slow", "slow_clip")
 #: the network's outputs, in order
-OUTPUTS = ("sigma_first", "sigma_coarse", "wide_blend", "temporal_blend")
+OUTPUTS = ("sigma_first", "sigma_coarse", "wide_blend")
 #: the file format's name, in every weights file
 FORMAT = "learned-asvgf-mlp"
 #: the command that writes the weights files
@@ -234,7 +234,7 @@ def learned_asvgf(frame: FrameArrays, p: ASVGFParams, network: Callable[[dict], 
     sigma_first, sigma_coarse = p.sigma_luminance * scale(o[0]), p.sigma_luminance * scale(o[1])
     base = dr.clip((dr.detach(length) - 1.0) / p.wide_frames, BLEND_MARGIN, 1.0 - BLEND_MARGIN)
     wide_blend = sigmoid(dr.log(base / (1.0 - base)) + o[2])
-    color = dr.lerp(slow, fast, sigmoid(o[3]))
+    color = slow
     dr.eval(sigma_first, sigma_coarse, wide_blend, color)
     feedback = color
     levels = p.levels if p.levels is not None else levels_for(frame.width)
@@ -268,15 +268,14 @@ class LearnedASVGF(DenoisingMethod):
     """asvgf's temporal step, then a per-pixel perceptron trained end to end
     through the temporal and spatial pipeline (``python -m denoise.train``)
     that sets, from asvgf's temporal statistics, the luminance weight of the
-    first and of the coarser À-Trous levels, the wide level's blend and how
-    much of the current frame replaces the slow history. asvgf's other
+    first and of the coarser À-Trous levels and the wide level's blend. asvgf's other
     parameters are its fitted ones. The presets are the benchmark's
     ablations: ``no-temporal-inputs`` (the network trained on the noise and
     albedo inputs alone) and ``half-hidden`` (half the hidden units).
     Temporal by nature; it always demodulates by the albedo when the frames have one.
     """
     name = "learned-asvgf"
-    description = "asvgf whose filter a trained per-pixel network steers (kernel sigmas, wide blend, temporal blend)"
+    description = "asvgf whose filter a trained per-pixel network steers (kernel sigmas, wide blend)"
     temporal_by_nature = True
     demodulates = True
     options = (weights_option(WEIGHTS_FILE),)
