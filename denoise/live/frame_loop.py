@@ -114,13 +114,13 @@ class SceneRenderer:
         start = time.perf_counter()
         self.set_view(view)
         if view.camera != self.last_camera:  # the G-buffers depend on the camera alone
-            channels = self.render_gbuffers(self.mi_scene, self.centre_sensor, self.object_ids)
-            self.layers = split_layers(to_image(channels, self.width, self.height), GBUFFER_AOVS, rgb=False)
+            pixels = self.render_gbuffers(self.mi_scene, self.centre_sensor, self.object_ids)
+            self.layers = split_layers(to_image(pixels, self.width, self.height), GBUFFER_AOVS, rgb=False)
             self.last_camera = view.camera
         layers = self.layers
         gbuffers = time.perf_counter()
-        channels = self.render_beauty(self.mi_scene, self.integrator, self.jittered_sensor, mi.UInt32(seed))
-        beauty = to_image(channels, self.width, self.height)[..., :3]
+        pixels = self.render_beauty(self.mi_scene, self.integrator, self.jittered_sensor, mi.UInt32(seed))
+        beauty = to_image(pixels, self.width, self.height)
         end = time.perf_counter()
         camera = view.camera
         ids = layers["id"].astype(np.int32)
@@ -160,31 +160,38 @@ def sample_image(scene, integrator, sensor, seed) -> list:
         return [spectrum.x, spectrum.y, spectrum.z] + list(aovs)
 
 
-def render_beauty(scene, integrator, sensor, seed) -> list:
-    """The noisy 1-spp beauty's channels (the function that is frozen)."""
-    return sample_image(scene, integrator, sensor, seed)
+def render_beauty(scene, integrator, sensor, seed) -> mi.Float:
+    """The noisy 1-spp beauty, RGB per pixel as consecutive floats (the function that is frozen)."""
+    return interleaved(sample_image(scene, integrator, sensor, seed)[:3])
 
 
-def render_gbuffers(scene, sensor, object_ids: mi.TensorXf) -> list:
-    """whitted's AOVs :data:`GBUFFER_AOVS` through the pixel centres, the
-    channels of each in order (the function that is frozen): exactly what
-    ``whitted``'s ``sample`` returns as its AOVs (the same function,
-    :func:`mi_plugins.first_hit.first_hit_values`), without its shading,
-    which the G-buffers do not use. ``object_ids`` is whitted's per-shape id
-    table, an input here so that the frozen function may read it."""
+def render_gbuffers(scene, sensor, object_ids: mi.TensorXf) -> mi.Float:
+    """whitted's AOVs :data:`GBUFFER_AOVS` through the pixel centres, their
+    channels per pixel as consecutive floats (the function that is frozen):
+    exactly what ``whitted``'s ``sample`` returns as its AOVs (the same
+    function, :func:`mi_plugins.first_hit.first_hit_values`), without its
+    shading, which the G-buffers do not use. ``object_ids`` is whitted's
+    per-shape id table, an input here so that the frozen function may read it."""
     with dr.suspend_grad():
         ray, _, _ = camera_rays(sensor, mi.UInt32(0))
         active = dr.full(mi.Bool, True, dr.width(ray.d.x))
         si = scene.ray_intersect(mi.Ray3f(ray), active)
         values = first_hit_values(GBUFFER_AOVS, si, active,
                                   lambda: object_ids.array[dr.reinterpret_array(mi.UInt32, si.shape)])
-        return [finite(v) for v in values]
+        return interleaved([finite(v) for v in values])
 
 
-def to_image(channels: list, width: int, height: int) -> np.ndarray:
-    """Flat channels as one (H, W, C) float32 image (one kernel computes them all)."""
-    dr.eval(*channels)
-    return np.stack([np.asarray(c, np.float32) for c in channels], axis=-1).reshape(height, width, len(channels))
+def interleaved(channels: list) -> mi.Float:
+    """Flat channels as one array, a pixel's channels consecutive: the kernel
+    that computes them writes the image as NumPy reads it (no copy per channel)."""
+    pixels = dr.ravel(mi.ArrayXf(*channels))
+    dr.eval(pixels)
+    return pixels
+
+
+def to_image(pixels: mi.Float, width: int, height: int) -> np.ndarray:
+    """An :func:`interleaved` image as (H, W, C) float32 (a view of its memory)."""
+    return np.asarray(pixels).reshape(height, width, -1)
 
 
 #: the tone map's input range: Reinhard's extended operator with white 4 reaches 1 (code 255) at 4
