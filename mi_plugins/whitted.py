@@ -5,14 +5,11 @@ import mitsuba as mi
 import numpy as np
 
 from .aovs import AOV_CHANNELS, parse_aovs
+from .first_hit import finite, first_hit_values, none_active
 from .scene_analysis import POINT, SceneAnalysis, analyse_scene, scene_state
 
 #: the longest ray (Mitsuba's "largest" float32)
 FLOAT32_MAX = float(np.finfo(np.float32).max)
-
-#: Radiance is clamped to this (and NaN, from inf * 0, set to 0), so that sums
-#: over lights, bounces and samples stay finite in float32
-MAX_RADIANCE = 2.0 ** 100
 
 #: A few (~8) float32 rounding units of a coordinate, relative to its magnitude
 ROUNDING = 2.0 ** -21
@@ -24,13 +21,6 @@ def parse_epsilons(text: str) -> list[float]:
     if bad:
         raise ValueError(f"whitted: ray_epsilons must be finite and >= 0, got {bad[0]}")
     return values
-
-
-def none_active(mask) -> bool:
-    """Dr.Jit's C++ ``dr::none_or<false>(mask)``: true only for a one-lane mask
-    (scalar variants trace one ray per call) that is off, where a miss has no
-    BSDF to call; a vectorised mask never ends the kernel early."""
-    return not dr.is_array_v(mask) and not mask
 
 
 class WhittedIntegrator(mi.SamplingIntegrator):
@@ -103,7 +93,7 @@ class WhittedIntegrator(mi.SamplingIntegrator):
     ray that hits nothing returns the scene's environment emitter (a colour or
     a cube map) or black. The ideal mirror direction is then followed with
     the weight of the BSDF's delta-reflection lobe, up to ``bounces`` times.
-    Radiance is clamped to :data:`MAX_RADIANCE` (a NaN from ``inf * 0``
+    Radiance is clamped to :data:`mi_plugins.first_hit.MAX_RADIANCE` (a NaN from ``inf * 0``
     becomes 0), so no output is ever non-finite.
 
     The traced kernel is specialised to the scene: a few lights are unrolled
@@ -372,26 +362,7 @@ class WhittedIntegrator(mi.SamplingIntegrator):
 
     def first_hit_aovs(self, analysis: SceneAnalysis, si: mi.SurfaceInteraction3f,
                        active: mi.Bool) -> list[mi.Float]:
-        if not self.aovs:
-            return []
-        hit = active & si.is_valid()
-        values: list[mi.Float] = []
-        for name in self.aovs:
-            if name == "depth":
-                values.append(dr.select(hit, si.t, 0.0))
-            elif name == "normal":
-                n = si.sh_frame.n
-                values += [dr.select(hit, n.x, 0.0), dr.select(hit, n.y, 0.0), dr.select(hit, n.z, 0.0)]
-            elif name == "position":
-                values += [dr.select(hit, si.p.x, 0.0), dr.select(hit, si.p.y, 0.0), dr.select(hit, si.p.z, 0.0)]
-            elif name == "albedo":
-                albedo = mi.Color3f(0.0)
-                if not none_active(hit):
-                    albedo = dr.select(hit, si.bsdf().eval_diffuse_reflectance(si, hit), 0.0)
-                values += [albedo.x, albedo.y, albedo.z]
-            elif name == "id":
-                values.append(dr.select(hit, analysis.per_shape(si, "ids"), -1.0))
-        return values
+        return first_hit_values(self.aovs, si, active, lambda: analysis.per_shape(si, "ids"))
 
     def object_ids(self, scene: mi.Scene, si: mi.SurfaceInteraction3f) -> mi.Float:
         """Object id of each hit (-1: none)."""
@@ -401,7 +372,3 @@ class WhittedIntegrator(mi.SamplingIntegrator):
         return (f"WhittedIntegrator[\n  bounces = {self.bounces},\n  shadows = {self.shadows},\n"
                 f"  ambient = {self.ambient},\n  aovs = {self.aovs}\n]")
 
-
-def finite(value):
-    """``value`` with NaN set to 0 and magnitudes clamped to :data:`MAX_RADIANCE`."""
-    return dr.select(dr.isnan(value), 0.0, dr.clip(value, -MAX_RADIANCE, MAX_RADIANCE))

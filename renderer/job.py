@@ -31,10 +31,11 @@ class RenderResult:
     stats: dict = field(default_factory=dict)  # with job.stats: rays, AOVs, kernels
 
 
-def split_layers(image: np.ndarray, aovs: tuple[str, ...]) -> dict[str, np.ndarray]:
-    """Splits the film's channels (RGB, then AOVs) into named layers."""
-    layers = {"": image[..., :3]}
-    channel = 3
+def split_layers(image: np.ndarray, aovs: tuple[str, ...], rgb: bool = True) -> dict[str, np.ndarray]:
+    """Splits the film's channels (RGB, then AOVs; the AOVs alone where not
+    ``rgb``) into named layers."""
+    layers = {"": image[..., :3]} if rgb else {}
+    channel = 3 if rgb else 0
     for name in aovs:
         count = len(AOV_CHANNELS[name])
         data = image[..., channel:channel + count]

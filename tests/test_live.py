@@ -455,3 +455,49 @@ def test_dolly_out_stays_within_float32():
         session.apply({"type": "dolly", "amount": -1.0})
     assert session.distance <= 1e3 * session.first_distance * (1 + 1e-9)
     assert np.all(np.abs(session.camera.center) < 1e6)
+
+
+# -- the frame loop's passes (no server) -----------------------------------------------
+def test_frozen_gbuffers_are_whitteds_aovs_bit_for_bit(variant_vectorised_rgb):
+    """The live G-buffer pass (frozen, AOVs alone) gives exactly what whitted's
+    ``sample`` gives as its AOVs, frame after frame of a moving camera (the
+    frozen function replays with each new view)."""
+    import mitsuba as mi
+
+    import mi_plugins
+    from denoise.live.frame_loop import SceneRenderer, sample_image
+    from denoise.live.session import Session
+    from export import GBUFFER_AOVS
+    from renderer.job import split_layers
+
+    mi_plugins.register()
+    renderer = SceneRenderer(ROOT / "scenes" / "showcase.txt", 48, 27, freeze=True)
+    session = Session(renderer.scene.camera, renderer.light, renderer.pivot_distance(), "svgf", (48, 27))
+    for frame in range(3):
+        session.apply({"type": "orbit", "dx": 4.0, "dy": 1.0})
+        view = session.view()
+        renderer.render(view, frame)
+        whitted = renderer.mi_scene.integrator()
+        channels = sample_image(renderer.mi_scene, whitted, renderer.centre_sensor, mi.UInt32(0))
+        expected = split_layers(np.stack([np.asarray(c) for c in channels], -1).reshape(27, 48, -1), GBUFFER_AOVS)
+        for name in GBUFFER_AOVS:
+            assert np.array_equal(renderer.layers[name].view(np.uint32), expected[name].view(np.uint32)), name
+
+
+def test_frozen_beauty_is_the_path_tracers_bit_for_bit(variant_vectorised_rgb):
+    """The frozen beauty pass replays exactly what tracing the path tracer anew gives, seed by seed."""
+    import mitsuba as mi
+
+    import mi_plugins
+    from denoise.live.frame_loop import SceneRenderer, sample_image
+    from denoise.live.session import Session
+
+    mi_plugins.register()
+    renderer = SceneRenderer(ROOT / "scenes" / "showcase.txt", 48, 27, freeze=True)
+    session = Session(renderer.scene.camera, renderer.light, renderer.pivot_distance(), "svgf", (48, 27))
+    for frame in range(3):
+        session.apply({"type": "orbit", "dx": 4.0, "dy": 1.0})
+        beauty = renderer.render(session.view(), frame)[0].beauty
+        channels = sample_image(renderer.mi_scene, renderer.integrator, renderer.jittered_sensor, mi.UInt32(frame))
+        expected = np.stack([np.asarray(c) for c in channels[:3]], -1).reshape(27, 48, 3)
+        assert np.array_equal(beauty.view(np.uint32), expected.view(np.uint32))

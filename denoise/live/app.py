@@ -28,6 +28,8 @@ DEFAULT_SIZE = (320, 180)
 MAX_SIDE = 4096
 #: what a signal's stop prints after ``python -m denoise.live: `` (the page writes no files)
 STOPPED = "stopped (the live page writes no files)"
+#: seconds a thread runs before Python hands the GIL to another that waits (Python's default: 0.005)
+SWITCH_INTERVAL_S = 0.0005
 #: a viewer that stops the loop sees the error; the join is bounded so Ctrl-C stays quick
 JOIN_S = 1.0
 
@@ -95,6 +97,9 @@ def _main(argv: list[str] | None) -> int:
         loop.start()
         print(f"live: open {url} in a browser (Ctrl-C stops)", flush=True)
 
+    # the frame loop's thread holds the GIL while it traces kernels; the server's thread
+    # (sending a frame, reading an acknowledgement) gets it within this, not Python's 5 ms
+    sys.setswitchinterval(SWITCH_INTERVAL_S)
     try:
         asyncio.run(server.serve(ready))
     finally:

@@ -6,13 +6,13 @@ through the pixel centres, then Mitsuba's path tracer at 1 spp through
 jittered positions, with the camera of the moment (``live_camera``, whose
 basis is opaque data) and the first point light where the viewer put it.
 
-The beauty pass is one frozen Dr.Jit function (``dr.freeze``): after its
-first frame it replays the recorded kernels with the new camera, light and
-seed instead of tracing the path tracer again. The G-buffer pass is not
-frozen: whitted keeps its per-scene tables in a plain Python object that the
-freeze cannot traverse (recording fails on a variable made before it). The
-denoiser works on NumPy frames (:class:`denoise.pipeline.Denoiser` checks
-values on the host), which a frozen function cannot replay either.
+The beauty and the G-buffer passes are frozen Dr.Jit functions
+(``dr.freeze``): after their first frame they replay the recorded kernels
+with the new camera, light and seed instead of tracing again. The G-buffer
+pass computes whitted's AOVs alone (:func:`render_gbuffers`, the same
+function as whitted's ``sample``), not its shading, which it would discard.
+The denoiser works on NumPy frames (:class:`denoise.pipeline.Denoiser`
+checks values on the host), which a frozen function cannot replay.
 
 :class:`FrameLoop` runs in its own thread: it waits for the viewer (paused,
 or two frames not yet shown), renders the session's view, denoises it with
@@ -40,6 +40,7 @@ from converters.to_mitsuba import load_scene_dict
 from export import GBUFFER_AOVS
 from export.frames import FrameData, camera_matrices, depth_range
 from imaging.colour import tone_map
+from mi_plugins.first_hit import finite, first_hit_values
 from renderer.job import split_layers
 
 from .methods import RAW, method_for, retuned
@@ -74,9 +75,11 @@ class SceneRenderer:
         lights = [k for k, light in enumerate(self.scene.lights) if isinstance(light, PointLight)]
         self.light_key = f"light_{lights[0]}.position" if lights else None
         self.light = self.scene.lights[lights[0]].position if lights else None
-        self.mi_scene.integrator().analyse(self.mi_scene)  # what whitted.render does before sampling
+        # whitted's per-shape object ids (what whitted.render analyses before sampling), an input of the G-buffer pass
+        self.object_ids = self.mi_scene.integrator().analyse(self.mi_scene).tables["ids"]
         self.last_camera, self.layers = None, None
         self.render_beauty = dr.freeze(render_beauty) if freeze else render_beauty
+        self.render_gbuffers = dr.freeze(render_gbuffers) if freeze else render_gbuffers
 
     def at_size(self, width: int, height: int) -> SceneRenderer:
         """This renderer, or the same scene's at another frame size (loaded anew)."""
@@ -111,13 +114,13 @@ class SceneRenderer:
         start = time.perf_counter()
         self.set_view(view)
         if view.camera != self.last_camera:  # the G-buffers depend on the camera alone
-            channels = sample_image(self.mi_scene, self.mi_scene.integrator(), self.centre_sensor, mi.UInt32(0))
-            self.layers = split_layers(to_image(channels, self.width, self.height), GBUFFER_AOVS)
+            pixels = self.render_gbuffers(self.mi_scene, self.centre_sensor, self.object_ids)
+            self.layers = split_layers(to_image(pixels, self.width, self.height), GBUFFER_AOVS, rgb=False)
             self.last_camera = view.camera
         layers = self.layers
         gbuffers = time.perf_counter()
-        channels = self.render_beauty(self.mi_scene, self.integrator, self.jittered_sensor, mi.UInt32(seed))
-        beauty = to_image(channels, self.width, self.height)[..., :3]
+        pixels = self.render_beauty(self.mi_scene, self.integrator, self.jittered_sensor, mi.UInt32(seed))
+        beauty = to_image(pixels, self.width, self.height)
         end = time.perf_counter()
         camera = view.camera
         ids = layers["id"].astype(np.int32)
@@ -129,37 +132,66 @@ class SceneRenderer:
         return frame, {"gbuffers": gbuffers - start, "render": end - gbuffers}
 
 
+def camera_rays(sensor, seed) -> tuple:
+    """(ray, weight, sampler) of one sample per pixel of ``sensor``'s film, in
+    row order; the position in its pixel comes from the sampler seeded with
+    ``seed`` (``live_camera`` with ``pixel_centers`` shoots through the centre)."""
+    width, height = (int(v) for v in sensor.film().size())
+    index = dr.arange(mi.UInt32, width * height)
+    y = index // width
+    x = index - y * width
+    sampler = sensor.sampler().clone()
+    sampler.seed(seed, width * height)
+    position = (mi.Point2f(mi.Float(x), mi.Float(y)) + sampler.next_2d()) / mi.ScalarPoint2f(width, height)
+    ray, weight = sensor.sample_ray(0.0, 0.5, position, mi.Point2f(0.5))
+    return ray, weight, sampler
+
+
 def sample_image(scene, integrator, sensor, seed) -> list:
     """One sample per pixel of ``sensor``'s film by ``integrator``: the
-    channels RGB, then the integrator's AOVs, each a flat array in row
-    order. The sample's position in its pixel comes from the sampler
-    (``live_camera`` with ``pixel_centers`` shoots through the centre).
+    channels RGB, then the integrator's AOVs, each a flat array in row order.
     Launched without ``mi.render``: its binding swaps the process's SIGINT
     handler while it runs (and keeps its own after a nested render, as
     ``whitted``'s is), so Ctrl-C would reach neither Python nor the server."""
     with dr.suspend_grad():
-        width, height = (int(v) for v in sensor.film().size())
-        index = dr.arange(mi.UInt32, width * height)
-        y = index // width
-        x = index - y * width
-        sampler = sensor.sampler().clone()
-        sampler.seed(seed, width * height)
-        position = (mi.Point2f(mi.Float(x), mi.Float(y)) + sampler.next_2d()) / mi.ScalarPoint2f(width, height)
-        ray, weight = sensor.sample_ray(0.0, 0.5, position, mi.Point2f(0.5))
+        ray, weight, sampler = camera_rays(sensor, seed)
         spectrum, _, aovs = integrator.sample(scene, sampler, ray, None, mi.Bool(True))
         spectrum = spectrum * weight
         return [spectrum.x, spectrum.y, spectrum.z] + list(aovs)
 
 
-def render_beauty(scene, integrator, sensor, seed) -> list:
-    """The noisy 1-spp beauty's channels (the function that is frozen)."""
-    return sample_image(scene, integrator, sensor, seed)
+def render_beauty(scene, integrator, sensor, seed) -> mi.Float:
+    """The noisy 1-spp beauty, RGB per pixel as consecutive floats (the function that is frozen)."""
+    return interleaved(sample_image(scene, integrator, sensor, seed)[:3])
 
 
-def to_image(channels: list, width: int, height: int) -> np.ndarray:
-    """Flat channels as one (H, W, C) float32 image (one kernel computes them all)."""
-    dr.eval(*channels)
-    return np.stack([np.asarray(c, np.float32) for c in channels], axis=-1).reshape(height, width, len(channels))
+def render_gbuffers(scene, sensor, object_ids: mi.TensorXf) -> mi.Float:
+    """whitted's AOVs :data:`GBUFFER_AOVS` through the pixel centres, their
+    channels per pixel as consecutive floats (the function that is frozen):
+    exactly what ``whitted``'s ``sample`` returns as its AOVs (the same
+    function, :func:`mi_plugins.first_hit.first_hit_values`), without its
+    shading, which the G-buffers do not use. ``object_ids`` is whitted's
+    per-shape id table, an input here so that the frozen function may read it."""
+    with dr.suspend_grad():
+        ray, _, _ = camera_rays(sensor, mi.UInt32(0))
+        active = dr.full(mi.Bool, True, dr.width(ray.d.x))
+        si = scene.ray_intersect(mi.Ray3f(ray), active)
+        values = first_hit_values(GBUFFER_AOVS, si, active,
+                                  lambda: object_ids.array[dr.reinterpret_array(mi.UInt32, si.shape)])
+        return interleaved([finite(v) for v in values])
+
+
+def interleaved(channels: list) -> mi.Float:
+    """Flat channels as one array, a pixel's channels consecutive: the kernel
+    that computes them writes the image as NumPy reads it (no copy per channel)."""
+    pixels = dr.ravel(mi.ArrayXf(*channels))
+    dr.eval(pixels)
+    return pixels
+
+
+def to_image(pixels: mi.Float, width: int, height: int) -> np.ndarray:
+    """An :func:`interleaved` image as (H, W, C) float32 (a view of its memory)."""
+    return np.asarray(pixels).reshape(height, width, -1)
 
 
 #: the tone map's input range: Reinhard's extended operator with white 4 reaches 1 (code 255) at 4
