@@ -16,6 +16,7 @@ import numpy as np
 
 from core.errors import UsageError
 
+from .fastmath import neg_exp
 from .neighbours import ShiftedPlanes, margin_for, usable
 
 #: B3-spline taps of the À-Trous wavelet
@@ -96,34 +97,33 @@ def pack(v: mi.Vector3f) -> mi.Float:
 
 
 def edge_log_weight(coefficients: tuple[float, float, float], color_i, normal_i, position_i,
-                    color_j, normal_j, position_j) -> mi.Float:
-    """Sum of the colour, normal and plane terms of the weight's exponent, each
-    D² times its 1/(2σ²) in ``coefficients``. Identical positions give a plane
-    distance of 0, not 0/0."""
+                    color_j, normal_j, position_j, offset: float = 0.0) -> mi.Float:
+    """``offset`` plus the colour, normal and plane terms of the weight's
+    exponent, each D² times its factor in ``coefficients`` (1/(2σ²), or that
+    times -log2(e) for a caller that takes exp2). Identical positions give a
+    plane distance of 0, not 0/0."""
     k_color, k_normal, k_plane = coefficients
     d_color = dr.squared_norm(color_i - color_j)
     d_normal = dr.square(fast_acos(dr.dot(normal_i, normal_j)))
-    return d_color * k_color + d_normal * k_normal + plane_distance_sq(normal_i, position_i, position_j) * k_plane
-
-
-def neg_exp(x: mi.Float) -> mi.Float:
-    """``exp(-x)`` as ``exp2(-x log2 e)``: Dr.Jit's exp2 is the cheaper kernel."""
-    return dr.exp2(x * -1.4426950408889634)
+    plane = plane_distance_sq(normal_i, position_i, position_j)
+    return dr.fma(d_color, k_color, dr.fma(d_normal, k_normal, dr.fma(plane, k_plane, offset)))
 
 
 def plane_distance_sq(normal_i: mi.Vector3f, position_i: mi.Vector3f, position_j: mi.Vector3f) -> mi.Float:
     """``(n_i · (x_j - x_i) / |x_j - x_i|)²`` as one division, without the square
-    root of a normalisation; 0 for identical positions (not 0/0)."""
+    root of a normalisation; 0 for identical positions (0/1e-30, not 0/0: the
+    1e-30 changes no |x_j - x_i|² above 1e-22, and costs one add where a test
+    and two selects did)."""
     d = position_j - position_i
-    length_sq = dr.squared_norm(d)
-    return dr.select(length_sq > 0.0, dr.square(dr.dot(normal_i, d)) / dr.select(length_sq > 0.0, length_sq, 1.0), 0.0)
+    return dr.square(dr.dot(normal_i, d)) / (dr.squared_norm(d) + 1e-30)
 
 
 def fast_acos(x: mi.Float) -> mi.Float:
     """``arccos`` of ``x`` clipped to [-1, 1]: Abramowitz & Stegun 4.4.46
     (``sqrt(1 - |x|)`` times a degree-7 polynomial, |error| <= 2e-8 rad, float32
     rounding aside), about half the cost of ``dr.acos``."""
-    a = dr.minimum(dr.abs(x), 1.0)
+    a = dr.abs(x)
+    a = dr.select(a < 1.0, a, 1.0)  # a compare and a select: cheaper than dr.minimum's NaN rules
     p = mi.Float(-0.0012624911)
     for c in (0.0066700901, -0.0170881256, 0.0308918810, -0.0501743046, 0.0889789874, -0.2145988016, 1.5707963050):
         p = dr.fma(p, a, c)
@@ -400,7 +400,7 @@ def accumulate(current: mi.TensorXf, previous: mi.TensorXf | None, index: mi.UIn
 
 def luminance(c: mi.Vector3f) -> mi.Float:
     """Rec. 709 luminance of linear RGB."""
-    return 0.2126 * c.x + 0.7152 * c.y + 0.0722 * c.z
+    return dr.fma(c.z, 0.0722, dr.fma(c.y, 0.7152, c.x * 0.2126))  # 3 operations, not 5
 
 
 def remove_outliers(color: mi.TensorXf, p: OutlierParams = OutlierParams()) -> mi.TensorXf:
