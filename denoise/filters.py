@@ -142,13 +142,6 @@ GUIDE_REACH = 64
 GUIDE_FLOATS = 8
 
 
-def pack_guides(normal: mi.Vector3f, position: mi.Vector3f) -> mi.Float:
-    """Normal and position per pixel as consecutive 8-float records (not yet
-    evaluated: the caller evaluates them with whatever else the kernel makes)."""
-    zero = dr.zeros(mi.Float, dr.width(normal))
-    return dr.ravel(mi.ArrayXf(normal.x, normal.y, normal.z, position.x, position.y, position.z, zero, zero))
-
-
 _COORDINATES: dict = {}
 
 
@@ -166,12 +159,10 @@ def pixel_coordinates(width: int, height: int) -> tuple[mi.Int32, mi.Int32]:
 
 
 class FrameArrays:
-    """One frame's buffers as flat Dr.Jit arrays (colour, normal, position),
-    uploaded once per frame; :class:`export.frames.FrameData` is the same
-    frame as NumPy arrays, as read from its folder.
-
-    Non-finite colours become 0 and normals are normalised (zero-length ones
-    stay 0), so no NaN can spread through the weights."""
+    """One frame's buffers as flat Dr.Jit arrays (colour, normal, position), uploaded once per
+    frame; :class:`export.frames.FrameData` is the same frame as NumPy arrays, as read from its
+    folder. Non-finite colours become 0 and normals are normalised (zero-length ones stay 0), so
+    no NaN can spread through the weights."""
 
     def __init__(self, color: mi.TensorXf, normal: mi.TensorXf, position: mi.TensorXf):
         self.height, self.width = color.shape[0], color.shape[1]
@@ -180,14 +171,21 @@ class FrameArrays:
         self.normal = _safe_normalize(dr.unravel(mi.Vector3f, normal.array))
         q = dr.unravel(mi.Vector3f, position.array)
         self.position = dr.select(dr.isfinite(q), q, 0.0)
-        # a neighbour's guides are one 8-float record (normal, position, 2 floats
-        # of padding), read with one packet gather per tap instead of two
-        self.guides = pack_guides(self.normal, self.position)
         # one kernel makes them all; left lazy, every level's kernel would redo the
         # normalisation and read the tensors through strided single-float gathers
-        dr.eval(self.color, self.normal, self.position, self.guides)
+        dr.eval(self.color, self.normal, self.position)
         self.x, self.y = pixel_coordinates(self.width, self.height)
-        self._guide_planes = self._planes = None
+        self._guide_planes = self._planes = self._guides = None
+
+    @property
+    def guides(self) -> mi.Float:
+        """Normal and position as one 8-float record a pixel (2 floats of padding), which a tap gathers
+        in one packet gather instead of two; packed when first gathered (shifted planes need none)."""
+        if self._guides is None:
+            n, x, zero = self.normal, self.position, dr.zeros(mi.Float, dr.width(self.normal))
+            self._guides = dr.ravel(mi.ArrayXf(n.x, n.y, n.z, x.x, x.y, x.z, zero, zero))
+            dr.eval(self._guides)
+        return self._guides
 
     def gather(self, packed: mi.Float, x: mi.Int32, y: mi.Int32, active=None) -> mi.Vector3f:
         """The value at (x, y) of an image packed by :func:`pack`, (x, y)
