@@ -245,6 +245,7 @@ def joint_bilateral(frame: FrameArrays, p: EdgeWeights = EdgeWeights(), window: 
     coefficients = edge_coefficients(p, p.sigma_color)
     total = mi.Vector3f(frame.color)  # the centre pixel, weight exp(0) = 1
     color4 = pack(frame.color)
+    dr.eval(frame.guides)  # packed before the symbolic loop, which may not evaluate anything
     weights = mi.Float(1.0)
     dy = mi.Int32(-r)
     while dy <= r:
