@@ -162,8 +162,8 @@ def blurred_variance(frame: FrameArrays, variance: mi.Float) -> mi.Float:
     return blurred
 
 
-#: from this exponent on, ``max(0, c)^e`` is ``exp(e ln c)`` with ``ln c`` its degree-4 Taylor
-#: polynomial about 1: the weight is then within 3.1e-6 of the exact one for every ``c`` (the
+#: from this exponent on, ``max(0, c)^e`` is ``exp(e ln c)`` with ``ln c`` its degree-3 Taylor
+#: polynomial about 1: the weight is then within 3.1e-5 of the exact one for every ``c`` (the
 #: polynomial rises monotonically, and ``e`` times it is below -58 for ``c <= 0``)
 SERIES_EXPONENT = 32.0
 
@@ -171,13 +171,13 @@ SERIES_EXPONENT = 32.0
 def normal_log2_weight(cosine: mi.Float, exponent, log2_w: mi.Float) -> mi.Float:
     """``log2_w`` plus the log2 of ``max(0, cosine)^exponent``, so that one
     exponential per tap makes the whole weight. For a Python exponent of at
-    least :data:`SERIES_EXPONENT`, a Taylor polynomial of ``ln`` about 1 (four
+    least :data:`SERIES_EXPONENT`, a Taylor polynomial of ``ln`` about 1 (three
     fused operations); else :func:`log2_unit`, and where ``cosine <= 0`` an
     exponent whose 2^ is about 0."""
     if not dr.is_array_v(exponent) and exponent >= SERIES_EXPONENT:
         k = float(exponent) * LOG2E
-        t = cosine - 1.0  # ln(1 + t) = t - t²/2 + t³/3 - t⁴/4, the factor k in each coefficient
-        q = dr.fma(dr.fma(dr.fma(t, -k / 4.0, k / 3.0), t, -k / 2.0), t, k)
+        t = cosine - 1.0  # ln(1 + t) = t - t²/2 + t³/3, the factor k in each coefficient
+        q = dr.fma(dr.fma(t, k / 3.0, -k / 2.0), t, k)
         return dr.fma(t, q, log2_w)
     return dr.select(cosine > 0.0, dr.fma(log2_unit(cosine), exponent, log2_w), EXP2_FLOOR - 1.0)
 
