@@ -16,6 +16,7 @@ import numpy as np
 
 from core.errors import UsageError
 
+from .fastmath import neg_exp
 from .neighbours import ShiftedPlanes, margin_for, usable
 
 #: B3-spline taps of the À-Trous wavelet
@@ -96,36 +97,36 @@ def pack(v: mi.Vector3f) -> mi.Float:
 
 
 def edge_log_weight(coefficients: tuple[float, float, float], color_i, normal_i, position_i,
-                    color_j, normal_j, position_j) -> mi.Float:
-    """Sum of the colour, normal and plane terms of the weight's exponent, each
-    D² times its 1/(2σ²) in ``coefficients``. Identical positions give a plane
-    distance of 0, not 0/0."""
+                    color_j, normal_j, position_j, offset: float = 0.0) -> mi.Float:
+    """``offset`` plus the colour, normal and plane terms of the weight's
+    exponent, each D² times its factor in ``coefficients`` (1/(2σ²), or that
+    times -log2(e) for a caller that takes exp2). Identical positions give a
+    plane distance of 0, not 0/0."""
     k_color, k_normal, k_plane = coefficients
     d_color = dr.squared_norm(color_i - color_j)
     d_normal = dr.square(fast_acos(dr.dot(normal_i, normal_j)))
-    return d_color * k_color + d_normal * k_normal + plane_distance_sq(normal_i, position_i, position_j) * k_plane
-
-
-def neg_exp(x: mi.Float) -> mi.Float:
-    """``exp(-x)`` as ``exp2(-x log2 e)``: Dr.Jit's exp2 is the cheaper kernel."""
-    return dr.exp2(x * -1.4426950408889634)
+    plane = plane_distance_sq(normal_i, position_i, position_j)
+    return dr.fma(d_color, k_color, dr.fma(d_normal, k_normal, dr.fma(plane, k_plane, offset)))
 
 
 def plane_distance_sq(normal_i: mi.Vector3f, position_i: mi.Vector3f, position_j: mi.Vector3f) -> mi.Float:
     """``(n_i · (x_j - x_i) / |x_j - x_i|)²`` as one division, without the square
-    root of a normalisation; 0 for identical positions (not 0/0)."""
+    root of a normalisation; 0 for identical positions (0/1e-30, not 0/0: the
+    1e-30 changes no |x_j - x_i|² above 1e-22, and costs one add where a test
+    and two selects did)."""
     d = position_j - position_i
-    length_sq = dr.squared_norm(d)
-    return dr.select(length_sq > 0.0, dr.square(dr.dot(normal_i, d)) / dr.select(length_sq > 0.0, length_sq, 1.0), 0.0)
+    return dr.square(dr.dot(normal_i, d)) / (dr.squared_norm(d) + 1e-30)
 
 
 def fast_acos(x: mi.Float) -> mi.Float:
-    """``arccos`` of ``x`` clipped to [-1, 1]: Abramowitz & Stegun 4.4.46
-    (``sqrt(1 - |x|)`` times a degree-7 polynomial, |error| <= 2e-8 rad, float32
-    rounding aside), about half the cost of ``dr.acos``."""
-    a = dr.minimum(dr.abs(x), 1.0)
-    p = mi.Float(-0.0012624911)
-    for c in (0.0066700901, -0.0170881256, 0.0308918810, -0.0501743046, 0.0889789874, -0.2145988016, 1.5707963050):
+    """``arccos`` of ``x`` clipped to [-1, 1]: ``sqrt(1 - |x|)`` times a
+    degree-4 polynomial (the form of Abramowitz & Stegun 4.4.46, refitted:
+    |error| <= 5e-6 rad in float32, which moves an edge weight's exponent by
+    at most 1e-4 at the default sigma_normal), about a third of ``dr.acos``'s cost."""
+    a = dr.abs(x)
+    a = dr.select(a < 1.0, a, 1.0)  # a compare and a select: cheaper than dr.minimum's NaN rules
+    p = mi.Float(0.009732975624501705)
+    for c in (-0.037618231028318405, 0.0856383889913559, -0.2142806202173233, 1.570791482925415):
         p = dr.fma(p, a, c)
     r = dr.sqrt(1.0 - a) * p
     return dr.select(x < 0.0, dr.pi - r, r)
@@ -139,13 +140,6 @@ def edge_coefficients(p: EdgeWeights, sigma_color: float) -> tuple[float, float,
 GUIDE_REACH = 64
 #: floats per pixel of the packed guides: a power of two, so a tap reads them in one packet gather
 GUIDE_FLOATS = 8
-
-
-def pack_guides(normal: mi.Vector3f, position: mi.Vector3f) -> mi.Float:
-    """Normal and position per pixel as consecutive 8-float records (not yet
-    evaluated: the caller evaluates them with whatever else the kernel makes)."""
-    zero = dr.zeros(mi.Float, dr.width(normal))
-    return dr.ravel(mi.ArrayXf(normal.x, normal.y, normal.z, position.x, position.y, position.z, zero, zero))
 
 
 _COORDINATES: dict = {}
@@ -165,12 +159,10 @@ def pixel_coordinates(width: int, height: int) -> tuple[mi.Int32, mi.Int32]:
 
 
 class FrameArrays:
-    """One frame's buffers as flat Dr.Jit arrays (colour, normal, position),
-    uploaded once per frame; :class:`export.frames.FrameData` is the same
-    frame as NumPy arrays, as read from its folder.
-
-    Non-finite colours become 0 and normals are normalised (zero-length ones
-    stay 0), so no NaN can spread through the weights."""
+    """One frame's buffers as flat Dr.Jit arrays (colour, normal, position), uploaded once per
+    frame; :class:`export.frames.FrameData` is the same frame as NumPy arrays, as read from its
+    folder. Non-finite colours become 0 and normals are normalised (zero-length ones stay 0), so
+    no NaN can spread through the weights."""
 
     def __init__(self, color: mi.TensorXf, normal: mi.TensorXf, position: mi.TensorXf):
         self.height, self.width = color.shape[0], color.shape[1]
@@ -179,14 +171,21 @@ class FrameArrays:
         self.normal = _safe_normalize(dr.unravel(mi.Vector3f, normal.array))
         q = dr.unravel(mi.Vector3f, position.array)
         self.position = dr.select(dr.isfinite(q), q, 0.0)
-        # a neighbour's guides are one 8-float record (normal, position, 2 floats
-        # of padding), read with one packet gather per tap instead of two
-        self.guides = pack_guides(self.normal, self.position)
         # one kernel makes them all; left lazy, every level's kernel would redo the
         # normalisation and read the tensors through strided single-float gathers
-        dr.eval(self.color, self.normal, self.position, self.guides)
+        dr.eval(self.color, self.normal, self.position)
         self.x, self.y = pixel_coordinates(self.width, self.height)
-        self._guide_planes = self._planes = None
+        self._guide_planes = self._planes = self._guides = None
+
+    @property
+    def guides(self) -> mi.Float:
+        """Normal and position as one 8-float record a pixel (2 floats of padding), which a tap gathers
+        in one packet gather instead of two; packed when first gathered (shifted planes need none)."""
+        if self._guides is None:
+            n, x, zero = self.normal, self.position, dr.zeros(mi.Float, dr.width(self.normal))
+            self._guides = dr.ravel(mi.ArrayXf(n.x, n.y, n.z, x.x, x.y, x.z, zero, zero))
+            dr.eval(self._guides)
+        return self._guides
 
     def gather(self, packed: mi.Float, x: mi.Int32, y: mi.Int32, active=None) -> mi.Vector3f:
         """The value at (x, y) of an image packed by :func:`pack`, (x, y)
@@ -246,6 +245,7 @@ def joint_bilateral(frame: FrameArrays, p: EdgeWeights = EdgeWeights(), window: 
     coefficients = edge_coefficients(p, p.sigma_color)
     total = mi.Vector3f(frame.color)  # the centre pixel, weight exp(0) = 1
     color4 = pack(frame.color)
+    dr.eval(frame.guides)  # packed before the symbolic loop, which may not evaluate anything
     weights = mi.Float(1.0)
     dy = mi.Int32(-r)
     while dy <= r:
@@ -400,7 +400,7 @@ def accumulate(current: mi.TensorXf, previous: mi.TensorXf | None, index: mi.UIn
 
 def luminance(c: mi.Vector3f) -> mi.Float:
     """Rec. 709 luminance of linear RGB."""
-    return 0.2126 * c.x + 0.7152 * c.y + 0.0722 * c.z
+    return dr.fma(c.z, 0.0722, dr.fma(c.y, 0.7152, c.x * 0.2126))  # 3 operations, not 5
 
 
 def remove_outliers(color: mi.TensorXf, p: OutlierParams = OutlierParams()) -> mi.TensorXf:

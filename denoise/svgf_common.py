@@ -21,6 +21,7 @@ import mitsuba as mi
 
 from core.errors import UsageError
 
+from .fastmath import EXP2_FLOOR, LOG2E, exp2_weight, log2_unit, neg_exp
 from .filters import (
     B3,
     FrameArrays,
@@ -28,7 +29,6 @@ from .filters import (
     check_whole,
     inv_two_sigma_sq,
     luminance,
-    neg_exp,
     plane_distance_sq,
 )
 from .neighbours import usable
@@ -123,24 +123,23 @@ def estimate_variance(frame: FrameArrays, moments: mi.Vector2f, length: mi.Float
     return dr.select(length < p.variance_frames, spread, temporal)
 
 
+def power_of_two(exponent) -> bool:
+    """Whether ``exponent`` is a Python number 1, 2, 4, 8, ...: :func:`normal_power` squares."""
+    if dr.is_array_v(exponent):
+        return False
+    e = float(exponent)
+    return e >= 1 and e == int(e) and (int(e) & (int(e) - 1)) == 0
+
+
 def normal_power(cosine: mi.Float, exponent: float) -> mi.Float:
     """``max(0, cosine)^exponent``; a power of two as repeated squaring (exact
-    enough and cheaper than exp/log)."""
-    x = dr.maximum(cosine, 0.0)
-    e = float(exponent)
-    if e >= 1 and e == int(e) and (int(e) & (int(e) - 1)) == 0:
-        for _ in range(int(e).bit_length() - 1):
+    enough and cheaper than exp/log), else ``dr.power``."""
+    x = dr.select(cosine > 0.0, cosine, 0.0)  # a compare and a select: cheaper than dr.maximum's NaN rules
+    if power_of_two(exponent):
+        for _ in range(int(exponent).bit_length() - 1):
             x = x * x
         return x
-    return dr.select(x > 0.0, dr.power(x, e), 0.0)
-
-
-def normal_weight(cosine: mi.Float, exponent) -> mi.Float:
-    """``max(0, cosine)^exponent``: :func:`normal_power` for a Python number, else ``dr.power``."""
-    if not dr.is_array_v(exponent):
-        return normal_power(cosine, exponent)
-    x = dr.maximum(cosine, 0.0)
-    return dr.select(x > 0.0, dr.power(dr.select(x > 0.0, x, 1.0), exponent), 0.0)
+    return dr.select(x > 0.0, dr.power(x, float(exponent)), 0.0)
 
 
 def plane_factor(sigma_plane) -> object:
@@ -163,11 +162,53 @@ def blurred_variance(frame: FrameArrays, variance: mi.Float) -> mi.Float:
     return blurred
 
 
+#: from this exponent on, ``max(0, c)^e`` is ``exp(e ln c)`` with ``ln c`` its degree-3 Taylor
+#: polynomial about 1: the weight is then within 3.1e-5 of the exact one for every ``c`` (the
+#: polynomial rises monotonically, and ``e`` times it is below -58 for ``c <= 0``)
+SERIES_EXPONENT = 32.0
+
+
+def normal_log2_weight(cosine: mi.Float, exponent, log2_w: mi.Float) -> mi.Float:
+    """``log2_w`` plus the log2 of ``max(0, cosine)^exponent``, so that one
+    exponential per tap makes the whole weight. For a Python exponent of at
+    least :data:`SERIES_EXPONENT`, a Taylor polynomial of ``ln`` about 1 (three
+    fused operations); else :func:`log2_unit`, and where ``cosine <= 0`` an
+    exponent whose 2^ is about 0."""
+    if not dr.is_array_v(exponent) and exponent >= SERIES_EXPONENT:
+        k = float(exponent) * LOG2E
+        t = cosine - 1.0  # ln(1 + t) = t - t²/2 + t³/3, the factor k in each coefficient
+        q = dr.fma(dr.fma(t, k / 3.0, -k / 2.0), t, k)
+        return dr.fma(t, q, log2_w)
+    return dr.select(cosine > 0.0, dr.fma(log2_unit(cosine), exponent, log2_w), EXP2_FLOOR - 1.0)
+
+
+def edge_masks(frame: FrameArrays, step: int) -> tuple[dict, dict]:
+    """Per column offset ``dx`` and row offset ``dy`` of a level's taps (holes
+    ``step``), whether the tap's column and row are inside the image: one
+    compare each (a negative offset can leave the image only at the start),
+    shared by the taps of that column or row."""
+    x_ok = {k * step: (frame.x >= -k * step) if k < 0 else (frame.x < frame.width - k * step) for k in (-2, -1, 1, 2)}
+    y_ok = {k * step: (frame.y >= -k * step) if k < 0 else (frame.y < frame.height - k * step) for k in (-2, -1, 1, 2)}
+    return x_ok, y_ok
+
+
+def tap_inside(x_ok: dict, y_ok: dict, dx: int, dy: int) -> mi.Bool:
+    """Whether the tap at (``dx``, ``dy``), not both 0, is inside the image (:func:`edge_masks`)."""
+    if dx == 0:
+        return y_ok[dy]
+    return x_ok[dx] if dy == 0 else x_ok[dx] & y_ok[dy]
+
+
 def atrous_level(frame: FrameArrays, color: mi.Vector3f, variance: mi.Float, step: int, p
                  ) -> tuple[mi.Vector3f, mi.Float]:
     """One level with holes ``step``; ``p`` has ``sigma_luminance``,
     ``normal_exponent`` and ``sigma_plane`` (see the module). Returns the
     filtered colour and variance.
+
+    Each tap's weight is one :func:`exp2_weight` of the sum of its terms'
+    log2 (the kernel's factor, luminance, plane and the normal weight:
+    :func:`normal_log2_weight`), but for a power of two below
+    :data:`SERIES_EXPONENT`, which stays repeated squaring (:func:`normal_power`).
 
     Where no gradient is tracked, the taps read colour, variance and guides
     as shifted planes (:mod:`denoise.neighbours`: plain loads, the same
@@ -183,9 +224,11 @@ def atrous_level(frame: FrameArrays, color: mi.Vector3f, variance: mi.Float, ste
     else:
         packed = dr.ravel(mi.Vector4f(color.x, color.y, color.z, variance))
         dr.eval(packed, variance)  # the 3x3 blur gathers the variance alone
-    k_plane = plane_factor(p.sigma_plane)
-    scale = -1.0 / (p.sigma_luminance * dr.sqrt(dr.maximum(blurred_variance(frame, variance), 0.0)) + EPSILON)
+    squaring = power_of_two(p.normal_exponent) and p.normal_exponent < SERIES_EXPONENT
+    k_plane = plane_factor(p.sigma_plane) * -LOG2E
+    scale = -LOG2E / (p.sigma_luminance * dr.sqrt(dr.maximum(blurred_variance(frame, variance), 0.0)) + EPSILON)
     lum_p = luminance(color)
+    x_ok, y_ok = edge_masks(frame, step)
     total, weights, total_var = mi.Vector3f(0.0), mi.Float(0.0), mi.Float(0.0)
     for j, hy in enumerate(B3):
         for i, hx in enumerate(B3):
@@ -195,8 +238,6 @@ def atrous_level(frame: FrameArrays, color: mi.Vector3f, variance: mi.Float, ste
                 weights += hx * hy
                 total_var += hx * hy * hx * hy * variance
                 continue
-            x, y = frame.x + dx, frame.y + dy
-            inside = (x >= 0) & (x < frame.width) & (y >= 0) & (y < frame.height)
             if shifted:
                 o = dy * frame.width + dx
                 c_q = mi.Vector3f(planes.at(0, o), planes.at(1, o), planes.at(2, o))
@@ -204,17 +245,22 @@ def atrous_level(frame: FrameArrays, color: mi.Vector3f, variance: mi.Float, ste
                 n_q = mi.Vector3f(guides.at(0, o), guides.at(1, o), guides.at(2, o))
                 x_q = mi.Vector3f(guides.at(3, o), guides.at(4, o), guides.at(5, o))
             else:
+                x, y = frame.x + dx, frame.y + dy
                 q = dr.gather(mi.Vector4f, packed, mi.UInt32(dr.clip(y, 0, frame.height - 1) * frame.width
                                                              + dr.clip(x, 0, frame.width - 1)))
                 c_q, var_q = mi.Vector3f(q.x, q.y, q.z), q.w
                 n_q, x_q = frame.gather_guides(x, y)
-            log_w = (dr.abs(lum_p - luminance(c_q)) * scale
-                     - plane_distance_sq(frame.normal, frame.position, x_q) * k_plane)
-            w = hx * hy * normal_weight(dr.dot(frame.normal, n_q), p.normal_exponent) * neg_exp(-log_w)
-            w = dr.select(inside, w, 0.0)
-            total += w * c_q
+            log2_w = dr.fma(dr.abs(lum_p - luminance(c_q)), scale, dr.fma(
+                plane_distance_sq(frame.normal, frame.position, x_q), k_plane, math.log2(hx * hy)))
+            cosine = dr.dot(frame.normal, n_q)
+            if squaring:
+                w = normal_power(cosine, p.normal_exponent) * exp2_weight(log2_w)
+            else:
+                w = exp2_weight(normal_log2_weight(cosine, p.normal_exponent, log2_w))
+            w = dr.select(tap_inside(x_ok, y_ok, dx, dy), w, 0.0)
+            total = dr.fma(w, c_q, total)  # fused: one operation a channel, not two
             weights += w
-            total_var += w * w * var_q
+            total_var = dr.fma(w * w, var_q, total_var)
     out, out_var = total / weights, total_var / (weights * weights)
     if shifted:  # written by this level's kernel, read by the next level's taps (holes 2 step)
         frame.offer_planes((out.x, out.y, out.z, out_var), 4 * step)

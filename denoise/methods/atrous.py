@@ -1,13 +1,16 @@
 """The assignment's À-Trous wavelet filter (one kernel per level), with clamped temporal accumulation."""
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import drjit as dr
 import mitsuba as mi
 
-from ..filters import B3, EdgeWeights, FrameArrays, edge_coefficients, edge_log_weight, neg_exp, pack
+from ..fastmath import LOG2E, exp2_weight
+from ..filters import B3, EdgeWeights, FrameArrays, edge_coefficients, edge_log_weight, pack
 from ..neighbours import usable
+from ..svgf_common import edge_masks, tap_inside
 from .base import SpatialFilterMethod, edge_options, edge_weights, levels_option, temporal_options
 
 
@@ -40,7 +43,9 @@ def atrous(frame: FrameArrays, p: EdgeWeights | None = None,
         color4 = pack(color)
     for level in range(count):
         step = 1 << level
-        coefficients = edge_coefficients(p, p.sigma_color / step)
+        # the weight is 2^(log2(h) - log2(e) sum of D² k): one exponential per tap, the kernel's factor h in it
+        coefficients = tuple(-LOG2E * k for k in edge_coefficients(p, p.sigma_color / step))
+        x_ok, y_ok = edge_masks(frame, step)
         total, weights = mi.Vector3f(0.0), mi.Float(0.0)
         for j, hy in enumerate(B3):
             for i, hx in enumerate(B3):
@@ -49,19 +54,19 @@ def atrous(frame: FrameArrays, p: EdgeWeights | None = None,
                     total += hx * hy * color
                     weights += hx * hy
                     continue
-                x, y = frame.x + dx, frame.y + dy
-                inside = (x >= 0) & (x < frame.width) & (y >= 0) & (y < frame.height)
                 if shifted:
                     o = dy * frame.width + dx
                     color_j = mi.Vector3f(planes.at(0, o), planes.at(1, o), planes.at(2, o))
                     guides_j = (mi.Vector3f(guides.at(0, o), guides.at(1, o), guides.at(2, o)),
                                 mi.Vector3f(guides.at(3, o), guides.at(4, o), guides.at(5, o)))
                 else:
-                    color_j = frame.gather(color4, x, y, inside)
+                    x, y = frame.x + dx, frame.y + dy
+                    color_j = frame.gather(color4, x, y)
                     guides_j = frame.gather_guides(x, y)
-                log_w = edge_log_weight(coefficients, color, frame.normal, frame.position, color_j, *guides_j)
-                w = dr.select(inside, hx * hy * neg_exp(log_w), 0.0)
-                total += w * color_j
+                log2_w = edge_log_weight(coefficients, color, frame.normal, frame.position, color_j, *guides_j,
+                                         offset=math.log2(hx * hy))
+                w = dr.select(tap_inside(x_ok, y_ok, dx, dy), exp2_weight(log2_w), 0.0)
+                total = dr.fma(w, color_j, total)  # fused: one operation a channel, not two
                 weights += w
         color = total / weights
         last = level + 1 == count
