@@ -1,12 +1,13 @@
 """Trained networks judged on the held-out training sequences against a converged truth.
 
-    python -m denoise.validate [--work DIR] [--reference-spp N] [--methods NAME ...] [--network FILE ...]
-                               [--json FILE]
+    python -m denoise.validate [SPEC.json ...] [--work DIR] [--reference-spp N] [--methods NAME ...]
+                               [--network FILE ...] [--json FILE]
 
 The training's held-out loss is against the training's own noisy targets
 (Noise2Noise): fine for a curve, not for choosing between networks. This
-command renders the held-out sequences (:data:`denoise.training.HELD_OUT`)
-again with a ground truth of ``--reference-spp`` samples per pixel (512 by
+command renders the held-out sequences (:data:`denoise.training.HELD_OUT`,
+or the specs given: a sequence on a scene left out of a training) again
+with a ground truth of ``--reference-spp`` samples per pixel (512 by
 default; a rerun renders nothing), runs every method (``asvgf``, the
 committed networks and their ablations by default; ``--network FILE`` adds
 a weights file, named by its file name) and prints each one's mean relMSE
@@ -48,6 +49,8 @@ REFERENCE_SPP = 512
 
 def _parser() -> argparse.ArgumentParser:
     parser = ArgumentParser(prog="python -m denoise.validate", description=__doc__.split("\n\n")[0])
+    parser.add_argument("specs", type=Path, nargs="*", metavar="SPEC.json",
+                        help="sequences to judge (default: the held-out training sequences)")
     parser.add_argument("--work", type=Path, default=ROOT / "out" / "validate",
                         help="where the held-out sequences are rendered (out/validate)")
     parser.add_argument("--reference-spp", type=ascii_int, default=REFERENCE_SPP,
@@ -98,9 +101,12 @@ def _main(argv: list[str] | None) -> int:
         named[path.stem] = path
     if args.json is not None:
         check_writable("--json", args.json)
-    specs = [p for p in TRAINING if p.stem in HELD_OUT]
+    specs = args.specs or [p for p in TRAINING if p.stem in HELD_OUT]
     if not specs:
         raise UsageError(f"no held-out sequence ({', '.join(HELD_OUT)}) among the training specs")
+    if len({p.stem for p in specs}) != len(specs):
+        raise UsageError("two specs of one name: they would share a folder in --work")
+    loaded = {p: Spec.load(p, reference_spp=args.reference_spp) for p in specs}  # a bad spec before any work
     set_variant(None, quiet=True)
     runners = {m: (lambda m=m: from_name(m)) for m in args.methods}
     runners.update({name: (lambda p=p: from_name("learned-asvgf", network=str(p))) for name, p in named.items()})
@@ -109,7 +115,7 @@ def _main(argv: list[str] | None) -> int:
     results = {}
     for spec in specs:
         folder = args.work / spec.stem
-        export(Spec.load(spec, reference_spp=args.reference_spp), folder)
+        export(loaded[spec], folder)
         print(f"{spec.stem}: judging {len(runners)} methods", file=sys.stderr, flush=True)
         results[spec.stem] = judge(folder, runners)
     print(f"mean relMSE over frames >= {QUALITY_FROM} against a {args.reference_spp}-spp truth (ratio to asvgf's):")

@@ -23,6 +23,7 @@ def test_judge_scores_each_method_per_frame_and_the_table_gives_ratios(exported)
     (["--reference-spp", "3"], "--reference-spp must be even"),
     (["--methods", "nonsense"], "--methods: unknown nonsense"),
     (["--network", "nowhere.json"], "nowhere.json: no such weights file"),
+    (["nowhere_spec.json"], "nowhere_spec.json"),
 ])
 def test_bad_arguments_are_one_line_before_any_rendering(argv, words, tmp_path, capsys):
     from denoise.validate import main
