@@ -46,6 +46,8 @@ from .training import HELD_OUT, ROOT, TRAINING, Settings
 from .worker_process import ignore_group_signals, run_in_worker
 
 DOCS = ROOT / "docs"
+#: the committed network's steps and learning rate: the command without flags makes its weights
+STEPS, RATE = 80, 0.02
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -54,8 +56,8 @@ def _parser() -> argparse.ArgumentParser:
                         help="training sequences (default: scenes/sequences/training/network/*.json)")
     parser.add_argument("--work", type=Path, default=ROOT / "out" / "train",
                         help="where they are rendered, and the checkpoint (out/train)")
-    parser.add_argument("--steps", type=ascii_int, default=300, help="gradient steps (300)")
-    parser.add_argument("--rate", type=ascii_float, default=0.01, help="Adam's learning rate (0.01)")
+    parser.add_argument("--steps", type=ascii_int, default=STEPS, help=f"gradient steps ({STEPS})")
+    parser.add_argument("--rate", type=ascii_float, default=RATE, help=f"Adam's learning rate ({RATE})")
     parser.add_argument("--hidden", type=ascii_int, default=12, help="hidden units (12)")
     parser.add_argument("--no-temporal-inputs", dest="temporal_inputs", action="store_false",
                         help="the ablation: the network reads the noise and albedo alone")

@@ -209,7 +209,7 @@ def test_a_loss_that_is_not_finite_stops_and_writes_nothing(tiny, tmp_path, caps
     theta[-1] = np.nan
     save_checkpoint(work / "w.checkpoint.npz", settings, ["tiny_showcase"], Adam(theta, 0.01), [], 0.0)
     code = main([str(spec), "--work", str(work), "--out", str(out), "--plot", str(tmp_path / "w.png"),
-                 "--hidden", "4", "--steps", "2"])
+                 "--hidden", "4", "--steps", "2", "--rate", "0.01"])
     err = capsys.readouterr().err
     assert code == 2 and err.count("\n") == 1 and "the training loss is nan" in err
     assert out.read_text() == "before\n" and not (tmp_path / "w.png").exists()
