@@ -30,6 +30,7 @@ import numpy as np
 
 from core.entry import ArgumentParser, finish, printable, run
 from core.errors import UsageError
+from core.inputs import check_outside
 from core.numbers import ascii_int
 from export import Spec, export, reference_folder
 from export.frames import frame_indices, read_frame
@@ -107,6 +108,8 @@ def _main(argv: list[str] | None) -> int:
     if len({p.stem for p in specs}) != len(specs):
         raise UsageError("two specs of one name: they would share a folder in --work")
     loaded = {p: Spec.load(p, reference_spp=args.reference_spp) for p in specs}  # a bad spec before any work
+    for spec in specs:  # the command never writes onto a spec it reads
+        check_outside({"--work": args.work, "--json": args.json}, {"SPEC.json": spec})
     set_variant(None, quiet=True)
     runners = {m: (lambda m=m: from_name(m)) for m in args.methods}
     runners.update({name: (lambda p=p: from_name("learned-asvgf", network=str(p))) for name, p in named.items()})

@@ -24,6 +24,8 @@ def test_judge_scores_each_method_per_frame_and_the_table_gives_ratios(exported)
     (["--methods", "nonsense"], "--methods: unknown nonsense"),
     (["--network", "nowhere.json"], "nowhere.json: no such weights file"),
     (["nowhere_spec.json"], "nowhere_spec.json"),
+    (["scenes/sequences/training/network/mirrors_switch.json", "--json",
+      "scenes/sequences/training/network/mirrors_switch.json"], "is the input SPEC.json"),
 ])
 def test_bad_arguments_are_one_line_before_any_rendering(argv, words, tmp_path, capsys):
     from denoise.validate import main
