@@ -16,8 +16,11 @@ cluster start one single-threaded worker per core:
 """
 from __future__ import annotations
 
+import atexit
 import ipaddress
 import logging
+import multiprocessing
+import multiprocessing.spawn
 import os
 import re
 import signal
@@ -26,6 +29,7 @@ import threading
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
+from pathlib import Path
 
 from core.errors import UsageError
 from core.libllvm import prepare_libllvm
@@ -50,8 +54,29 @@ def dask_setup(worker) -> None:
     """Dask's preload hook, run in each worker process of our LocalCluster as
     it starts: the process leaves the terminal's process group, so that Ctrl-C
     reaches the export alone, which then stops the cluster (in the group every
-    worker would print a traceback, and Mitsuba its warning on stdout)."""
+    worker would print a traceback, and Mitsuba its warning on stdout). Before
+    it, from the worker's first instruction, SIGINT is ignored (:data:`WORKER_PYTHON`)."""
     os.setpgid(0, 0)
+
+
+#: the workers' interpreter: this process's Python started with SIGINT ignored (a script)
+WORKER_PYTHON = Path(__file__).with_name("worker_python")
+
+
+@contextmanager
+def workers_ignoring_sigint() -> Iterator[None]:
+    """Within it, the processes multiprocessing spawns (Dask's workers) start
+    through :data:`WORKER_PYTHON`; as before where the script cannot run."""
+    if not os.access(WORKER_PYTHON, os.X_OK) or not os.access("/bin/sh", os.X_OK):
+        yield
+        return
+    os.environ["EXPORT_WORKER_PYTHON"] = sys.executable
+    previous = multiprocessing.spawn.get_executable()
+    multiprocessing.set_executable(str(WORKER_PYTHON))
+    try:
+        yield
+    finally:
+        multiprocessing.set_executable(previous)
 
 
 #: ``tcp://HOST:PORT`` or ``HOST:PORT``; an IPv6 host in brackets
@@ -86,10 +111,19 @@ def check_scheduler(address: str) -> str:
     return address
 
 
+def silence_dask() -> None:
+    """After an interruption or a failure the user gets one line from the
+    command, not the errors Dask logs while it drops the cancelled work and
+    shuts down."""
+    for name in ("distributed", "tornado", "asyncio"):
+        logging.getLogger(name).setLevel(logging.CRITICAL)
+
+
 @contextmanager
 def dask_client(scheduler: str | None = None, workers: int | None = None) -> Iterator[tuple[object, int | None]]:
     """(a Dask client, the Dr.Jit thread count each worker should use)."""
     from distributed import Client, LocalCluster  # noqa: PLC0415  Dask loads only for cluster exports
+    from distributed.deploy.spec import close_clusters  # noqa: PLC0415  as above
 
     cluster = None
     if scheduler:
@@ -104,17 +138,23 @@ def dask_client(scheduler: str | None = None, workers: int | None = None) -> Ite
     else:
         cores = os.cpu_count() or 1
         workers = workers or cores
-        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                               dashboard_address=":0", silence_logs=logging.ERROR, preload=[__name__])
+        try:
+            with workers_ignoring_sigint():
+                cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                                       dashboard_address=":0", silence_logs=logging.ERROR, preload=[__name__])
+        except BaseException:
+            # interrupted while its workers start: Dask's exit hook would close a cluster whose
+            # workers never finished starting (an AssertionError traceback); they end with this
+            # process (multiprocessing terminates them, and each watches its parent)
+            atexit.unregister(close_clusters)
+            silence_dask()
+            raise
         client = Client(cluster)
         threads = max(1, cores // workers)
     try:
         yield client, threads
     except BaseException:
-        # interrupted or failed: the user gets one line from the command, not the
-        # errors Dask logs while it drops the cancelled work and shuts down
-        for name in ("distributed", "tornado", "asyncio"):
-            logging.getLogger(name).setLevel(logging.CRITICAL)
+        silence_dask()
         raise
     finally:
         client.close()
