@@ -213,21 +213,22 @@ class FrameArrays:
                                                 self.position.x, self.position.y, self.position.z], margin)
         return self._guide_planes
 
-    def offer_planes(self, channels: tuple, reach: int) -> None:
-        """Schedules ``channels`` (lazy Dr.Jit Floats) to be written as
-        :class:`ShiftedPlanes` by the kernel that evaluates them (one set
-        kept: a filter's next level reads its level's output). Values with a
-        gradient tracked are not offered: the next level gathers them."""
+    def offer_planes(self, channels: tuple, reach: int, derived: tuple = ()) -> None:
+        """Schedules ``channels`` (lazy Dr.Jit Floats), then ``derived`` (values computed
+        from them), to be written as :class:`ShiftedPlanes` by the kernel that evaluates
+        them (one set kept: a filter's next level reads its level's output). Values with
+        a gradient tracked are not offered: the next level gathers them."""
         if usable(*channels):
-            self._planes = ShiftedPlanes(channels, margin_for(self.width, reach), keep=channels)
+            self._planes = ShiftedPlanes(channels + derived, margin_for(self.width, reach), keep=channels)
 
-    def planes_of(self, channels: tuple, reach: int) -> ShiftedPlanes:
-        """``channels`` as :class:`ShiftedPlanes` for taps up to ``reach``
-        pixels away: the ones :meth:`offer_planes` scheduled for exactly these
-        arrays, else made now (a kernel of their own)."""
+    def planes_of(self, channels: tuple, reach: int, derived: tuple = ()) -> ShiftedPlanes:
+        """``channels`` and then ``derived`` (values computed from them) as :class:`ShiftedPlanes`
+        for taps up to ``reach`` pixels away: the ones :meth:`offer_planes` scheduled for
+        exactly these arrays, else made now (a kernel of their own)."""
         margin = margin_for(self.width, reach)
-        if self._planes is None or not self._planes.made_from(*channels) or self._planes.margin < margin:
-            self._planes = ShiftedPlanes(channels, margin, keep=channels)
+        if (self._planes is None or not self._planes.made_from(*channels) or self._planes.margin < margin
+                or len(self._planes.planes) < len(channels) + len(derived)):
+            self._planes = ShiftedPlanes(channels + derived, margin, keep=channels)
         return self._planes
 
     def tensor(self, color: mi.Vector3f) -> mi.TensorXf:

@@ -210,8 +210,8 @@ def atrous_level(frame: FrameArrays, color: mi.Vector3f, variance: mi.Float, ste
     :func:`normal_log2_weight`), but for a power of two below
     :data:`SERIES_EXPONENT`, which stays repeated squaring (:func:`normal_power`).
 
-    Where no gradient is tracked, the taps read colour, variance and guides
-    as shifted planes (:mod:`denoise.neighbours`: plain loads, the same
+    Where no gradient is tracked, the taps read colour, variance, the
+    colour's luminance and the guides as shifted planes (:mod:`denoise.neighbours`: plain loads, the same
     values for every tap inside the image, bit for bit the same result), and
     the level's kernel also writes its output as the next level's planes
     (:meth:`FrameArrays.planes_of` finds them); else each tap gathers one
@@ -219,7 +219,7 @@ def atrous_level(frame: FrameArrays, color: mi.Vector3f, variance: mi.Float, ste
     shifted = usable(color, variance, p.sigma_luminance, p.sigma_plane, p.normal_exponent)
     if shifted:
         dr.eval(color, variance)
-        planes = frame.planes_of((color.x, color.y, color.z, variance), 2 * step)
+        planes = frame.planes_of((color.x, color.y, color.z, variance), 2 * step, derived=(luminance(color),))
         guides = frame.guide_planes(2 * step)
     else:
         packed = dr.ravel(mi.Vector4f(color.x, color.y, color.z, variance))
@@ -241,7 +241,7 @@ def atrous_level(frame: FrameArrays, color: mi.Vector3f, variance: mi.Float, ste
             if shifted:
                 o = dy * frame.width + dx
                 c_q = mi.Vector3f(planes.at(0, o), planes.at(1, o), planes.at(2, o))
-                var_q = planes.at(3, o)
+                var_q, lum_q = planes.at(3, o), planes.at(4, o)
                 n_q = mi.Vector3f(guides.at(0, o), guides.at(1, o), guides.at(2, o))
                 x_q = mi.Vector3f(guides.at(3, o), guides.at(4, o), guides.at(5, o))
             else:
@@ -249,8 +249,9 @@ def atrous_level(frame: FrameArrays, color: mi.Vector3f, variance: mi.Float, ste
                 q = dr.gather(mi.Vector4f, packed, mi.UInt32(dr.clip(y, 0, frame.height - 1) * frame.width
                                                              + dr.clip(x, 0, frame.width - 1)))
                 c_q, var_q = mi.Vector3f(q.x, q.y, q.z), q.w
+                lum_q = luminance(c_q)
                 n_q, x_q = frame.gather_guides(x, y)
-            log2_w = dr.fma(dr.abs(lum_p - luminance(c_q)), scale, dr.fma(
+            log2_w = dr.fma(dr.abs(lum_p - lum_q), scale, dr.fma(
                 plane_distance_sq(frame.normal, frame.position, x_q), k_plane, math.log2(hx * hy)))
             cosine = dr.dot(frame.normal, n_q)
             if squaring:
@@ -263,6 +264,6 @@ def atrous_level(frame: FrameArrays, color: mi.Vector3f, variance: mi.Float, ste
             total_var = dr.fma(w * w, var_q, total_var)
     out, out_var = total / weights, total_var / (weights * weights)
     if shifted:  # written by this level's kernel, read by the next level's taps (holes 2 step)
-        frame.offer_planes((out.x, out.y, out.z, out_var), 4 * step)
+        frame.offer_planes((out.x, out.y, out.z, out_var), 4 * step, derived=(luminance(out),))
         dr.eval(out, out_var)  # read while the planes are held (see denoise.neighbours)
     return out, out_var
