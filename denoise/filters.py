@@ -16,6 +16,7 @@ import numpy as np
 
 from core.errors import UsageError
 
+from .edge_weights import EdgeWeights, edge_coefficients, edge_log_weight, inv_two_sigma_sq
 from .fastmath import neg_exp
 from .neighbours import ShiftedPlanes, margin_for, usable
 
@@ -35,17 +36,6 @@ def check_whole(owner: str, name: str, value, low: int, high: int) -> None:
     """A one-line :class:`UsageError` unless ``value`` is an int from ``low`` to ``high``."""
     if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
         raise UsageError(f"{owner}: {name} must be a whole number from {low} to {high}, got {value!r}")
-
-
-@dataclass(frozen=True)
-class EdgeWeights:
-    """The assignment's edge-stopping weights ``exp(-D²/(2σ²))`` on colour,
-    normal angle (``arccos`` of the normals' dot) and plane distance (the
-    normal dotted with the unit vector between the two positions). The
-    methods' options declare and check each (:func:`denoise.methods.base.edge_options`)."""
-    sigma_color: float = 0.6
-    sigma_normal: float = 0.1
-    sigma_plane: float = 0.1
 
 
 @dataclass(frozen=True)
@@ -78,12 +68,6 @@ class OutlierParams:
         check_whole("outlier removal", "radius", self.radius, 1, 16)
 
 
-def inv_two_sigma_sq(sigma: float) -> float:
-    """``1 / (2 sigma²)``, the factor of a Gaussian weight's exponent."""
-    # sigma -> 0 means "only identical values": a huge but finite factor keeps exp() at 0, not NaN
-    return 1.0 / max(2.0 * sigma * sigma, 1e-30)
-
-
 def _safe_normalize(v: mi.Vector3f) -> mi.Vector3f:
     length = dr.norm(v)
     return dr.select(length > 0.0, v / dr.select(length > 0.0, length, 1.0), 0.0)
@@ -94,46 +78,6 @@ def pack(v: mi.Vector3f) -> mi.Float:
     packed = dr.ravel(mi.Vector4f(v.x, v.y, v.z, 0.0))
     dr.eval(packed)
     return packed
-
-
-def edge_log_weight(coefficients: tuple[float, float, float], color_i, normal_i, position_i,
-                    color_j, normal_j, position_j, offset: float = 0.0) -> mi.Float:
-    """``offset`` plus the colour, normal and plane terms of the weight's
-    exponent, each D² times its factor in ``coefficients`` (1/(2σ²), or that
-    times -log2(e) for a caller that takes exp2). Identical positions give a
-    plane distance of 0, not 0/0."""
-    k_color, k_normal, k_plane = coefficients
-    d_color = dr.squared_norm(color_i - color_j)
-    d_normal = dr.square(fast_acos(dr.dot(normal_i, normal_j)))
-    plane = plane_distance_sq(normal_i, position_i, position_j)
-    return dr.fma(d_color, k_color, dr.fma(d_normal, k_normal, dr.fma(plane, k_plane, offset)))
-
-
-def plane_distance_sq(normal_i: mi.Vector3f, position_i: mi.Vector3f, position_j: mi.Vector3f) -> mi.Float:
-    """``(n_i · (x_j - x_i) / |x_j - x_i|)²`` as one division, without the square
-    root of a normalisation; 0 for identical positions (0/1e-30, not 0/0: the
-    1e-30 changes no |x_j - x_i|² above 1e-22, and costs one add where a test
-    and two selects did)."""
-    d = position_j - position_i
-    return dr.square(dr.dot(normal_i, d)) / (dr.squared_norm(d) + 1e-30)
-
-
-def fast_acos(x: mi.Float) -> mi.Float:
-    """``arccos`` of ``x`` clipped to [-1, 1]: ``sqrt(1 - |x|)`` times a
-    degree-4 polynomial (the form of Abramowitz & Stegun 4.4.46, refitted:
-    |error| <= 5e-6 rad in float32, which moves an edge weight's exponent by
-    at most 1e-4 at the default sigma_normal), about a third of ``dr.acos``'s cost."""
-    a = dr.abs(x)
-    a = dr.select(a < 1.0, a, 1.0)  # a compare and a select: cheaper than dr.minimum's NaN rules
-    p = mi.Float(0.009732975624501705)
-    for c in (-0.037618231028318405, 0.0856383889913559, -0.2142806202173233, 1.570791482925415):
-        p = dr.fma(p, a, c)
-    r = dr.sqrt(1.0 - a) * p
-    return dr.select(x < 0.0, dr.pi - r, r)
-
-
-def edge_coefficients(p: EdgeWeights, sigma_color: float) -> tuple[float, float, float]:
-    return inv_two_sigma_sq(sigma_color), inv_two_sigma_sq(p.sigma_normal), inv_two_sigma_sq(p.sigma_plane)
 
 
 #: taps up to this many pixels away read the guides' planes made for the first level (six levels' holes)
@@ -236,11 +180,12 @@ class FrameArrays:
 
 
 @dr.syntax
-def joint_bilateral(frame: FrameArrays, p: EdgeWeights = EdgeWeights(), window: BilateralWindow = BilateralWindow()
+def joint_bilateral(frame: FrameArrays, p: EdgeWeights | None = None, window: BilateralWindow = BilateralWindow()
                     ) -> mi.TensorXf:
     """The assignment's joint bilateral filter over a (2r+1)^2 window: a
     symbolic loop over the window's rows, each row's taps unrolled (less time
     than one loop iteration per tap; the same result)."""
+    p = EdgeWeights() if p is None else p
     r = window.radius
     k_coord = inv_two_sigma_sq(window.sigma_coord)  # plain floats: not loop state
     coefficients = edge_coefficients(p, p.sigma_color)

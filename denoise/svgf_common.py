@@ -21,16 +21,9 @@ import mitsuba as mi
 
 from core.errors import UsageError
 
+from .edge_weights import inv_two_sigma_sq, plane_distance_sq
 from .fastmath import EXP2_FLOOR, LOG2E, exp2_weight, log2_unit, neg_exp
-from .filters import (
-    B3,
-    FrameArrays,
-    check_positive,
-    check_whole,
-    inv_two_sigma_sq,
-    luminance,
-    plane_distance_sq,
-)
+from .filters import B3, FrameArrays, check_positive, check_whole, luminance
 from .neighbours import usable
 
 GAUSS3 = (0.25, 0.5, 0.25)

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 
 def test_exp2_weight_is_within_3e_6_and_floored(variant_vectorised_rgb):
@@ -39,3 +40,29 @@ def test_log2_unit_is_within_2e_6(variant_vectorised_rgb):
     c = np.concatenate([np.linspace(1e-6, 1.0, 100001), [1.0, 0.5, 0.999999]]).astype(np.float32)
     ours = np.array(log2_unit(mi.Float(c)), np.float64)
     assert np.abs(ours - np.log2(c.astype(np.float64))).max() < 2e-6
+
+
+@pytest.mark.parametrize("sigma_normal", [0.05, 0.1, 0.11, 0.125, 0.5, 2.0])
+def test_normal_angle_weight_without_the_square_root_is_the_same_weight(variant_vectorised_rgb, sigma_normal):
+    """The normal term of an edge weight, ``2^(-log2(e) acos(x)²/(2σ²))``, for dots
+    ``x`` over [-1, 1]: where :func:`facing_apart_floored` lets
+    :func:`normal_angle_sq` skip the square root, its exponent within 1e-4 of
+    the one through :func:`fast_acos` (exactly the floor where normals face apart);
+    where it does not, the shortcut would change the weights of normals facing apart."""
+    import mitsuba as mi
+
+    from denoise.edge_weights import facing_apart_floored, inv_two_sigma_sq, normal_angle_sq
+    from denoise.fastmath import EXP2_FLOOR, LOG2E, exp2_weight
+
+    x = mi.Float(np.linspace(-1.0, 1.0, 20001).astype(np.float32))
+    apart = np.array(x) < 0
+    k = -LOG2E * inv_two_sigma_sq(sigma_normal)
+    floored = facing_apart_floored(k)
+    assert floored == (sigma_normal <= 0.11)  # (π/2)² k log2(e) >= 126 up to sigma 0.1186
+    through_acos = np.array(exp2_weight(k * normal_angle_sq(x, False)), np.float64)
+    shortcut = np.array(exp2_weight(k * normal_angle_sq(x, True)), np.float64)
+    if floored:
+        assert np.abs(np.log2(shortcut) - np.log2(through_acos)).max() < 1e-4  # float32 rounding
+        assert (shortcut[apart] == 2.0 ** EXP2_FLOOR).all() and (through_acos[apart] == 2.0 ** EXP2_FLOOR).all()
+    else:
+        assert np.abs(shortcut[apart] / through_acos[apart] - 1).max() > 0.1

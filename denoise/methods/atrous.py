@@ -7,8 +7,9 @@ from dataclasses import dataclass
 import drjit as dr
 import mitsuba as mi
 
+from ..edge_weights import EdgeWeights, edge_coefficients, edge_log_weight
 from ..fastmath import LOG2E, exp2_weight
-from ..filters import B3, EdgeWeights, FrameArrays, edge_coefficients, edge_log_weight, pack
+from ..filters import B3, FrameArrays, pack
 from ..neighbours import usable
 from ..svgf_common import edge_masks, tap_inside
 from .base import SpatialFilterMethod, edge_options, edge_weights, levels_option, temporal_options
