@@ -9,12 +9,17 @@ Each :class:`SystemCase` runs real commands in subprocesses (see
   128 + the signal within 2 s, at most one line, nothing written, no process left;
 - the converter's output through a symbolic link: the XML loads in Mitsuba;
 - an empty ``--batch`` file: one line;
-- clean logs: stderr empty on success, also with an unusable ``HOME``.
+- clean logs: stderr empty on success, also with an unusable ``HOME``;
+- SIGINT to the process group while ``export --workers 2`` starts its Dask workers:
+  exit 130 within 2 s, one line, no process left.
 """
 from __future__ import annotations
 
+import json
+import os
 import shutil
 import signal
+import subprocess
 import tempfile
 import time
 from collections.abc import Callable
@@ -22,7 +27,16 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from validation.stress.scene import scene
-from validation.stress.system import ROOT, full_disk, interrupt, python, run_command, temporary_files
+from validation.stress.system import (
+    ROOT,
+    full_disk,
+    interrupt,
+    python,
+    python_started,
+    run_command,
+    session_processes,
+    temporary_files,
+)
 
 #: Two parallel mirrors with the camera between them: every ray bounces as often as -bounces allows
 FACING_MIRRORS = """PerspectiveCamera { center 0 0 0 direction 0 0.05 -1 up 0 1 0 angle 60 }
@@ -157,6 +171,41 @@ def _clean_logs(folder: Path) -> list[str]:
     return problems
 
 
+def _ctrl_c_while_workers_start(folder: Path) -> list[str]:
+    """SIGINT to the process group of ``export --workers 2`` as soon as a worker's
+    Python has started (still importing, before Dask's preload): a terminal's Ctrl-C."""
+    spec = folder / "seq.json"
+    spec.write_text(json.dumps({"scene": "lamps", "frames": 3, "size": [64, 48], "spp": 1, "reference_spp": 256,
+                                "bounces": 1}))
+    with tempfile.TemporaryFile() as err:
+        process = subprocess.Popen(python("-m", "export", spec, folder / "seq", "--workers", 2), cwd=ROOT,
+                                   stdout=subprocess.DEVNULL, stderr=err, start_new_session=True)
+        try:
+            end = time.perf_counter() + 120
+            while not [line for line in session_processes(process.pid) if "multiprocessing.spawn" in line
+                       and python_started(int(line.split()[0]))]:
+                if process.poll() is not None or time.perf_counter() > end:
+                    return ["no worker process started"]
+                time.sleep(0.01)
+            os.killpg(process.pid, signal.SIGINT)
+            sent = time.perf_counter()
+            code = process.wait(timeout=30)
+            seconds = time.perf_counter() - sent
+            time.sleep(0.5)  # the workers see their parent gone
+            left = session_processes(process.pid)
+        finally:
+            for line in session_processes(process.pid):  # never leave anything behind a failed check
+                os.kill(int(line.split()[0]), signal.SIGKILL)
+        err.seek(0)
+        lines = err.read().decode(errors="replace").strip().splitlines()
+    problems = [] if code == 130 else [f"exit code {code}"]
+    if seconds > 2.0:
+        problems.append(f"exited {seconds:.2f} s after the signal")
+    if len(lines) != 1:
+        problems.append(f"{len(lines)} lines on stderr: {lines[-1][:200] if lines else ''}")
+    return problems + [f"process left: {p}" for p in left]
+
+
 def system_cases() -> list[SystemCase]:
     def render(*flags):
         return lambda disk: python(RENDER, "-input", SHOWCASE, "-size", 64, 48, "--quiet",
@@ -177,6 +226,7 @@ def system_cases() -> list[SystemCase]:
                                            "--local"), "seq/dataset.json"),
         SystemCase("converter output through a symbolic link loads", _linked_xml),
         SystemCase("clean logs: stderr empty on success", _clean_logs),
+        SystemCase("SIGINT to the process group while export's Dask workers start", _ctrl_c_while_workers_start),
     ]
     for variant, size in (("llvm_ad_rgb", 1024), ("scalar_rgb", 256)):
         for signum in (signal.SIGINT, signal.SIGTERM):

@@ -147,6 +147,18 @@ def catches(pid: int, signum: int) -> bool:
     return False
 
 
+def python_started(pid: int) -> bool:
+    """Whether process ``pid`` is a Python past its start-up: SIGINT caught (Python's
+    handler) or ignored (left so by Python), where a shell or a fresh fork has neither."""
+    try:
+        status = dict(line.split(":\t", 1) for line in Path(f"/proc/{pid}/status").read_text().splitlines()
+                      if ":\t" in line)
+        masks = int(status["SigCgt"], 16) | int(status["SigIgn"], 16)
+        return bool(masks >> (signal.SIGINT - 1) & 1) and "python" in Path(f"/proc/{pid}/exe").resolve().name
+    except (OSError, KeyError, ValueError):
+        return False
+
+
 def wait_for_handler(process: subprocess.Popen, timeout: float = 30) -> None:
     """Waits until ``process`` catches SIGTERM, which Python leaves alone and
     :func:`core.start_up.exit_on_signals` (a command's first line) takes: the
