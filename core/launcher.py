@@ -23,10 +23,11 @@ from __future__ import annotations
 
 import importlib.util
 import os
+import signal
 import sys
 from pathlib import Path
 
-from core.start_up import exit_on_signals
+from core.start_up import STOP_SIGNALS, exit_on_signals
 
 ROOT = Path(__file__).resolve().parent.parent
 VENV = ROOT / ".venv"
@@ -57,6 +58,9 @@ def use_project_python(prog: str, module: str | None = None) -> None:
         command = [str(VENV_PYTHON)] + (["-m", module] if module else [sys.argv[0]]) + sys.argv[1:]
         sys.stdout.flush()
         sys.stderr.flush()
+        # the mask survives exec: a Ctrl-C during the new Python's start-up waits for its
+        # exit_on_signals (one line) instead of a KeyboardInterrupt traceback from some import
+        signal.pthread_sigmask(signal.SIG_BLOCK, STOP_SIGNALS)
         os.execv(command[0], command)  # does not return
     where = f"{VENV_PYTHON} lacks them" if VENV_PYTHON.exists() else f"there is no {VENV}"
     print(f"{prog}: error: {sys.executable} cannot import {', '.join(missing)} and {where}; "

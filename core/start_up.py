@@ -4,7 +4,8 @@ A script imports this before anything else (``core.entry`` itself takes a
 moment to import on a loaded machine): from then on SIGINT, SIGTERM and SIGHUP
 print the interrupted line and exit with 128 + the signal at once, until
 ``core.entry.run`` installs its own handlers. Earlier than this a signal lands
-in Python's own start-up, which no program can handle.
+in Python's own start-up, which no program can handle, but for a command that
+:mod:`core.launcher` re-executed: it blocks them across the ``exec``.
 """
 import os
 import signal
@@ -28,3 +29,6 @@ def exit_on_signals(prog: str) -> None:
 
     for signum in STOP_SIGNALS:
         signal.signal(signum, stop)
+    # blocked by a launcher that re-executed this command (core.launcher): a signal
+    # that came during this Python's start-up is pending, and is handled now
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, STOP_SIGNALS)

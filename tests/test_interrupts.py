@@ -17,6 +17,7 @@ from pathlib import Path
 import pytest
 from conftest import SCALAR_FALLBACK
 
+from core.start_up import INTERRUPTED
 from validation.stress.cases_system import FACING_MIRRORS
 from validation.stress.system import ROOT, interrupt, python, run_command
 
@@ -168,3 +169,48 @@ def test_a_signal_after_the_output_keeps_the_contract(tmp_path, name, signum):
         assert process.returncode in (0, 128 + signum), (delay, process.returncode, stderr[-2000:])
         assert len(stderr.strip().splitlines()) <= 1 and "Traceback" not in stderr, (delay, stderr[-2000:])
     print(name, signal.Signals(signum).name, outcomes)
+
+
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
+def test_a_signal_while_a_re_executed_python_starts_is_one_line(signum):
+    """The launcher re-executes a command typed with another Python under
+    ./.venv's with the stop signals blocked (core.launcher): one sent during
+    the new Python's start-up waits, pending, for the command's first line,
+    which stops it with one line, where it would otherwise be a
+    KeyboardInterrupt traceback from some import. Started here as the exec
+    leaves it: the signals blocked, one sent at once (start-up takes far longer)."""
+    blocked = signal.valid_signals() & {signal.SIGINT, signal.SIGTERM, signal.SIGHUP}
+    process = subprocess.Popen(python("-m", "denoise.methods"), cwd=ROOT, stdout=subprocess.PIPE,
+                               stderr=subprocess.PIPE, text=True,
+                               preexec_fn=lambda: signal.pthread_sigmask(signal.SIG_BLOCK, blocked))
+    process.send_signal(signum)
+    out, err = process.communicate(timeout=60)
+    assert process.returncode == 128 + signum, err
+    assert err == f"python -m denoise.methods: {INTERRUPTED}\n"
+    assert out == ""
+
+
+def test_the_launcher_blocks_the_stop_signals_across_its_exec(monkeypatch):
+    """What the test above relies on: the mask at the launcher's ``exec``."""
+    from core import launcher
+    from core.start_up import STOP_SIGNALS
+
+    seen = {}
+
+    def execv(path, argv):
+        seen["mask"] = signal.pthread_sigmask(signal.SIG_BLOCK, [])
+        raise SystemExit(0)
+
+    handlers = {signum: signal.getsignal(signum) for signum in STOP_SIGNALS}
+    mask = signal.pthread_sigmask(signal.SIG_BLOCK, [])
+    monkeypatch.setattr(launcher, "missing_packages", lambda: ["numpy"])
+    monkeypatch.setattr(launcher, "in_project_venv", lambda: False)
+    monkeypatch.setattr(launcher.os, "execv", execv)
+    try:
+        with pytest.raises(SystemExit):
+            launcher.use_project_python("python -m denoise", "denoise")
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, mask)
+        for signum, handler in handlers.items():
+            signal.signal(signum, handler)
+    assert set(STOP_SIGNALS) <= seen["mask"]
