@@ -16,6 +16,7 @@ import asyncio
 import logging
 import signal
 import socket
+import threading
 from pathlib import Path
 
 from aiohttp import WSMsgType, web
@@ -31,6 +32,9 @@ PAGE = Path(__file__).parent / "static" / "index.html"
 PATHS = ("/", "/ws")
 #: aiohttp's own frame limit, above ours so that a long message gets our error, not a closed socket
 SOCKET_LIMIT = 1 << 20
+#: seconds :meth:`LiveServer.publish` waits for a frame to be handed to the socket (a page
+#: that stops reading makes the send wait; the frame loop then goes on after this)
+SEND_WAIT_S = 0.05
 LOOPBACK = ("127.0.0.1", "localhost", "::1")
 
 
@@ -90,7 +94,9 @@ class LiveServer:
         origin = request.headers.get("Origin")
         if origin not in allowed_origins(self.host, self.port):
             raise web.HTTPForbidden(text=f"WebSocket from origin {origin!r} refused\n")
-        ws = web.WebSocketResponse(max_msg_size=SOCKET_LIMIT, heartbeat=None)
+        # no permessage-deflate: frames are JPEGs already, and aiohttp compresses a message over
+        # 16 KiB in an executor thread, a hop (and the GIL) between the frame loop and the socket
+        ws = web.WebSocketResponse(max_msg_size=SOCKET_LIMIT, heartbeat=None, compress=False)
         await ws.prepare(request)
         if self.viewer is not None and not self.viewer.closed:
             await ws.send_json({"type": "refused", "message": "another viewer is already connected; close that "
@@ -133,28 +139,36 @@ class LiveServer:
         self.failed.set()
 
     def publish(self, data: bytes | None) -> None:
-        """Sends a frame to the viewer (from the frame loop's thread); None: the loop failed."""
+        """Sends a frame to the viewer (from the frame loop's thread), returning once it is
+        handed to the socket (or after :data:`SEND_WAIT_S`); None: the loop failed."""
         if self.loop is None or self.signal is not None:
             return
+        written = threading.Event()
         try:
-            self.loop.call_soon_threadsafe(self._send, data)
+            self.loop.call_soon_threadsafe(self._send, data, written)
         except RuntimeError:  # the event loop closed while this frame was made: the server is stopping
-            pass
+            return
+        if data is not None:  # the frame goes out before the caller traces its next one (both need the GIL)
+            written.wait(SEND_WAIT_S)
 
-    def _send(self, data: bytes | None) -> None:
+    def _send(self, data: bytes | None, written: threading.Event) -> None:
         if data is None:
             self.failed.set()
             return
         viewer = self.viewer
         if viewer is not None and not viewer.closed:
-            asyncio.ensure_future(self._send_bytes(viewer, data))
+            asyncio.ensure_future(self._send_bytes(viewer, data, written))
+        else:
+            written.set()
 
     @staticmethod
-    async def _send_bytes(viewer: web.WebSocketResponse, data: bytes) -> None:
+    async def _send_bytes(viewer: web.WebSocketResponse, data: bytes, written: threading.Event) -> None:
         try:
             await viewer.send_bytes(data)
         except (ConnectionError, RuntimeError):  # the page went away meanwhile
             pass
+        finally:
+            written.set()
 
     async def serve(self, ready) -> None:
         """Listens until cancelled (or the frame loop fails); ``ready(url)`` once listening."""
