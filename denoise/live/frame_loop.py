@@ -51,6 +51,8 @@ IN_FLIGHT = 2
 #: path depth beyond direct light, as the export's specs (``bounces``)
 BOUNCES = 3
 JPEG_QUALITY = 85
+#: the G-buffer layers kept contiguous (see :meth:`SceneRenderer.render`)
+CONTIGUOUS_LAYERS = ("normal", "position", "albedo")
 
 
 class SceneRenderer:
@@ -115,7 +117,11 @@ class SceneRenderer:
         self.set_view(view)
         if view.camera != self.last_camera:  # the G-buffers depend on the camera alone
             pixels = self.render_gbuffers(self.mi_scene, self.centre_sensor, self.object_ids)
-            self.layers = split_layers(to_image(pixels, self.width, self.height), GBUFFER_AOVS, rgb=False)
+            layers = split_layers(to_image(pixels, self.width, self.height), GBUFFER_AOVS, rgb=False)
+            # the layers the denoiser checks (Denoiser.usable_frame) and uploads, contiguous once per
+            # view: as strided views of the interleaved image, each frame would pay a slow pass and a copy
+            self.layers = {name: np.ascontiguousarray(layer) if name in CONTIGUOUS_LAYERS else layer
+                           for name, layer in layers.items()}
             self.last_camera = view.camera
         layers = self.layers
         gbuffers = time.perf_counter()
