@@ -32,8 +32,7 @@ PAGE = Path(__file__).parent / "static" / "index.html"
 PATHS = ("/", "/ws")
 #: aiohttp's own frame limit, above ours so that a long message gets our error, not a closed socket
 SOCKET_LIMIT = 1 << 20
-#: seconds :meth:`LiveServer.publish` waits for a frame to be handed to the socket (a page
-#: that stops reading makes the send wait; the frame loop then goes on after this)
+#: seconds :meth:`LiveServer.publish` waits at most for the event loop to hand a frame to the socket
 SEND_WAIT_S = 0.05
 LOOPBACK = ("127.0.0.1", "localhost", "::1")
 
@@ -157,18 +156,17 @@ class LiveServer:
             return
         viewer = self.viewer
         if viewer is not None and not viewer.closed:
-            asyncio.ensure_future(self._send_bytes(viewer, data, written))
-        else:
-            written.set()
+            asyncio.ensure_future(self._send_bytes(viewer, data))
+        # after the send's first step, which writes the frame to the socket (what the socket does
+        # not take at once, asyncio sends when it can): not after a drain, which waits for the page
+        self.loop.call_soon(written.set)
 
     @staticmethod
-    async def _send_bytes(viewer: web.WebSocketResponse, data: bytes, written: threading.Event) -> None:
+    async def _send_bytes(viewer: web.WebSocketResponse, data: bytes) -> None:
         try:
             await viewer.send_bytes(data)
         except (ConnectionError, RuntimeError):  # the page went away meanwhile
             pass
-        finally:
-            written.set()
 
     async def serve(self, ready) -> None:
         """Listens until cancelled (or the frame loop fails); ``ready(url)`` once listening."""
