@@ -102,14 +102,15 @@ class CubeMapEmitter(mi.Emitter):
 
     def sample_direction(self, it: mi.Interaction3f, sample: mi.Point2f, active: bool = True):
         d = mi.warp.square_to_uniform_sphere(sample)
-        ds = dr.zeros(mi.DirectionSample3f)
+        # a scalar variant cannot dr.zeros() a record that holds an emitter pointer; its constructor zeros it
+        ds = dr.zeros(mi.DirectionSample3f) if dr.is_jit_v(mi.Float) else mi.DirectionSample3f()
         ds.p = it.p + d * (2.0 * self.bsphere.radius)
         ds.n = -d
         ds.d = d
         ds.dist = mi.Float(dr.inf)
         ds.pdf = mi.warp.square_to_uniform_sphere_pdf(d)
         ds.delta = mi.Bool(False)
-        ds.emitter = mi.EmitterPtr(self)
+        ds.emitter = mi.EmitterPtr(self) if dr.is_jit_v(mi.Float) else self
         return ds, dr.select(active, self.lookup(d, active) / ds.pdf, 0.0)
 
     def pdf_direction(self, it: mi.Interaction3f, ds: mi.DirectionSample3f, active: bool = True) -> mi.Float:

@@ -99,6 +99,19 @@ def test_cube_map_lookup_matches_reference(variants_all_rgb):
         assert np.allclose(value(emitter.lookup(mi.Vector3f(d))), e, atol=1e-5)
 
 
+def test_cube_map_samples_directions_in_every_variant(variants_all_rgb):
+    """The path tracer (the export's noisy beauty) samples the sky: a direction,
+    its density and the radiance over it, in scalar variants too."""
+    emitter = mi.load_dict({"type": "course_cubemap", "folder": str(ROOT / "scenes" / "tex" / "sky")})
+    scene = mi.load_dict({"type": "scene", "sky": emitter})
+    sky = scene.emitters()[0]
+    it = dr.zeros(mi.Interaction3f)
+    ds, weight = sky.sample_direction(it, mi.Point2f(0.3, 0.7))
+    assert np.isclose(value(ds.pdf), 1 / (4 * np.pi), rtol=1e-5)
+    assert np.allclose(value(weight), value(sky.lookup(ds.d)) * 4 * np.pi, rtol=1e-4)
+    assert np.isclose(value(sky.pdf_direction(it, ds)), 1 / (4 * np.pi), rtol=1e-5)
+
+
 # -- registration, scene analysis, fixtures -------------------------------------------
 def test_plugin_classes_follow_the_variant(variant_vectorised_rgb):
     """Each variant has its own classes, built once: a class obtained earlier is
