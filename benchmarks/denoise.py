@@ -300,10 +300,14 @@ def bar_lines(results: dict) -> list[str]:
     timing = results.get("timing")
     if timing:
         size = "x".join(map(str, timing["size"]))
-        cpu = timing.get("cpu_ratio_to_oidn", {})
-        parts = [f"{key} = {b['ratio']:.2f}x (bar {b['bar']}x: {'met' if b['met'] else 'not met'}"
-                 + (f"; CPU time {cpu[key.split(' / ')[0]]:.2f}x of {BASELINE}" if key.split(" / ")[0] in cpu else "")
-                 + ")" for key, b in timing["bars"].items()]
+        cpu = timing.get("cpu_ms", {})
+
+        def cpu_text(key: str) -> str:  # this process's CPU time, all threads: what other jobs inflate least
+            method, base = key.split(" / ")
+            return f"; CPU time {cpu[method] / cpu[base]:.2f}x" if method in cpu and cpu.get(base) else ""
+
+        parts = [f"{key} = {b['ratio']:.2f}x (bar {b['bar']}x: {'met' if b['met'] else 'not met'}{cpu_text(key)})"
+                 for key, b in timing["bars"].items()]
         times = ", ".join(f"{m} {ms:.0f} ms" for m, ms in timing["ms"].items())
         lines.append(f"speed at {size} ({times}): " + "; ".join(parts))
     return lines
