@@ -110,13 +110,18 @@ def damaged(tmp_path: Path, case: str) -> Path:
     elif case == "other outputs":
         data["outputs"] = data["outputs"][:-1]
         path.write_text(json.dumps(data))
+    elif case in ("a string", "true", "null"):
+        data["w1"][0][0] = {"a string": "0.5", "true": True, "null": None}[case]
+        path.write_text(json.dumps(data))
+    elif case == "a folder":
+        return tmp_path
     elif case == "not finite":
         path.write_text(text.replace(str(data["b2"][0]), "NaN", 1) if str(data["b2"][0]) in text else "x")
     return path
 
 
 BAD = ("missing", "truncated", "corrupted", "not an object", "other shape", "other hidden", "other features",
-       "unknown feature", "other outputs", "not finite")
+       "unknown feature", "other outputs", "not finite", "a string", "true", "null", "a folder")
 
 
 @pytest.mark.parametrize("case", BAD)
@@ -129,6 +134,10 @@ def test_a_bad_weights_file_is_one_line_naming_it(case, tmp_path):
         make("learned-asvgf", network=str(path))
     message = str(error.value)
     assert "\n" not in message and message.startswith(f"{path}: ") and "python -m denoise.train" in message
+    if case in ("a string", "true", "null"):  # NumPy had read "0.5" and true as numbers
+        assert "w1[0][0] is " in message and "not a number" in message, message
+    if case == "a folder":
+        assert "a folder, not a weights file" in message, message
 
 
 def test_a_bad_weights_file_stops_the_denoiser_with_exit_2(exported, tmp_path, capsys):

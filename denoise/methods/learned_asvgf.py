@@ -36,6 +36,7 @@ through the frames after.
 """
 from __future__ import annotations
 
+import json
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -105,11 +106,31 @@ def bad_weights(path: Path, problem: str) -> UsageError:
     return UsageError(f"{path}: {problem}; make it with {TRAIN_COMMAND}")
 
 
+def not_a_number(value, place: str) -> str | None:
+    """Where nested lists ``value`` hold something other than a number (a string,
+    ``true``, ``null``, an object), said as ``w1[0][2] is "0.5", not a number``; None if nowhere.
+    NumPy would read ``"0.5"`` and ``true`` as numbers."""
+    if isinstance(value, list):
+        for index, item in enumerate(value):
+            found = not_a_number(item, f"{place}[{index}]")
+            if found is not None:
+                return found
+        return None
+    if value is None and "[" not in place:
+        return None  # a missing key: the shape check says so
+    if isinstance(value, (int, float)) and not isinstance(value, bool):
+        return None
+    shown = json.dumps(value)
+    return f"{place} is {shown if len(shown) <= 40 else shown[:37] + '...'}, not a number"
+
+
 def load_network(path: Path) -> Network:
     """The network of weights file ``path``; a missing, truncated or damaged
     file, or one of other shapes or another feature list, is one line naming
     the file and the training command."""
     path = Path(path)
+    if path.is_dir():
+        raise bad_weights(path, "a folder, not a weights file")
     if not path.is_file():
         raise bad_weights(path, "no such weights file")
     try:
@@ -130,6 +151,9 @@ def load_network(path: Path) -> Network:
     shapes = {"w1": (hidden, len(features)), "b1": (hidden,), "w2": (len(OUTPUTS), hidden), "b2": (len(OUTPUTS),)}
     arrays = {}
     for key, shape in shapes.items():
+        place = not_a_number(data.get(key), key)
+        if place is not None:
+            raise bad_weights(path, place)
         try:
             array = np.array(data.get(key), dtype=np.float64)
         except (TypeError, ValueError):
