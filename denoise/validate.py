@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from core.entry import ArgumentParser, finish, printable, run
-from core.errors import UsageError
+from core.errors import SpecError, UsageError
 from core.inputs import check_outside
 from core.numbers import ascii_int
 from export import Spec, export, reference_folder
@@ -64,6 +64,36 @@ def _parser() -> argparse.ArgumentParser:
     return parser
 
 
+#: the words of the export's refusal of a folder made with other settings that name its own --force
+EXPORT_FORCE = "; use --force to start over, or another folder"
+
+
+def render(spec: Spec, folder: Path, **where) -> None:
+    """``export(spec, folder)`` for a command whose --work is a cache: a folder
+    made with other settings is refused naming --work, not export's --force
+    (a flag these commands do not have)."""
+    try:
+        export(spec, folder, **where)
+    except SpecError as error:
+        text = str(error)
+        if EXPORT_FORCE not in text:
+            raise
+        raise SpecError(text.replace(EXPORT_FORCE, f"; remove {folder} and {reference_folder(folder)} to render "
+                                                   "them again, or give another --work")) from None
+
+
+def check_frames(spec: Path, frames: int) -> None:
+    """A sequence judged by its mean over frames >= QUALITY_FROM needs such frames."""
+    if frames <= QUALITY_FROM:
+        raise UsageError(f"{spec}: {frames} frame{'s' if frames != 1 else ''}; the mean relMSE is taken over frames "
+                         f">= {QUALITY_FROM}, so a sequence needs at least {QUALITY_FROM + 1} frames")
+
+
+def cell(name: str) -> str:
+    """A name a user chose (a spec's, a weights file's) as one Markdown table cell."""
+    return printable(name).replace("|", "\\|")
+
+
 def judge(folder: Path, runners: dict) -> dict[str, list[float]]:
     """Per method (a factory of a fresh method), its relMSE per frame of ``folder`` against its ground truth."""
     indices = frame_indices(folder)
@@ -79,12 +109,14 @@ def judge(folder: Path, runners: dict) -> dict[str, list[float]]:
 def table(results: dict[str, dict[str, list[float]]]) -> list[str]:
     """A Markdown table: per sequence and method, the mean relMSE over frames >= QUALITY_FROM, its ratio to asvgf's."""
     methods = list(next(iter(results.values())))
-    lines = ["| sequence | " + " | ".join(methods) + " |", "|---" * (len(methods) + 1) + "|"]
+    lines = ["| sequence | " + " | ".join(map(cell, methods)) + " |", "|---" * (len(methods) + 1) + "|"]
     for sequence, errors in results.items():
+        if any(len(e) <= QUALITY_FROM for e in errors.values()):
+            raise ValueError(f"{sequence}: no frames >= {QUALITY_FROM} to take the mean of")
         means = {m: float(np.mean(e[QUALITY_FROM:])) for m, e in errors.items()}
         base = means.get("asvgf")
         cells = [f"{v:.4f}" + (f" ({v / base:.2f}×)" if base and m != "asvgf" else "") for m, v in means.items()]
-        lines.append(f"| {sequence} | " + " | ".join(cells) + " |")
+        lines.append(f"| {cell(sequence)} | " + " | ".join(cells) + " |")
     return lines
 
 
@@ -100,17 +132,26 @@ def _main(argv: list[str] | None) -> int:
         if path.stem in named or path.stem in args.methods:
             raise UsageError(f"--network {printable(path)}: a second method named {path.stem}")
         named[path.stem] = path
-    if args.json is not None:
-        check_writable("--json", args.json)
+    if args.json is not None and args.json.suffix.lower() != ".json":
+        raise UsageError(f"--json writes JSON: name it .json, got {args.json}")
     specs = args.specs or [p for p in TRAINING if p.stem in HELD_OUT]
     if not specs:
         raise UsageError(f"no held-out sequence ({', '.join(HELD_OUT)}) among the training specs")
     if len({p.stem for p in specs}) != len(specs):
         raise UsageError("two specs of one name: they would share a folder in --work")
     loaded = {p: Spec.load(p, reference_spp=args.reference_spp) for p in specs}  # a bad spec before any work
-    for spec in specs:  # the command never writes onto a spec it reads
+    for spec in specs:
+        check_frames(spec, loaded[spec].frames)
+    for spec in specs:  # the command never writes onto a spec, a weights file or a frame folder it reads
+        folder = args.work / spec.stem
         check_outside({"--work": args.work, "--json": args.json}, {"SPEC.json": spec})
-    set_variant(None, quiet=True)
+        check_outside({"--json": args.json}, {f"frame folder (--work) of {spec.stem}": folder,
+                                              f"ground truth (--work) of {spec.stem}": reference_folder(folder)})
+    for path in named.values():
+        check_outside({"--json": args.json}, {"--network": path})
+    if args.json is not None:
+        check_writable("--json", args.json)
+    set_variant(None, jit=True)  # the methods have no scalar form: an unusable libLLVM is one line naming it
     runners = {m: (lambda m=m: from_name(m)) for m in args.methods}
     runners.update({name: (lambda p=p: from_name("learned-asvgf", network=str(p))) for name, p in named.items()})
     for name in list(runners):  # a bad weights file is one line before any rendering
@@ -118,8 +159,8 @@ def _main(argv: list[str] | None) -> int:
     results = {}
     for spec in specs:
         folder = args.work / spec.stem
-        export(loaded[spec], folder)
-        print(f"{spec.stem}: judging {len(runners)} methods", file=sys.stderr, flush=True)
+        render(loaded[spec], folder)
+        print(f"{printable(spec.stem)}: judging {len(runners)} methods", file=sys.stderr, flush=True)
         results[spec.stem] = judge(folder, runners)
     print(f"mean relMSE over frames >= {QUALITY_FROM} against a {args.reference_spp}-spp truth (ratio to asvgf's):")
     print("\n".join(table(results)))

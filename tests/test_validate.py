@@ -34,3 +34,98 @@ def test_bad_arguments_are_one_line_before_any_rendering(argv, words, tmp_path, 
     err = capsys.readouterr().err
     assert words in err and err.count("\n") == 1
     assert not (tmp_path / "work").exists()
+
+
+TINY_SPEC = "scenes/sequences/training/network/showcase_orbit.json"
+
+
+def tiny_spec(tmp_path, frames: int):
+    """A copy of a training spec with ``frames`` frames at 32x18, named tinyN."""
+    import json
+    from pathlib import Path
+
+    data = json.loads(Path(TINY_SPEC).read_text())
+    data.update(frames=frames, size=[32, 18])
+    path = tmp_path / f"tiny{frames}.json"
+    path.write_text(json.dumps(data))
+    return path
+
+
+@pytest.mark.parametrize("argv, words", [
+    (["--json", "{work}/tiny5/x.json"], "is inside the input folder frame folder (--work) of tiny5"),
+    (["--json", "{work}/tiny5_reference/x.json"], "is inside the input folder ground truth (--work) of tiny5"),
+    (["--json", "{tmp}/w.json", "--network", "{tmp}/w.json"], "is the input --network"),
+    (["--json", "{tmp}/x.txt"], "--json writes JSON: name it .json"),
+    (["--network", "{tmp}"], ": a folder, not a weights file"),
+])
+def test_outputs_into_inputs_and_misnamed_files_are_one_line_before_any_work(argv, words, tmp_path, capsys):
+    """--json inside a sequence's folder under --work (or onto a weights file it reads) was accepted."""
+    from denoise.validate import main
+
+    (tmp_path / "w.json").write_text("{}")
+    argv = [a.format(work=tmp_path / "work", tmp=tmp_path) for a in argv]
+    spec = tiny_spec(tmp_path, 5)
+    assert main(argv + [str(spec), "--work", str(tmp_path / "work"), "--methods", "asvgf", "--reference-spp", "2"]) == 2
+    err = capsys.readouterr().err
+    assert words in err and err.count("\n") == 1, err
+    assert not (tmp_path / "work").exists()
+
+
+@pytest.mark.parametrize("frames", [1, 3, 4])
+def test_a_sequence_without_judged_frames_is_one_line_before_any_rendering(frames, tmp_path, capsys):
+    """A sequence of 4 frames or fewer printed ``| tiny1 | nan | nan (nan×) |`` and NumPy's warning, exit 0."""
+    from denoise.validate import main
+
+    spec = tiny_spec(tmp_path, frames)
+    assert main([str(spec), "--work", str(tmp_path / "work"), "--reference-spp", "2",
+                 "--methods", "asvgf", "svgf"]) == 2
+    captured = capsys.readouterr()
+    assert captured.out == "" and captured.err.count("\n") == 1, captured
+    assert f"{spec}: {frames} frame" in captured.err and "at least 5 frames" in captured.err, captured.err
+    assert not (tmp_path / "work").exists()
+
+
+def test_the_table_escapes_the_names_a_user_chose():
+    """A --network name with a newline or a byte that is not UTF-8 split or corrupted the table."""
+    import os
+
+    from denoise.validate import table
+
+    odd = os.fsdecode(b"net\xff")
+    lines = table({"seq\nname": {"asvgf": [0.1] * 6, odd: [0.05] * 6, "a|b": [0.2] * 6}})
+    assert len(lines) == 3 and all("\n" not in line for line in lines)
+    assert "\\xff" in lines[0] and "a\\|b" in lines[0] and "| seq\\nname |" in lines[2]
+    "\n".join(lines).encode()  # printable on any terminal: no lone surrogate
+
+
+def test_a_folder_made_with_other_settings_names_no_flag_that_does_not_exist(tmp_path, capsys):
+    """The refusal said "use --force to start over", a flag denoise.validate does not have."""
+    from denoise.validate import main
+
+    (tmp_path / "work" / "tiny5").mkdir(parents=True)
+    (tmp_path / "work" / "tiny5" / "sequence.json").write_text("{}")
+    assert main([str(tiny_spec(tmp_path, 5)), "--work", str(tmp_path / "work"), "--methods", "asvgf",
+                 "--reference-spp", "2"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "made with other settings" in err and "--force" not in err, err
+    assert "another --work" in err
+
+
+def test_an_unusable_libllvm_is_named_not_a_scalar_fallback(tmp_path):
+    """With the libLLVM unusable the command fell back to scalar_rgb in silence, then refused a work folder
+    made under llvm_ad_rgb with a flag it does not have; it has no scalar form, so it says why in one line."""
+    import os
+    import subprocess
+    import sys
+
+    library = tmp_path / "libLLVM.so"
+    library.write_text("not a library\n")
+    done = subprocess.run([sys.executable, "-m", "denoise.validate", str(tiny_spec(tmp_path, 5)),
+                           "--work", str(tmp_path / "work"), "--methods", "asvgf", "--reference-spp", "2"],
+                          capture_output=True, text=True, timeout=300,
+                          env={**os.environ, "DRJIT_LIBLLVM_PATH": str(library),
+                               "XDG_CACHE_HOME": str(tmp_path / "cache")})
+    lines = done.stderr.splitlines()
+    assert done.returncode == 2 and len(lines) == 1 and "Traceback" not in done.stderr, done.stderr
+    assert str(library) in lines[0] and "JIT variant" in lines[0] and "--force" not in lines[0], lines
+    assert not (tmp_path / "work").exists()
