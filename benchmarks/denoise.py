@@ -58,12 +58,14 @@ from benchmarks.records import check_json, machine, write_json
 from core import entry
 from core.entry import ArgumentParser
 from core.errors import OutputError, UsageError
+from core.inputs import check_outside
 from core.markdown import replace_section
 from denoise.methods import benchmark_names, from_name, resolve
 from denoise.methods.oidn import QUALITIES, oidn_version
 from denoise.methods.user import add_method_file_option, load_method_files
 from denoise.temporal_metrics import stability, temporal_relmse
-from export import Spec, export, reference_folder
+from denoise.validate import render
+from export import Spec, reference_folder
 from export.frames import frame_indices, read_frame
 from imaging.colour import side_by_side
 from imaging.image_io import read_exr_rgb as read_rgb, write_image, write_video
@@ -405,10 +407,17 @@ def write_results_page(results: dict, still: Path | None, video: Path | None, fr
 PROG = "python -m benchmarks.denoise"
 
 
-def check_work_and_json(work: Path, json_path: Path | None) -> None:
-    """The cache folder and the JSON file, checked before hours of rendering."""
+def check_work_and_json(work: Path, json_path: Path | None, folders: list[Path] = ()) -> None:
+    """The cache folder and the JSON file, checked before hours of rendering:
+    the JSON is named .json and lies outside the sequences' ``folders`` it reads."""
     if work.exists() and not work.is_dir():
         raise OutputError(f"--work {work}: a file, not a folder")
+    if json_path is not None and not json_path.is_dir() and json_path.suffix.lower() != ".json":
+        raise UsageError(f"--json writes JSON: name it .json, got {json_path}")
+    for folder in folders:
+        name = folder.name.removeprefix("timing_")
+        check_outside({"--json": json_path}, {f"frame folder (--work) of {name}": folder,
+                                              f"ground truth (--work) of {name}": reference_folder(folder)})
     work.mkdir(parents=True, exist_ok=True)  # an OSError names the path (one line under core.entry.run)
     check_json(json_path)
 
@@ -438,7 +447,7 @@ def main(argv: list[str] | None = None) -> int:
                         help="write docs/denoise/ (JSON, still, video) and the results in docs/results/denoise.md "
                              "(--readme: its former name)")
     parser.add_argument("--no-timing", action="store_true", help="skip the 1280x720 speed run")
-    parser.add_argument("--sequences", nargs="*", metavar="NAME", help="only these sequences")
+    parser.add_argument("--sequences", nargs="+", metavar="NAME", help="only these sequences")
     parser.add_argument("--methods", nargs="+", metavar="NAME",
                         help="only these methods (raw and the names of python -m denoise --method), e.g. a method "
                              "of one's own from --method-file; not with --docs")
@@ -459,16 +468,9 @@ def main(argv: list[str] | None = None) -> int:
     docs = ROOT / "docs" / "denoise"
     if args.docs:
         args.json = args.json or docs / "denoise.json"
-    check_work_and_json(args.work, args.json)
-    set_variant(None, jit=True)
     quality, timing_size = (QUICK, QUICK_TIMING) if args.quick else (QUALITY, TIMING)
     suffix = "_quick" if args.quick else ""
-    start = time.perf_counter()
-    results = {"date": datetime.date.today().isoformat(), "machine": machine(),
-               "load_average_at_start": round(os.getloadavg()[0], 2),
-               "oidn": f"OIDN {oidn_version()} through pyoidn: hdr on, albedo and normal with cleanAux, "
-                       "one filter per quality mode committed once per size", "sequences": [], "results": []}
-    outputs_hard = None
+    planned = []  # (spec file, spec, folder): every spec read and every folder named before any work
     for spec_path in SEQUENCES:
         if args.sequences and spec_path.stem not in args.sequences:
             continue
@@ -482,9 +484,20 @@ def main(argv: list[str] | None = None) -> int:
         spec = Spec.load(spec_path, **settings)
         # the folder names its settings: other settings render beside it, never into it
         folder = args.work / f"{spec_path.stem}_{spec.size[0]}x{spec.size[1]}_{spec.reference_spp}spp{suffix}"
+        planned.append((spec_path, spec, folder))
+    timed = None if args.no_timing else timing_folder(args.work, SEQUENCES[0].stem, timing_size, args.quick)
+    check_work_and_json(args.work, args.json, [f for _, _, f in planned] + ([timed] if timed else []))
+    set_variant(None, jit=True)
+    start = time.perf_counter()
+    results = {"date": datetime.date.today().isoformat(), "machine": machine(),
+               "load_average_at_start": round(os.getloadavg()[0], 2),
+               "oidn": f"OIDN {oidn_version()} through pyoidn: hdr on, albedo and normal with cleanAux, "
+                       "one filter per quality mode committed once per size", "sequences": [], "results": []}
+    outputs_hard = None
+    for spec_path, spec, folder in planned:
         # one Dask worker per core (each render is single-threaded so that bytes do not
         # depend on thread counts; see export.py); the quick CI size stays in-process
-        export(spec, folder, **({} if args.quick else {"workers": os.cpu_count() or 1}))
+        render(spec, folder, **({} if args.quick else {"workers": os.cpu_count() or 1}))
         outputs = {} if spec_path.stem == HARD else None
         rows, figures = run_sequence(folder, spec_path.stem, methods, outputs=outputs)
         if outputs is not None:
@@ -499,9 +512,8 @@ def main(argv: list[str] | None = None) -> int:
         results["results"] += rows
         print(f"{spec_path.stem}: reference noise {figures['reference_noise']:.2e}", file=sys.stderr)
     if not args.no_timing:
-        spec_path = SEQUENCES[0]
-        folder = timing_folder(args.work, spec_path.stem, timing_size, args.quick)
-        export(Spec.load(spec_path, **timing_size), folder)
+        spec_path, folder = SEQUENCES[0], timed
+        render(Spec.load(spec_path, **timing_size), folder)
         results["timing"] = {"sequence": spec_path.stem,
                              **run_timing(folder, TIMED if args.methods is None else methods)}
     results.update(load_average_at_end=round(os.getloadavg()[0], 2), wall_s=round(time.perf_counter() - start, 1))

@@ -129,3 +129,47 @@ def test_an_unusable_libllvm_is_named_not_a_scalar_fallback(tmp_path):
     assert done.returncode == 2 and len(lines) == 1 and "Traceback" not in done.stderr, done.stderr
     assert str(library) in lines[0] and "JIT variant" in lines[0] and "--force" not in lines[0], lines
     assert not (tmp_path / "work").exists()
+
+
+def benchmark(argv: list[str]):
+    """``python -m benchmarks.denoise ARGV`` (tests never import benchmarks/): returncode, out, err."""
+    import subprocess
+    import sys
+    from pathlib import Path
+    from types import SimpleNamespace
+
+    done = subprocess.run([sys.executable, "-m", "benchmarks.denoise", *argv], capture_output=True, text=True,
+                          timeout=300, cwd=Path(__file__).resolve().parents[1])
+    return SimpleNamespace(returncode=done.returncode, out=done.stdout, err=done.stderr)
+
+
+@pytest.mark.parametrize("argv, words", [
+    (["--json", "{work}/dolly_lamps_96x54_16spp_quick/x.json", "--no-timing"],
+     "is inside the input folder frame folder (--work) of dolly_lamps"),
+    (["--json", "{work}/dolly_lamps_96x54_16spp_quick_reference/x.json", "--no-timing"],
+     "is inside the input folder ground truth (--work) of dolly_lamps"),
+    (["--json", "{work}/timing_dolly_lamps_160x90_3f_quick/x.json"], "is inside the input folder frame folder"),
+    (["--json", "{work}/x.txt", "--no-timing"], "--json writes JSON: name it .json"),
+    (["--no-timing"], "made with other settings"),
+])
+def test_the_benchmark_refuses_outputs_into_its_inputs_in_one_line(argv, words, tmp_path):
+    """benchmarks.denoise wrote --json into a sequence's cached folder, took x.txt, and its refusal of a
+    folder made with other settings named --force, which it does not have. (The folder of other settings
+    is there in every case, so that the code before the fix refused there instead of rendering.)"""
+    work = tmp_path / "work"
+    (work / "dolly_lamps_96x54_16spp_quick").mkdir(parents=True)
+    (work / "dolly_lamps_96x54_16spp_quick" / "sequence.json").write_text("{}")
+    argv = [a.format(work=work) for a in argv]
+    captured = benchmark(["--quick", "--work", str(work), "--sequences", "dolly_lamps", "--methods", "svgf", *argv])
+    assert captured.returncode == 2 and captured.err.count("\n") == 1, captured.err
+    assert words in captured.err and "--force" not in captured.err, captured.err
+    assert captured.out == "" and sorted(p.name for p in work.rglob("*")) == ["dolly_lamps_96x54_16spp_quick",
+                                                                              "sequence.json"]
+
+
+def test_the_benchmark_refuses_an_empty_sequence_list():
+    """``--sequences`` with no names ran every sequence."""
+    captured = benchmark(["--quick", "--sequences", "--reference-spp", "3"])
+    err = captured.err
+    assert captured.returncode == 2
+    assert "--sequences" in err and "--reference-spp" not in err and err.count("\n") == 1, err
