@@ -52,7 +52,7 @@ from core.entry import ArgumentParser, finish, printable, run
 from core.errors import UsageError
 from core.inputs import check_outside
 from core.numbers import ascii_float, ascii_int
-from export import Spec, export, reference_folder
+from export import Spec, reference_folder
 from export.frames import frame_indices, read_frame, same_size
 from export.ground_truth import check_ground_truth
 from imaging.image_io import atomic_path, check_writable, read_exr_rgb
@@ -62,6 +62,8 @@ from renderer.variants import set_variant
 from .filters import FrameArrays, demodulate, remodulate, reproject
 from .methods import from_name, make
 from .methods.asvgf import FITTED_OPTIONS, FilterValues, asvgf, fitted, hand_set
+from .temporal_metrics import QUALITY_FROM
+from .validate import render
 from .worker_process import ignore_group_signals, run_in_worker
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -218,7 +220,8 @@ def print_evaluation(folder: Path, switch: int) -> None:
         for name, (dimmed, undimmed) in evaluate(folder, at).items():
             rows = [("", dimmed)] if at is None else [(" (as dimmed)", dimmed), (" (/0.2)", undimmed)]
             for suffix, values in rows:
-                mean = f"  mean>=4 {sum(values[4:]) / (len(values) - 4):.4f}" if len(values) > 4 else ""
+                mean = (f"  mean>={QUALITY_FROM} {sum(values[QUALITY_FROM:]) / (len(values) - QUALITY_FROM):.4f}"
+                        if len(values) > QUALITY_FROM else "")
                 tail = (f"{mean}  last {values[-1]:.4f}"
                         + (f"  response {response(values, at)}" if at is not None else ""))
                 print(f"  {name + suffix:28s} " + " ".join(f"{v:.4f}" for v in values) + tail)
@@ -231,7 +234,7 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--work", type=Path, default=ROOT / "out" / "fit", help="where they are rendered (out/fit)")
     parser.add_argument("--steps", type=ascii_int, default=40, help="gradient steps (40)")
     parser.add_argument("--rate", type=ascii_float, default=0.05, help="Adam's learning rate on log parameters (0.05)")
-    parser.add_argument("--switch-frame", type=ascii_int, default=4,
+    parser.add_argument("--switch-frame", type=ascii_int, default=None,
                         help="the light switch's first dimmed frame in the switched copies (4)")
     parser.add_argument("--out", type=Path, default=ROOT / "denoise" / "asvgf_params.json",
                         help="the parameter file (denoise/asvgf_params.json)")
@@ -241,11 +244,25 @@ def _parser() -> argparse.ArgumentParser:
     return parser
 
 
-def check_switch_frame(frame: int, frames: int) -> None:
-    """A switch needs a frame before it and one after it, in every sequence."""
+#: the light switch's first dimmed frame when --switch-frame is not given
+SWITCH_FRAME = 4
+
+
+def check_switch_frame(frame: int | None, frames: int, where: Path) -> int:
+    """The switch frame (``frame``, or :data:`SWITCH_FRAME` where --switch-frame was not given):
+    a switch needs a frame before it and one after it, in every sequence (``where`` has the fewest)."""
+    if frames < 2:
+        raise UsageError(f"{where}: {frames} frame; a light switch needs at least 2 frames")
+    if frame is None:
+        if SWITCH_FRAME <= frames - 1:
+            return SWITCH_FRAME
+        raise UsageError(f"{where}: {frames} frames; the light switch goes at frame {SWITCH_FRAME} unless "
+                         f"--switch-frame says otherwise (from 1 to {frames - 1} here), which needs "
+                         f"{SWITCH_FRAME + 1} frames")
     if not 1 <= frame <= frames - 1:
         raise UsageError(f"--switch-frame must be from 1 to {frames - 1} (the sequences have {frames} frames), "
                          f"got {frame}")
+    return frame
 
 
 #: the options of a fit, which --evaluate (it fits nothing) does not take
@@ -284,21 +301,22 @@ def _main(argv: list[str] | None) -> int:
             raise UsageError(f"{args.evaluate}: no ground truth for frame {missing[0]} "
                              f"(no {truth / f'beauty_{missing[0]}.exr'}; python -m export renders it)")
         check_ground_truth("--evaluate's ground truth", truth, args.evaluate, frames_flag="--evaluate")
-        check_switch_frame(args.switch_frame, len(indices))
+        switch = check_switch_frame(args.switch_frame, len(indices), args.evaluate)
         set_variant("llvm_ad_rgb", jit=True)
-        print_evaluation(args.evaluate, args.switch_frame)
+        print_evaluation(args.evaluate, switch)
         return 0
 
     check_writable("--out", args.out)  # before minutes of fitting, not after
     loaded = [(path, Spec.load(path)) for path in specs]  # all checked before any work
-    check_switch_frame(args.switch_frame, min(spec.frames for _, spec in loaded))
+    shortest, spec = min(loaded, key=lambda loaded_spec: loaded_spec[1].frames)
+    switch = check_switch_frame(args.switch_frame, spec.frames, shortest)
     set_variant("llvm_ad_rgb", jit=True)
 
     targets = []
     for path, spec in loaded:
         targets.append(args.work / path.stem)
-        export(spec, targets[-1])
-    best, hand_set_loss = fit_interruptibly(targets, args.switch_frame, args.steps, args.rate, args.quiet)
+        render(spec, targets[-1])
+    best, hand_set_loss = fit_interruptibly(targets, switch, args.steps, args.rate, args.quiet)
     write_parameters(args.out, best[1], best[0], hand_set_loss, specs)
     if not args.quiet:
         print(f"lowest loss {best[0]:.6f} (hand-set {hand_set_loss:.6f}); parameters written to {printable(args.out)}")

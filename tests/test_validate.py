@@ -1,6 +1,8 @@
 """python -m denoise.validate: the held-out sequences judged against a converged truth."""
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -173,3 +175,34 @@ def test_the_benchmark_refuses_an_empty_sequence_list():
     err = captured.err
     assert captured.returncode == 2
     assert "--sequences" in err and "--reference-spp" not in err and err.count("\n") == 1, err
+
+
+QUICK = Path("/work/out-denoise/dolly_lamps_96x54_16spp_quick")
+
+
+@pytest.mark.skipif(not QUICK.is_dir(), reason=f"no quick benchmark folder {QUICK}")
+def test_fit_evaluate_on_a_short_sequence_names_the_sequence_not_a_flag_never_given(tmp_path, capsys):
+    """``denoise.fit --evaluate`` on 4 frames said ``--switch-frame must be from 1 to 3 ..., got 4``."""
+    import shutil
+
+    from denoise.fit import main
+
+    folder = tmp_path / "seq"
+    shutil.copytree(QUICK, folder)
+    shutil.copytree(f"{QUICK}_reference", f"{folder}_reference")
+    assert main(["--evaluate", str(folder)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"{folder}: 4 frames" in err and "got 4" not in err, err
+    assert main(["--evaluate", str(folder), "--switch-frame", "4"]) == 2
+    assert "--switch-frame must be from 1 to 3" in capsys.readouterr().err
+
+
+def test_fit_on_a_short_spec_names_the_spec(tmp_path, capsys):
+    """The fit's own specs: the shortest is named where the default switch frame does not fit."""
+    from denoise.fit import main
+
+    spec = tiny_spec(tmp_path, 3)
+    assert main([str(spec), "--work", str(tmp_path / "work"), "--steps", "1", "--out", str(tmp_path / "p.json")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"{spec}: 3 frames" in err, err
+    assert not (tmp_path / "work").exists()
