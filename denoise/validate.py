@@ -29,11 +29,12 @@ from pathlib import Path
 import numpy as np
 
 from core.entry import ArgumentParser, finish, printable, run
-from core.errors import SpecError, UsageError
+from core.errors import UsageError
 from core.inputs import check_outside
 from core.numbers import ascii_int
 from export import Spec, export, reference_folder
 from export.frames import frame_indices, read_frame
+from export.store import FolderInUseError
 from imaging.image_io import atomic_path, check_writable, read_exr_rgb
 from imaging.metrics import relmse
 from renderer.variants import set_variant
@@ -64,22 +65,15 @@ def _parser() -> argparse.ArgumentParser:
     return parser
 
 
-#: the words of the export's refusal of a folder made with other settings that name its own --force
-EXPORT_FORCE = "; use --force to start over, or another folder"
-
-
 def render(spec: Spec, folder: Path, **where) -> None:
     """``export(spec, folder)`` for a command whose --work is a cache: a folder
     made with other settings is refused naming --work, not export's --force
     (a flag these commands do not have)."""
     try:
         export(spec, folder, **where)
-    except SpecError as error:
-        text = str(error)
-        if EXPORT_FORCE not in text:
-            raise
-        raise SpecError(text.replace(EXPORT_FORCE, f"; remove {folder} and {reference_folder(folder)} to render "
-                                                   "them again, or give another --work")) from None
+    except FolderInUseError as error:
+        raise FolderInUseError(error.problem, f"remove {folder} and {reference_folder(folder)} to render them "
+                                              "again, or give another --work") from None
 
 
 def check_frames(spec: Path, frames: int) -> None:

@@ -125,9 +125,19 @@ def _comparable(settings: dict, other: dict) -> dict:
     return settings
 
 
+class FolderInUseError(SpecError):
+    """A sequence's folder holds what another export wrote: ``problem`` says
+    what; the message adds the export's remedy (``--force``), which a command
+    that uses the folder as its cache replaces with its own."""
+
+    def __init__(self, problem: str, remedy: str = "use --force to start over, or another folder"):
+        super().__init__(f"{problem}; {remedy}")
+        self.problem = problem
+
+
 def check_folder(sequence: Sequence) -> None:
-    """Raises :class:`SpecError` unless ``sequence`` may write into its folders:
-    they are new, or were made with the same settings. Writes nothing."""
+    """Raises :class:`FolderInUseError` unless ``sequence`` may write into its
+    folders: they are new, or were made with the same settings. Writes nothing."""
     target = Path(sequence.target)
     record = target / SEQUENCE_RECORD
     settings = sequence.settings()
@@ -140,16 +150,14 @@ def check_folder(sequence: Sequence) -> None:
             old = {"unreadable": True}
         if _comparable(old, settings) != _comparable(settings, old):
             changed = _differences(_comparable(old, settings), _comparable(settings, old))
-            raise SpecError(f"{target}: made with other settings ({'; '.join(changed[:4])}"
-                            f"{'; ...' if len(changed) > 4 else ''}); use --force to start over, or another folder")
+            raise FolderInUseError(f"{target}: made with other settings ({'; '.join(changed[:4])}"
+                                   f"{'; ...' if len(changed) > 4 else ''})")
     elif _our_files(sequence):
         folders = sorted({path.parent for path in _our_files(sequence)})
         if folders == [sequence.reference]:
-            raise SpecError(f"{sequence.reference}: holds ground truth, but its frame folder {target} has no "
-                            f"sequence.json (made by an older export or by hand); use --force to start over, "
-                            f"or another folder")
-        raise SpecError(f"{target}: holds frames without a sequence.json (made by an older export or by hand); "
-                        f"use --force to start over, or another folder")
+            raise FolderInUseError(f"{sequence.reference}: holds ground truth, but its frame folder {target} has "
+                                   "no sequence.json (made by an older export or by hand)")
+        raise FolderInUseError(f"{target}: holds frames without a sequence.json (made by an older export or by hand)")
 
 
 def claim_folder(sequence: Sequence, force: bool = False) -> None:
