@@ -27,13 +27,16 @@ import argparse
 import datetime
 import json
 import os
+import platform
 import shlex
 import sys
 import time
 from pathlib import Path
 
-from core.entry import ArgumentParser, finish, printable, run
-from core.errors import UsageError
+import numpy as np
+
+from core.entry import ArgumentParser, finish, one_line, printable, run
+from core.errors import ToolkitError, UsageError
 from core.inputs import check_outside
 from core.numbers import ascii_float, ascii_int
 from export import export
@@ -115,19 +118,19 @@ def _main(argv: list[str] | None) -> int:
     theta, curve, seconds = train_interruptibly(folders, settings, checkpoint, args.quiet)
     given = argv if argv is not None else sys.argv[1:]
     command = "python -m denoise.train " + " ".join(shlex.quote(a) for a in given)
-    record = {"command": command.strip(), "training": [training.display_path(p) for p, _ in loaded
+    record = {"command": command.strip(), "training": [display_path(p) for p, _ in loaded
                                                        if p.stem not in HELD_OUT],
-              "held_out": [training.display_path(p) for p, _ in loaded if p.stem in HELD_OUT],
+              "held_out": [display_path(p) for p, _ in loaded if p.stem in HELD_OUT],
               "steps": len(curve), "seconds": round(seconds, 1), "seed": args.seed, "rate": args.rate,
               "batch": training.BATCH, "crop": list(training.CROP), "exposure": list(training.EXPOSURE),
               "first_train_loss": curve[0][1], "first_held_out_loss": curve[0][2],
               "final_train_loss": curve[-1][1], "final_held_out_loss": curve[-1][2],
-              "machine": training.machine(), "date": datetime.date.today().isoformat(),
+              "machine": machine(), "date": datetime.date.today().isoformat(),
               "curve": [[int(s), round(a, 6), None if b is None else round(b, 6)] for s, a, b in curve]}
     network = training.network_of(theta, settings.features, settings.hidden)
     with atomic_path(args.out, ".json") as temporary:
         Path(temporary).write_text(json.dumps({**network.to_json(), "record": record}, indent=1) + "\n")
-    training.plot_curve(plot, curve, f"{args.out.name}: {settings.hidden} hidden units, "
+    plot_curve(plot, curve, f"{args.out.name}: {settings.hidden} hidden units, "
                                      f"{len(settings.features)} inputs")
     if not args.quiet:
         print(f"final loss {curve[-1][1]:.6f} (held out {curve[-1][2]}); weights written to {printable(args.out)}, "
@@ -145,8 +148,20 @@ def train_worker(connection, folders: list[Path], settings: Settings, checkpoint
     try:
         connection.send(("done", *training.train(folders, settings, checkpoint,
                                                  lambda *report: connection.send(("step", *report)))))
-    except UsageError as error:
-        connection.send(("error", str(error)))
+    except Exception as error:  # noqa: BLE001  one line in the parent, never the worker's traceback
+        connection.send(("error", worker_error(error)))
+
+
+def worker_error(error: Exception) -> str:
+    """The line the parent prints for an error in the worker: a ToolkitError's
+    own, a file's error naming the file, anything else (a bug) with its type."""
+    if isinstance(error, ToolkitError):
+        return one_line(error)
+    if isinstance(error, OSError) and error.filename:
+        return f"{printable(error.filename)}: {error.strerror or one_line(error)}"
+    if isinstance(error, MemoryError):
+        return "out of memory in the training's worker process"
+    return f"the training's worker process failed ({type(error).__name__}: {one_line(error)})"
 
 
 def train_interruptibly(folders: list[Path], settings: Settings, checkpoint: Path, quiet: bool):
@@ -162,6 +177,47 @@ def train_interruptibly(folders: list[Path], settings: Settings, checkpoint: Pat
                   f"({seconds:.1f} s in all, {time.monotonic() - started:.0f} s this run)", file=sys.stderr, flush=True)
 
     return run_in_worker(train_worker, (folders, settings, checkpoint), "the training", report)
+
+
+def machine() -> str:
+    """The CPU's model name (Linux's /proc/cpuinfo, else the architecture), cores, system, Python."""
+    model = platform.processor() or platform.machine()
+    try:
+        names = [line.split(":", 1)[1].strip() for line in Path("/proc/cpuinfo").read_text().splitlines()
+                 if line.startswith("model name")]
+        model = names[0] if names else model
+    except OSError:
+        pass
+    return f"{model}, {os.cpu_count()} cores, {platform.system()} {platform.release()}, " \
+           f"Python {platform.python_version()}"
+
+
+def display_path(path: Path) -> str:
+    """``path`` relative to the repository where it lies inside it."""
+    path = Path(path).resolve()
+    return str(path.relative_to(ROOT)) if path.is_relative_to(ROOT) else str(path)
+
+
+def plot_curve(path: Path, curve: list, title: str) -> None:
+    """The training and held-out losses per step, as a PNG."""
+    steps, loss, held = (np.array(c, np.float64) for c in zip(*((s, a, np.nan if b is None else b)
+                                                                  for s, a, b in curve)))
+    from matplotlib.figure import Figure  # noqa: PLC0415  only once the steps are done
+
+    figure = Figure(figsize=(6.4, 3.6), dpi=100)  # no pyplot: no display backend, no global state
+    axes = figure.subplots()
+    axes.plot(steps, loss, lw=0.8, alpha=0.5, label="training batch (random crops, flips, exposure)")
+    if len(loss) >= 10:
+        kernel = np.ones(10) / 10
+        axes.plot(steps[9:], np.convolve(loss, kernel, "valid"), lw=1.5, label="training, mean of 10 steps")
+    axes.plot(steps, held, lw=1.5, label="held-out sequences (whole frames)")
+    axes.set_xlabel("step")
+    axes.set_ylabel("relMSE")
+    axes.set_title(title, fontsize=9)
+    axes.legend(fontsize=8)
+    figure.tight_layout()
+    with atomic_path(path, ".png") as temporary:
+        figure.savefig(temporary, format="png")
 
 
 def main(argv: list[str] | None = None) -> int:

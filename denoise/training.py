@@ -25,8 +25,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
-import platform
 import time
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -34,7 +32,6 @@ from pathlib import Path
 import drjit as dr
 import mitsuba as mi
 import numpy as np
-from matplotlib.figure import Figure
 
 from core.errors import SpecError, UsageError
 from export import Spec, reference_folder
@@ -304,20 +301,70 @@ def feature_set(temporal_inputs: bool) -> tuple[str, ...]:
     return FEATURES if temporal_inputs else tuple(f for f in FEATURES if f not in TEMPORAL_FEATURES)
 
 
+#: what a checkpoint holds (:func:`save_checkpoint`)
+CHECKPOINT_KEYS = ("settings", "sequences", "theta", "m", "v", "t", "curve", "seconds")
+
+
 def load_checkpoint(path: Path, settings: Settings, names: list[str]) -> dict | None:
-    """The checkpoint's state, or None where there is none; one of other
-    settings or sequences is a one-line refusal (``--restart`` starts over)."""
-    if not path.is_file():
+    """The checkpoint's state, or None where there is none; one that cannot
+    be read, holds values no run writes, or was made with other settings or
+    sequences is a one-line refusal naming it (``--restart`` starts over)."""
+    if not path.exists() and not path.is_symlink():
         return None
+    if not path.is_file():
+        raise UsageError(f"{path}: not a file, where the training keeps its checkpoint; remove it, or give "
+                         f"--out another name (the checkpoint is named after it)")
     try:
-        with np.load(path) as data:
+        with open(path, "rb") as file:  # np.load leaves a file it opened open when it is no archive
+            data = np.load(file, allow_pickle=False)
+            if not hasattr(data, "files"):
+                raise ValueError("one array, not an archive of arrays")
             state = {k: data[k] for k in data.files}
-        key, sequences = str(state["settings"]), json.loads(str(state["sequences"]))
-    except (OSError, ValueError, KeyError) as error:
-        raise UsageError(f"{path}: not a training checkpoint ({error}); --restart starts over") from None
-    if key != settings.key() or sequences != names:
-        raise UsageError(f"{path}: a checkpoint of other settings or sequences; --restart starts over")
+    except Exception as error:  # noqa: BLE001  zero bytes (EOFError), a cut file (BadZipFile), not a .npz
+        reason = " ".join(str(error).split()) or type(error).__name__
+        raise UsageError(f"{path}: not a training checkpoint ({reason}); --restart starts over") from None
+    problem = checkpoint_problem(state, settings, names)
+    if problem is not None:
+        raise UsageError(f"{path}: {problem}; --restart starts over")
     return state
+
+
+def checkpoint_problem(state: dict, settings: Settings, names: list[str]) -> str | None:
+    """What is wrong with a checkpoint's ``state`` (None: nothing): every key, type and
+    shape :func:`save_checkpoint` writes, finite values, a step count that is its curve's."""
+    missing = [k for k in CHECKPOINT_KEYS if k not in state]
+    if missing:
+        return f"not a training checkpoint (no {', '.join(missing)})"
+    if any(state[k].shape != () or state[k].dtype.kind != "U" for k in ("settings", "sequences")):
+        return "not a training checkpoint (its settings or sequences are not a text)"
+    try:
+        sequences = json.loads(str(state["sequences"]))
+    except ValueError:
+        sequences = None
+    if str(state["settings"]) != settings.key() or sequences != names:
+        return "a checkpoint of other settings or sequences"
+    f, h, o = len(settings.features), settings.hidden, len(OUTPUTS)
+    count = h * f + h + o * h + o
+    for k in ("theta", "m", "v"):
+        if state[k].dtype.kind != "f" or state[k].shape != (count,):
+            return f"{k} holds {state[k].dtype} of shape {state[k].shape}, not the {count} parameters' values"
+        if not np.isfinite(state[k]).all():
+            return f"{k} holds values that are not finite"
+    if (state["v"] < 0).any():
+        return "v (Adam's mean squared gradient) holds negative values"
+    t, curve, seconds = state["t"], state["curve"], state["seconds"]
+    if t.shape != () or t.dtype.kind not in "iu":
+        return f"t is {t.dtype} of shape {t.shape}, not a step count"
+    if curve.dtype.kind != "f" or curve.ndim != 2 or curve.shape[1] != 3:
+        return f"curve is {curve.dtype} of shape {curve.shape}, not rows of (step, loss, held-out loss)"
+    if int(t) != len(curve) or not np.array_equal(curve[:, 0], np.arange(len(curve))):
+        return f"t is {int(t)}, but its curve holds {len(curve)} steps"
+    losses = curve[:, 1:] if any(n in HELD_OUT for n in names) else curve[:, 1:2]  # else held out: NaN
+    if not (np.isfinite(losses).all() and (losses >= 0).all()):
+        return "its curve holds a loss that is not finite or is negative"
+    if seconds.shape != () or seconds.dtype.kind != "f" or not 0 <= float(seconds) < math.inf:
+        return f"seconds is {seconds!r}, not a finite time"
+    return None
 
 
 def save_checkpoint(path: Path, settings: Settings, names: list[str], adam: Adam, curve: list, seconds: float) -> None:
@@ -368,25 +415,6 @@ def held_out_loss(theta: np.ndarray, settings: Settings, held: list[list[Frame]]
     return sum(losses) / len(losses)
 
 
-def machine() -> str:
-    """The CPU's model name (Linux's /proc/cpuinfo, else the architecture), cores, system, Python."""
-    model = platform.processor() or platform.machine()
-    try:
-        names = [line.split(":", 1)[1].strip() for line in Path("/proc/cpuinfo").read_text().splitlines()
-                 if line.startswith("model name")]
-        model = names[0] if names else model
-    except OSError:
-        pass
-    return f"{model}, {os.cpu_count()} cores, {platform.system()} {platform.release()}, " \
-           f"Python {platform.python_version()}"
-
-
-def display_path(path: Path) -> str:
-    """``path`` relative to the repository where it lies inside it."""
-    path = Path(path).resolve()
-    return str(path.relative_to(ROOT)) if path.is_relative_to(ROOT) else str(path)
-
-
 def train(folders: list[Path], settings: Settings, checkpoint: Path, report) -> tuple[np.ndarray, list, float]:
     """The steps on the exported ``folders`` (those of :data:`HELD_OUT` held
     out), resumed from ``checkpoint`` where it exists and written there after
@@ -417,23 +445,3 @@ def train(folders: list[Path], settings: Settings, checkpoint: Path, report) -> 
     if not curve:
         raise UsageError(f"{checkpoint}: the checkpoint has no steps; --restart starts over")
     return adam.theta, curve, seconds
-
-
-def plot_curve(path: Path, curve: list, title: str) -> None:
-    """The training and held-out losses per step, as a PNG."""
-    steps, loss, held = (np.array(c, np.float64) for c in zip(*((s, a, np.nan if b is None else b)
-                                                                  for s, a, b in curve)))
-    figure = Figure(figsize=(6.4, 3.6), dpi=100)  # no pyplot: no display backend, no global state
-    axes = figure.subplots()
-    axes.plot(steps, loss, lw=0.8, alpha=0.5, label="training batch (random crops, flips, exposure)")
-    if len(loss) >= 10:
-        kernel = np.ones(10) / 10
-        axes.plot(steps[9:], np.convolve(loss, kernel, "valid"), lw=1.5, label="training, mean of 10 steps")
-    axes.plot(steps, held, lw=1.5, label="held-out sequences (whole frames)")
-    axes.set_xlabel("step")
-    axes.set_ylabel("relMSE")
-    axes.set_title(title, fontsize=9)
-    axes.legend(fontsize=8)
-    figure.tight_layout()
-    with atomic_path(path, ".png") as temporary:
-        figure.savefig(temporary, format="png")

@@ -204,9 +204,10 @@ def tiny(tmp_path_factory):
     return spec, folder / "work"
 
 
-def test_a_loss_that_is_not_finite_stops_and_writes_nothing(tiny, tmp_path, capsys):
-    """A NaN in the weights (here a checkpoint's) makes the loss NaN: one line,
-    exit 2, the weights file as it was."""
+def test_a_checkpoint_with_nan_weights_is_refused_and_writes_nothing(tiny, tmp_path, capsys):
+    """A NaN in a checkpoint's weights (which made the loss NaN after a step's
+    work) is refused before the worker starts: one line, exit 2, the weights
+    file as it was."""
     from denoise.train import main
     from denoise.training import Adam, Settings, feature_set, initial, save_checkpoint
 
@@ -220,9 +221,23 @@ def test_a_loss_that_is_not_finite_stops_and_writes_nothing(tiny, tmp_path, caps
     code = main([str(spec), "--work", str(work), "--out", str(out), "--plot", str(tmp_path / "w.png"),
                  "--hidden", "4", "--steps", "2", "--rate", "0.01"])
     err = capsys.readouterr().err
-    assert code == 2 and err.count("\n") == 1 and "the training loss is nan" in err
+    assert code == 2 and err.count("\n") == 1 and "w.checkpoint.npz: theta holds values that are not finite" in err
     assert out.read_text() == "before\n" and not (tmp_path / "w.png").exists()
     (work / "w.checkpoint.npz").unlink()
+
+
+def test_a_loss_that_is_not_finite_stops_the_step(variant_llvm_ad_rgb):
+    """A step whose loss is not finite is one line (a UsageError), the weights as they were."""
+    from core.errors import UsageError
+    from denoise.methods.learned_asvgf import FEATURES
+    from denoise.training import Adam, Settings, initial, train_step
+
+    theta = initial(FEATURES, 4, seed=0)
+    theta[-1] = np.nan
+    adam = Adam(theta, 0.01)
+    with pytest.raises(UsageError, match="the training loss is nan at step 0"):
+        train_step(adam, Settings(FEATURES, 4, 0, 0.01, 1), [synthetic_frames(3, 8, 16)], 0)
+    assert adam.t == 0 and np.isnan(adam.theta[-1])
 
 
 def test_ctrl_c_keeps_the_checkpoint_and_a_rerun_resumes(tiny, tmp_path):

@@ -1,0 +1,168 @@
+"""``python -m denoise.train`` on bad inputs: a damaged or implausible
+checkpoint, damaged or non-finite frames in --work, outputs inside input
+folders, a benchmark scene named by path, odd bytes in --out's name and
+messages that name flags the command lacks. Each is one line, exit 2, before
+any step, with nothing written (the odd name trains and writes)."""
+from __future__ import annotations
+
+import json
+import re
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+TINY = {"scene": "showcase", "frames": 3, "size": [32, 18], "spp": 1, "reference_spp": 2, "bounces": 1,
+        "camera": {"dolly": 0.5}}
+NAME = "tiny_showcase"
+#: the flags of every run here (a checkpoint must be made with these settings)
+FLAGS = ["--hidden", "4", "--steps", "2", "--rate", "0.01"]
+
+
+@pytest.fixture(scope="module")
+def exported(tmp_path_factory):
+    """A tiny training sequence, exported once (each test copies it)."""
+    from export import Spec, export
+    from renderer.variants import set_variant
+
+    folder = tmp_path_factory.mktemp("tiny")
+    spec = folder / f"{NAME}.json"
+    spec.write_text(json.dumps(TINY))
+    set_variant("llvm_ad_rgb", jit=True)
+    export(Spec.load(spec), folder / "work" / NAME)
+    return spec, folder / "work"
+
+
+@pytest.fixture
+def setup(exported, tmp_path):
+    spec, work = exported
+    shutil.copytree(work, tmp_path / "work")
+    out = tmp_path / "w.json"
+    out.write_text("before\n")
+    return spec, tmp_path / "work", out
+
+
+def train(spec: Path, work: Path, out: Path, *more) -> list[str]:
+    return [str(spec), "--work", str(work), "--out", str(out), "--plot", str(out.with_suffix(".png")),
+            *FLAGS, *map(str, more)]
+
+
+def refused(capfd, argv: list[str], *words: str) -> str:
+    """Runs the command: exit 2 and exactly one error line holding ``words`` on stderr
+    (the worker's too), naming only flags the command has."""
+    from denoise.train import _parser, main
+
+    assert main(argv) == 2
+    err = capfd.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("python -m denoise.train: error: "), err
+    for word in words:
+        assert word in err, err
+    flags = {o for action in _parser()._actions for o in action.option_strings}
+    assert set(re.findall(r"(?<![\w-])--[a-z][a-z-]*", err)) <= flags, err  # only flags it has
+    return err
+
+
+def checkpoint_of(work: Path) -> Path:
+    from denoise.training import Adam, Settings, feature_set, initial, save_checkpoint
+
+    settings = Settings(feature_set(True), 4, 0, 0.01, 2)
+    adam = Adam(initial(settings.features, 4, 0), 0.01)
+    adam.t = 1
+    path = work / "w.checkpoint.npz"
+    save_checkpoint(path, settings, [NAME], adam, [(0, 0.02, None)], 1.5)
+    return path
+
+
+def damage_checkpoint(path: Path, case: str) -> None:
+    if case == "zero bytes":
+        path.write_bytes(b"")
+        return
+    if case == "cut in half":
+        path.write_bytes(path.read_bytes()[:path.stat().st_size // 2])
+        return
+    if case == "a folder":
+        path.unlink()
+        path.mkdir()
+        return
+    with np.load(path) as data:
+        state = {k: data[k] for k in data.files}
+    change = {"theta one short": lambda s: s.update(theta=s["theta"][:-1]),
+              "theta 2-D": lambda s: s.update(theta=s["theta"].reshape(1, -1)),
+              "no m": lambda s: s.pop("m"),
+              "theta a string": lambda s: s.update(theta=np.array("x")),
+              "t=-1": lambda s: s.update(t=np.array(-1)),
+              "t=10**12": lambda s: s.update(t=np.array(10 ** 12)),
+              "curve 1-D": lambda s: s.update(curve=s["curve"].ravel()),
+              "m nan": lambda s: s["m"].__setitem__(3, np.nan),
+              "v negative": lambda s: s["v"].__setitem__(3, -1.0),
+              "curve nan": lambda s: s["curve"].__setitem__((0, 1), np.nan),
+              "seconds nan": lambda s: s.update(seconds=np.array(np.nan)),
+              "theta inf": lambda s: s["theta"].__setitem__(5, np.inf)}[case]
+    change(state)
+    with open(path, "wb") as file:
+        np.savez(file, **state)
+
+
+@pytest.mark.parametrize("case", ["zero bytes", "cut in half", "a folder", "theta one short", "theta 2-D", "no m",
+                                  "theta a string", "t=-1", "t=10**12", "curve 1-D", "m nan", "v negative",
+                                  "curve nan", "seconds nan", "theta inf"])
+def test_a_damaged_checkpoint_is_one_line_before_any_step(setup, capfd, case):
+    spec, work, out = setup
+    path = checkpoint_of(work)
+    damage_checkpoint(path, case)
+    advice = "remove it" if case == "a folder" else "--restart"
+    with no_warnings():
+        refused(capfd, train(spec, work, out), str(path), advice)
+    assert out.read_text() == "before\n" and not out.with_suffix(".png").exists()
+
+
+class no_warnings:
+    """Fails on any warning (a RuntimeWarning of NumPy's would be a line on stderr)."""
+
+    def __enter__(self):
+        import warnings
+
+        self.catcher = warnings.catch_warnings()
+        self.catcher.__enter__()
+        warnings.simplefilter("error")
+
+    def __exit__(self, *exc):
+        self.catcher.__exit__(*exc)
+
+
+def test_a_sound_checkpoint_resumes(setup, capfd):
+    from denoise.train import main
+
+    spec, work, out = setup
+    checkpoint_of(work)
+    assert main(train(spec, work, out)) == 0, capfd.readouterr().err
+    assert json.loads(out.read_text())["record"]["steps"] == 2
+
+
+def test_an_error_in_the_worker_is_sent_as_one_line(setup):
+    """Whatever fails in the training's worker reaches the parent as one line, never a traceback."""
+    import signal
+
+    from denoise.train import train_worker
+    from denoise.training import Settings, feature_set
+
+    spec, work, out = setup
+    beauty = work / NAME / "beauty_1.exr"
+    beauty.write_bytes(beauty.read_bytes()[:100])
+    sent = []
+
+    class Connection:
+        send = sent.append
+
+    handlers = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)}
+    try:
+        train_worker(Connection(), [work / NAME], Settings(feature_set(True), 4, 0, 0.01, 2), work / "w.npz")
+        train_worker(Connection(), [], None, work / "w.npz")  # a bug: no settings
+    finally:
+        for signum, handler in handlers.items():
+            signal.signal(signum, handler)
+    assert [tag for tag, _ in sent] == ["error", "error"]
+    assert sent[0][1].startswith(f"{beauty}: not a readable EXR") and "\n" not in sent[0][1]
+    assert sent[1][1].startswith("the training's worker process failed (AttributeError: ") and "\n" not in sent[1][1]
