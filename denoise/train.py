@@ -31,21 +31,26 @@ import platform
 import shlex
 import sys
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
 
 from core.entry import ArgumentParser, finish, one_line, printable, run
-from core.errors import ToolkitError, UsageError
+from core.errors import FrameError, SpecError, ToolkitError, UsageError
 from core.inputs import check_outside
 from core.numbers import ascii_float, ascii_int
-from export import export
-from imaging.image_io import atomic_path, check_writable
+from course import data_dir, resolve_scene
+from export import Spec, export, reference_folder, sequences_for
+from export.frames import frame_indices, read_frame, same_size
+from export.store import check_folder
+from imaging.image_io import atomic_path, check_writable, read_exr_rgb
 from renderer.variants import set_variant
 
 from . import training
 from .methods.learned_asvgf import WEIGHTS_FILE
-from .training import HELD_OUT, ROOT, TRAINING, Settings
+from .training import BENCHMARK, HELD_OUT, ROOT, TRAINING, Settings
 from .worker_process import ignore_group_signals, run_in_worker
 
 DOCS = ROOT / "docs"
@@ -96,12 +101,17 @@ def _main(argv: list[str] | None) -> int:
         raise UsageError("no training sequences (scenes/sequences/training/network/*.json is empty)")
     for spec in specs:  # a run never writes onto a spec it reads
         check_outside({"--out": args.out, "--work": args.work, "--plot": plot}, {"SPEC.json": spec})
-    loaded = training.check_specs(specs)  # every refusal before any work
+    loaded = check_specs(specs)  # every refusal before any work
     names = [path.stem for path, _ in loaded]
     if len(set(names)) != len(names):
         raise UsageError("two training sequences of one name: they would share a folder in --work")
     if not [n for n in names if n not in HELD_OUT]:
         raise UsageError(f"every sequence given is held out ({', '.join(HELD_OUT)}): nothing to train on")
+    for path, _ in loaded:  # nor into a sequence's frames or its ground truth
+        frames = args.work / path.stem
+        check_outside({"--out": args.out, "--plot": plot},
+                      {f"frame folder (--work) of {path.name}": frames,
+                       f"ground truth (--work) of {path.name}": reference_folder(frames)})
     check_writable("--out", args.out)
     check_writable("--plot", plot)
     settings = Settings(training.feature_set(args.temporal_inputs), args.hidden, args.seed, args.rate, args.steps)
@@ -111,10 +121,16 @@ def _main(argv: list[str] | None) -> int:
     training.load_checkpoint(checkpoint, settings, names)  # a mismatched one is refused before rendering
 
     set_variant("llvm_ad_rgb", jit=True)
-    folders = []
-    for path, spec in loaded:
-        folders.append(args.work / path.stem)
-        export(spec, folders[-1])
+    check_work(loaded, args.work)
+    folders = [args.work / path.stem for path, _ in loaded]
+    checked = {f: [i for i in frame_indices(f) if (reference_folder(f) / f"beauty_{i}.exr").exists()]
+               if f.is_dir() else [] for f in folders}
+    for folder in folders:  # what is there already, before any rendering prints its progress
+        check_frames(folder, checked[folder])
+    for (_, spec), folder in zip(loaded, folders):
+        with own_advice():
+            export(spec, folder)
+        check_frames(folder, [i for i in frame_indices(folder) if i not in checked[folder]])
     theta, curve, seconds = train_interruptibly(folders, settings, checkpoint, args.quiet)
     given = argv if argv is not None else sys.argv[1:]
     command = "python -m denoise.train " + " ".join(shlex.quote(a) for a in given)
@@ -136,6 +152,97 @@ def _main(argv: list[str] | None) -> int:
         print(f"final loss {curve[-1][1]:.6f} (held out {curve[-1][2]}); weights written to {printable(args.out)}, "
               f"curves to {printable(plot)}", file=sys.stderr)
     return 0
+
+
+def scene_file(name: str) -> Path | str:
+    """A spec's scene as the export resolves it (its file's real path), so that
+    every spelling of one scene compares equal; a scene not found stays its name
+    (the export's check of the folders says so, before any work)."""
+    try:
+        return resolve_scene(name, data_dir()).resolve()
+    except UsageError:
+        return name
+
+
+def check_specs(paths: list[Path]) -> list[tuple[Path, Spec]]:
+    """Each training spec loaded; one line (a UsageError) for a benchmark
+    sequence, one of its scenes (by name or by any path to its file), or a
+    sequence without ground truth."""
+    benchmark = {p.resolve(): Spec.load(p) for p in BENCHMARK}
+    scenes = {scene_file(spec.scene): p.stem for p, spec in benchmark.items()}
+    loaded = []
+    for path in paths:
+        try:
+            spec = Spec.load(path)
+        except SpecError as error:
+            if "reference_spp" not in str(error):
+                raise
+            raise UsageError(f"{path}: no ground truth to train on ({str(error).removeprefix(f'{path}: ')})") from None
+        if Path(path).resolve() in benchmark or Path(path).stem in {p.stem for p in benchmark}:
+            raise UsageError(f"{path}: a benchmark sequence; training on it would score the network on its own "
+                             f"training data")
+        if scene_file(spec.scene) in scenes:
+            raise UsageError(f"{path}: scene {spec.scene!r} is the benchmark's (sequence "
+                             f"{scenes[scene_file(spec.scene)]}); train on other scenes")
+        if spec.reference_spp < 2:
+            raise UsageError(f"{path}: no ground truth (reference_spp {spec.reference_spp}); training needs "
+                             f"a target per frame")
+        loaded.append((Path(path), spec))
+    return loaded
+
+
+#: advice in the export's and the scene lookup's messages that names flags this command lacks -> ours
+ADVICE = {"use --force to start over, or another folder": "remove that folder, or give another --work",
+          "set --data to the course's data folder, or COURSE_ROOT": "set COURSE_ROOT",
+          "lower --batch-spp": "make the spec's size smaller"}
+
+
+@contextmanager
+def own_advice() -> Iterator[None]:
+    """The export's errors with advice this command can follow (:data:`ADVICE`)."""
+    try:
+        yield
+    except ToolkitError as error:
+        text = str(error)
+        for theirs, ours in ADVICE.items():
+            text = text.replace(theirs, ours)
+        if text == str(error):
+            raise
+        raise UsageError(text) from None
+
+
+def check_work(loaded: list[tuple[Path, Spec]], work: Path) -> None:
+    """Every sequence's scene and its folders in ``work`` (new, or made with the
+    same settings), before anything is rendered. Writes nothing."""
+    with own_advice():
+        for path, spec in loaded:
+            for sequence in sequences_for([(path.stem, spec)], work / path.stem):
+                check_folder(sequence)
+
+
+def check_frames(folder: Path, indices: list[int]) -> None:
+    """Frames ``indices`` of an exported ``folder`` and their ground truth, read
+    as the training reads them: a damaged file, a missing target, another
+    size or a value that is not finite is one line naming the file."""
+    shape = None
+    for i in indices:
+        frame = read_frame(folder, i)
+        truth_path = reference_folder(folder) / f"beauty_{i}.exr"
+        if not truth_path.is_file():
+            raise UsageError(f"{folder}: no ground truth for frame {i} (no {truth_path}; python -m export renders it)")
+        try:
+            truth = read_exr_rgb(truth_path)
+        except (OSError, RuntimeError, ValueError, KeyError) as error:
+            raise FrameError(f"{truth_path}: not a readable EXR ({' '.join(str(error).split())})") from None
+        same_size(folder / f"beauty_{i}.exr", frame.beauty.shape, truth_path, truth.shape)
+        shape = shape or (folder / f"beauty_{i}.exr", frame.beauty.shape)
+        same_size(folder / f"beauty_{i}.exr", frame.beauty.shape, *shape)
+        images = {"beauty": frame.beauty, "normal": frame.normal, "position": frame.position, "albedo": frame.albedo}
+        for path, image in [*((folder / f"{k}_{i}.exr", v) for k, v in images.items()), (truth_path, truth)]:
+            bad = 0 if image is None else int((~np.isfinite(image).all(axis=-1)).sum())
+            if bad:
+                raise FrameError(f"{path}: {bad} pixels of {image.shape[0] * image.shape[1]} are not finite "
+                                 f"(NaN or infinite); the training needs finite frames and targets")
 
 
 def train_worker(connection, folders: list[Path], settings: Settings, checkpoint: Path) -> None:

@@ -6,7 +6,7 @@ the benchmark's size, on the showcase and mirrors scenes and the course's
 bunny, which no benchmark sequence uses), each with an independently seeded
 ground truth of 128 samples per pixel: an unbiased (Noise2Noise) target, its
 noise averaging out over pixels and steps.
-:func:`check_specs` refuses a sequence without ground truth and any benchmark
+:func:`denoise.train.check_specs` refuses a sequence without ground truth and any benchmark
 sequence or scene (``scenes/sequences/*.json``). :data:`HELD_OUT` sequences
 are not trained on: their loss is reported at each step.
 
@@ -33,8 +33,8 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from core.errors import SpecError, UsageError
-from export import Spec, reference_folder
+from core.errors import UsageError
+from export import reference_folder
 from export.frames import frame_indices, read_frame, same_size
 from imaging.image_io import atomic_path, read_exr_rgb
 
@@ -59,32 +59,6 @@ LOSS_FROM = 1
 EXPOSURE = (0.5, 2.0)
 #: the output layer's biases at the start: asvgf as fitted
 START_BIAS = (0.0, 0.0, 0.0)
-
-
-def check_specs(paths: list[Path]) -> list[tuple[Path, Spec]]:
-    """Each training spec loaded; one line (a UsageError) for a benchmark
-    sequence, one of its scenes, or a sequence without ground truth."""
-    benchmark = {p.resolve(): Spec.load(p) for p in BENCHMARK}
-    scenes = {spec.scene: p.stem for p, spec in benchmark.items()}
-    loaded = []
-    for path in paths:
-        try:
-            spec = Spec.load(path)
-        except SpecError as error:
-            if "reference_spp" not in str(error):
-                raise
-            raise UsageError(f"{path}: no ground truth to train on ({str(error).removeprefix(f'{path}: ')})") from None
-        if Path(path).resolve() in benchmark or Path(path).stem in {p.stem for p in benchmark}:
-            raise UsageError(f"{path}: a benchmark sequence; training on it would score the network on its own "
-                             f"training data")
-        if spec.scene in scenes:
-            raise UsageError(f"{path}: scene {spec.scene!r} is the benchmark's (sequence {scenes[spec.scene]}); "
-                             f"train on other scenes")
-        if spec.reference_spp < 2:
-            raise UsageError(f"{path}: no ground truth (reference_spp {spec.reference_spp}); training needs "
-                             f"a target per frame")
-        loaded.append((Path(path), spec))
-    return loaded
 
 
 @dataclass

@@ -65,7 +65,8 @@ def test_the_committed_networks_are_what_the_benchmark_runs():
 def test_no_benchmark_scene_or_sequence_is_trained_on():
     """The training specs, and the ones each committed network records, use
     no benchmark sequence and none of the benchmark's scenes."""
-    from denoise.training import BENCHMARK, HELD_OUT, TRAINING, check_specs
+    from denoise.train import check_specs
+    from denoise.training import BENCHMARK, HELD_OUT, TRAINING
     from export import Spec
 
     benchmark_scenes = {Spec.load(p).scene for p in BENCHMARK}

@@ -6,6 +6,7 @@ any step, with nothing written (the odd name trains and writes)."""
 from __future__ import annotations
 
 import json
+import os
 import re
 import shutil
 from pathlib import Path
@@ -139,6 +140,74 @@ def test_a_sound_checkpoint_resumes(setup, capfd):
     checkpoint_of(work)
     assert main(train(spec, work, out)) == 0, capfd.readouterr().err
     assert json.loads(out.read_text())["record"]["steps"] == 2
+
+
+def nan_patch(path: Path, whole: bool) -> None:
+    from imaging.image_io import read_exr_rgb, write_exr
+
+    image = read_exr_rgb(path)
+    if whole:
+        image[:] = np.nan
+    else:
+        image[2:12, 3:13] = np.nan
+    write_exr(path, {"": image})
+
+
+@pytest.mark.parametrize("case, file, words", [
+    ("truncated beauty", "tiny_showcase/beauty_1.exr", "not a readable EXR"),
+    ("garbage matrix", "tiny_showcase/matrix_2.mat", "expected"),
+    ("all-NaN truth", "tiny_showcase_reference/beauty_1.exr", "not finite"),
+    ("NaN patch in the truth", "tiny_showcase_reference/beauty_2.exr", "100 pixels"),
+    ("NaN patch in the beauty", "tiny_showcase/beauty_0.exr", "not finite"),
+])
+def test_damaged_or_non_finite_frames_are_one_line_naming_the_file(setup, capfd, case, file, words):
+    spec, work, out = setup
+    path = work / file
+    if case == "truncated beauty":
+        path.write_bytes(path.read_bytes()[:path.stat().st_size // 2])
+    elif case == "garbage matrix":
+        path.write_bytes(b"garbage, not matrices")
+    else:
+        nan_patch(path, case.startswith("all"))
+    refused(capfd, train(spec, work, out), str(path), words)
+    assert out.read_text() == "before\n" and not (work / "w.checkpoint.npz").exists()
+
+
+@pytest.mark.parametrize("flag, where", [("--out", "tiny_showcase/x.json"), ("--plot", "tiny_showcase_reference/x.png"),
+                                         ("--out", "tiny_showcase_reference/x.json")])
+def test_outputs_inside_an_input_folder_are_refused(setup, capfd, flag, where):
+    spec, work, out = setup
+    argv = train(spec, work, out)
+    argv[argv.index(flag) + 1] = str(work / where)
+    refused(capfd, argv, flag, "inside the input folder")
+    assert not (work / where).exists()
+
+
+@pytest.mark.parametrize("spelling", ["absolute", "relative", "dotted"])
+def test_a_benchmark_scene_by_any_spelling_is_refused(tmp_path, capfd, spelling):
+    scene = {"absolute": str(ROOT / "scenes" / "lamps.txt"),
+             "relative": os.path.relpath(ROOT / "scenes" / "glossy_shadow.txt"),
+             "dotted": os.path.join(os.path.relpath(ROOT.parent), ROOT.name, "scenes", ".", "transforms.txt")}[spelling]
+    spec = tmp_path / "by_path.json"
+    spec.write_text(json.dumps({**TINY, "scene": scene}))
+    refused(capfd, train(spec, tmp_path / "work", tmp_path / "w.json"), "is the benchmark's")
+    assert not (tmp_path / "work").exists()
+
+
+def test_a_folder_of_other_settings_names_only_flags_the_command_has(setup, capfd, tmp_path):
+    spec, work, out = setup
+    other = tmp_path / "spec" / f"{NAME}.json"
+    other.parent.mkdir()
+    other.write_text(json.dumps({**TINY, "spp": 2}))
+    err = refused(capfd, train(other, work, out), "made with other settings", "--work")
+    assert "--force" not in err
+
+
+def test_a_scene_not_found_names_only_flags_the_command_has(tmp_path, capfd):
+    spec = tmp_path / "nowhere.json"
+    spec.write_text(json.dumps({**TINY, "scene": "no_such_scene_anywhere"}))
+    refused(capfd, train(spec, tmp_path / "work", tmp_path / "w.json"), "no_such_scene_anywhere")
+    assert not (tmp_path / "work").exists()
 
 
 def test_an_error_in_the_worker_is_sent_as_one_line(setup):
