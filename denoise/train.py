@@ -146,7 +146,7 @@ def _main(argv: list[str] | None) -> int:
     network = training.network_of(theta, settings.features, settings.hidden)
     with atomic_path(args.out, ".json") as temporary:
         Path(temporary).write_text(json.dumps({**network.to_json(), "record": record}, indent=1) + "\n")
-    plot_curve(plot, curve, f"{args.out.name}: {settings.hidden} hidden units, "
+    plot_curve(plot, curve, f"{printable(args.out.name)}: {settings.hidden} hidden units, "
                                      f"{len(settings.features)} inputs")
     if not args.quiet:
         print(f"final loss {curve[-1][1]:.6f} (held out {curve[-1][2]}); weights written to {printable(args.out)}, "

@@ -210,6 +210,19 @@ def test_a_scene_not_found_names_only_flags_the_command_has(tmp_path, capfd):
     assert not (tmp_path / "work").exists()
 
 
+def test_an_out_name_that_is_not_utf8_trains_and_writes(setup, capfd):
+    from denoise.train import main
+
+    spec, work, _ = setup
+    out = work.parent / os.fsdecode(b"\xff bad.json")
+    argv = train(spec, work, out)
+    argv[argv.index("--steps") + 1] = "1"
+    assert main(argv) == 0, capfd.readouterr().err
+    err = capfd.readouterr().err
+    assert json.loads(out.read_text())["record"]["steps"] == 1 and out.with_suffix(".png").is_file()
+    assert "\\xff bad.json" in err and all(line.isprintable() for line in err.splitlines())
+
+
 def test_an_error_in_the_worker_is_sent_as_one_line(setup):
     """Whatever fails in the training's worker reaches the parent as one line, never a traceback."""
     import signal
