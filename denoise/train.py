@@ -25,6 +25,7 @@ if __name__ == "__main__":  # first: ./.venv's Python, the libLLVM, then Dr.Jit 
 
 import argparse
 import datetime
+import hashlib
 import json
 import os
 import platform
@@ -154,13 +155,13 @@ def _main(argv: list[str] | None) -> int:
     return 0
 
 
-def scene_file(name: str) -> Path | str:
-    """A spec's scene as the export resolves it (its file's real path), so that
-    every spelling of one scene compares equal; a scene not found stays its name
-    (the export's check of the folders says so, before any work)."""
+def scene_file(name: str) -> str:
+    """A spec's scene as the export resolves it, by its content (SHA-256), so that
+    every spelling of one scene, and a copy of its file, compare equal; a scene
+    not found stays its name (the check of the folders says so, before any work)."""
     try:
-        return resolve_scene(name, data_dir()).resolve()
-    except UsageError:
+        return hashlib.sha256(resolve_scene(name, data_dir()).read_bytes()).hexdigest()
+    except (UsageError, OSError):
         return name
 
 
