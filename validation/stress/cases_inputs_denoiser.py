@@ -3,6 +3,7 @@ every JSON input one line through one reader, sizes that disagree, frame numbers
 far apart, outputs into input folders, every PNG mode read as its pixels."""
 from __future__ import annotations
 
+import json
 import os
 import time
 from pathlib import Path
@@ -189,6 +190,25 @@ def odd_names_on_stdout(folder: Path) -> list[str]:
     return problems
 
 
+def training_inputs(folder: Path) -> list[str]:
+    """``python -m denoise.train``: a zero-byte checkpoint, a benchmark scene by path and
+    an output inside --work's frame folders are one line each, before any rendering."""
+    from denoise.train import main as train  # noqa: PLC0415  as above
+
+    tiny = {"scene": "showcase", "frames": 2, "size": [16, 9], "spp": 1, "reference_spp": 2}
+    (folder / "tiny.json").write_text(json.dumps(tiny))
+    (folder / "bench.json").write_text(json.dumps({**tiny, "scene": str(SCENES / "." / "lamps.txt")}))
+    (folder / "work").mkdir()
+    (folder / "work" / "w.checkpoint.npz").write_bytes(b"")
+    base = ["--work", folder / "work", "--out", folder / "w.json", "--plot", folder / "w.png", "--steps", "1"]
+    problems = refusals("python -m denoise.train", train, {
+        "a zero-byte checkpoint": ([folder / "tiny.json", *base], "w.checkpoint.npz: not a training checkpoint"),
+        "a benchmark scene by path": ([folder / "bench.json", *base], "is the benchmark's"),
+        "--out in a frame folder": ([folder / "tiny.json", *base, "--out", folder / "work" / "tiny" / "x.json"],
+                                    "inside the input folder")})
+    return problems + [f"{p.name} was written" for p in (folder / "w.json", folder / "work" / "tiny") if p.exists()]
+
+
 def denoiser_input_cases() -> list[SystemCase]:
     return [SystemCase("every JSON input: damaged specs are one line", damaged_json, fast=True, kind="inputs"),
             SystemCase("sizes, frame gaps, outputs into inputs: one line", sizes_gaps_and_outputs, fast=True,
@@ -197,4 +217,6 @@ def denoiser_input_cases() -> list[SystemCase]:
             SystemCase("flags over damaged keys, scheduler addresses, --data, outputs into inputs, ids: one line",
                        flags_addresses_and_records, fast=True, kind="inputs"),
             SystemCase("odd names in paths: stdout one printable line each, EXR written and read",
-                       odd_names_on_stdout, fast=True, kind="inputs")]
+                       odd_names_on_stdout, fast=True, kind="inputs"),
+            SystemCase("denoise.train: damaged checkpoint, benchmark scene by path, output in --work: one line",
+                       training_inputs, fast=True, kind="inputs")]
