@@ -45,7 +45,7 @@ from core.numbers import ascii_float, ascii_int
 from course import data_dir, resolve_scene
 from export import Spec, export, reference_folder, sequences_for
 from export.frames import frame_indices, read_frame, same_size
-from export.store import check_folder
+from export.store import FolderInUseError, check_folder
 from imaging.image_io import atomic_path, check_writable, read_exr_rgb
 from renderer.variants import set_variant
 
@@ -193,16 +193,18 @@ def check_specs(paths: list[Path]) -> list[tuple[Path, Spec]]:
 
 
 #: advice in the export's and the scene lookup's messages that names flags this command lacks -> ours
-ADVICE = {"use --force to start over, or another folder": "remove that folder, or give another --work",
-          "set --data to the course's data folder, or COURSE_ROOT": "set COURSE_ROOT",
+ADVICE = {"set --data to the course's data folder, or COURSE_ROOT": "set COURSE_ROOT",
           "lower --batch-spp": "make the spec's size smaller"}
 
 
 @contextmanager
 def own_advice() -> Iterator[None]:
-    """The export's errors with advice this command can follow (:data:`ADVICE`)."""
+    """The export's errors with advice this command can follow (a folder in use:
+    its remedy; else :data:`ADVICE`)."""
     try:
         yield
+    except FolderInUseError as error:
+        raise FolderInUseError(error.problem, "remove that folder, or give another --work") from None
     except ToolkitError as error:
         text = str(error)
         for theirs, ours in ADVICE.items():
