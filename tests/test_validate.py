@@ -1,8 +1,6 @@
 """python -m denoise.validate: the held-out sequences judged against a converged truth."""
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
 
@@ -177,19 +175,14 @@ def test_the_benchmark_refuses_an_empty_sequence_list():
     assert "--sequences" in err and "--reference-spp" not in err and err.count("\n") == 1, err
 
 
-QUICK = Path("/work/out-denoise/dolly_lamps_96x54_16spp_quick")
-
-
-@pytest.mark.skipif(not QUICK.is_dir(), reason=f"no quick benchmark folder {QUICK}")
-def test_fit_evaluate_on_a_short_sequence_names_the_sequence_not_a_flag_never_given(tmp_path, capsys):
+def test_fit_evaluate_on_a_short_sequence_names_the_sequence_not_a_flag_never_given(tmp_path, capsys,
+                                                                                     variant_vectorised_rgb):
     """``denoise.fit --evaluate`` on 4 frames said ``--switch-frame must be from 1 to 3 ..., got 4``."""
-    import shutil
-
     from denoise.fit import main
+    from export import Spec, export
 
     folder = tmp_path / "seq"
-    shutil.copytree(QUICK, folder)
-    shutil.copytree(f"{QUICK}_reference", f"{folder}_reference")
+    export(Spec.load(tiny_spec(tmp_path, 4), reference_spp=2), folder, local=True)
     assert main(["--evaluate", str(folder)]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and f"{folder}: 4 frames" in err and "got 4" not in err, err
