@@ -209,6 +209,27 @@ def training_inputs(folder: Path) -> list[str]:
     return problems + [f"{p.name} was written" for p in (folder / "w.json", folder / "work" / "tiny") if p.exists()]
 
 
+def validation_inputs(folder: Path) -> list[str]:
+    """``python -m denoise.validate``: a sequence without judged frames, --json inside
+    a sequence's folder under --work and a weights file with a string for a number are
+    one line each, before any rendering."""
+    from denoise.validate import main as validate  # noqa: PLC0415  as above
+
+    short = {"scene": "showcase", "frames": 3, "size": [16, 9], "spp": 1, "reference_spp": 2}
+    (folder / "short.json").write_text(json.dumps(short))
+    (folder / "long.json").write_text(json.dumps({**short, "frames": 6}))
+    weights = json.loads((SCENES.parent / "denoise" / "learned_asvgf.json").read_text())
+    weights["w1"][0][0] = "0.5"
+    (folder / "w.json").write_text(json.dumps(weights))
+    base = ["--work", folder / "work", "--methods", "asvgf"]
+    problems = refusals("python -m denoise.validate", validate, {
+        "3 frames": ([folder / "short.json", *base], "at least"),
+        "--json in a frame folder": ([folder / "long.json", *base, "--json", folder / "work" / "long" / "x.json"],
+                                     "inside"),
+        "a string for a weight": ([folder / "long.json", *base, "--network", folder / "w.json"], "not a number")})
+    return problems + ["--work was rendered into"] * (folder / "work").exists()
+
+
 def denoiser_input_cases() -> list[SystemCase]:
     return [SystemCase("every JSON input: damaged specs are one line", damaged_json, fast=True, kind="inputs"),
             SystemCase("sizes, frame gaps, outputs into inputs: one line", sizes_gaps_and_outputs, fast=True,
@@ -219,4 +240,6 @@ def denoiser_input_cases() -> list[SystemCase]:
             SystemCase("odd names in paths: stdout one printable line each, EXR written and read",
                        odd_names_on_stdout, fast=True, kind="inputs"),
             SystemCase("denoise.train: damaged checkpoint, benchmark scene by path, output in --work: one line",
-                       training_inputs, fast=True, kind="inputs")]
+                       training_inputs, fast=True, kind="inputs"),
+            SystemCase("denoise.validate: no judged frames, output in --work, a weight not a number: one line",
+                       validation_inputs, fast=True, kind="inputs")]
