@@ -47,7 +47,8 @@ def methods_help() -> str:
     for name, cls in METHODS.items():
         lines += textwrap.wrap(cls.description, 79, initial_indent=f"  {name}".ljust(width),
                                subsequent_indent=" " * width)
-    return "\n".join(lines) + "\n\n" + EXAMPLES
+    text = "\n".join(lines) + "\n\n" + EXAMPLES
+    return text.replace("%", "%%") if "%(prog)" in text else text  # argparse formats an epilog holding %(prog)
 
 
 def _shown(option: Option) -> str:
@@ -116,6 +117,7 @@ def add_method_options(parser: argparse.ArgumentParser) -> set[str]:
         elif defaults:
             help_text += " (default " + "; ".join(f"{shown} for {', '.join(names)}"
                                                   for shown, names in defaults.items()) + ")"
+        help_text = help_text.replace("%", "%%")  # argparse formats help with %: the text as written
         where = parser if option.group is None else titled[option.group]
         try:
             if option.action is not None:

@@ -37,6 +37,7 @@ from ..filters import (
     remove_outliers,
     reproject,
 )
+from .declarations import ACTIONS, printable, text_problem
 
 #: beauty values beyond +-this are clamped to it (NaN and inf become 0) before any filter:
 #: squared differences and second moments of 49 such values stay finite in float32
@@ -109,6 +110,11 @@ class Option:
             return "the key must be a Python name that is not a keyword (the parameter's field)"
         if self.kind not in (float, int, str, None) or (self.kind is None) != (self.action is not None):
             return "kind must be float, int or str, or None with an action"
+        if self.action is not None and self.action not in ACTIONS:
+            return f"action must be one of {', '.join(map(repr, ACTIONS))} (a switch), got {printable(self.action)}"
+        problem = text_problem(self)
+        if problem:
+            return problem
         if self.low is not None and self.high is not None and not self.low <= self.high:
             return f"low {self.low!r} is above high {self.high!r}"
         if self.step is not None and (self.kind not in (float, int) or not self.step > 0):

@@ -18,6 +18,7 @@ import types
 from pathlib import Path
 
 from . import METHODS, DeclarationError, DenoisingMethod, register
+from .declarations import description_problem
 
 FLAG = "--method-file"
 #: the methods of each file loaded in this process: a second command reuses them
@@ -28,6 +29,14 @@ def _line_of(error: BaseException, path: Path) -> int:
     """The last line of ``path`` in ``error``'s traceback (1 where none is)."""
     lines = [f.lineno for f in traceback.extract_tb(error.__traceback__) if Path(f.filename) == path]
     return lines[-1] if lines else 1
+
+
+def _class_line(cls: type) -> int:
+    """The line of ``cls``'s ``class`` statement (1 where it cannot be found)."""
+    try:
+        return inspect.getsourcelines(cls)[1]
+    except (OSError, TypeError):
+        return 1
 
 
 def load_method_file(path: Path) -> list[type[DenoisingMethod]]:
@@ -62,6 +71,10 @@ def load_method_file(path: Path) -> list[type[DenoisingMethod]]:
     if not defined and set(METHODS) == before:
         raise DeclarationError(f"{path}:1: no method class (a subclass of denoise.methods.DenoisingMethod with a "
                                "name and a description)")
+    for cls in defined + [METHODS[name] for name in METHODS if name not in before]:
+        problem = description_problem(cls)
+        if problem:
+            raise DeclarationError(f"{path}:{_class_line(cls)}: {cls.__name__}: {problem}")
     for cls in defined:
         if METHODS.get(cls.name) is not cls:
             try:
