@@ -70,6 +70,35 @@ class SignalRecord:
         raise Interrupted(signum)
 
 
+#: the records of the :func:`run` bodies in progress, innermost last
+ACTIVE: list[SignalRecord] = []
+
+
+def stop_received() -> int | None:
+    """The first stop signal delivered while a :func:`run` body runs, else None: the
+    handler's exception may have been caught by code that is not ours (a method
+    file's ``except BaseException``), but the record stays."""
+    return next((record.received[0] for record in reversed(ACTIVE) if record.received), None)
+
+
+def check_stopped() -> None:
+    """Raises :class:`Interrupted` where a stop signal came during :func:`run`'s body:
+    called after code of the user's (a method's hook) and before a result is written."""
+    signum = stop_received()
+    if signum is not None:
+        raise Interrupted(signum)
+
+
+def message_of(error: BaseException) -> str:
+    """``TYPE: str(error)`` (``TYPE`` alone where that is empty), also where the
+    exception's ``__str__`` itself raises (an exception class of a user's file)."""
+    try:
+        text = str(error)
+    except BaseException:  # noqa: BLE001  its own __str__ failed: the type still names it
+        text = "(its message could not be made: its __str__ raised)"
+    return f"{type(error).__name__}: {text}" if text else type(error).__name__
+
+
 @contextmanager
 def hold_signals() -> Iterator[list[int]]:
     """Holds SIGINT and SIGTERM back while the block runs, and delivers them
@@ -195,6 +224,7 @@ def run(prog: str, body: Callable[[], int | None], interrupted: str = INTERRUPTE
         previous = {signum: signal.signal(signum, handler) for signum, handler in handlers.items()}
     except ValueError:  # not the main thread (e.g. under a test runner's worker)
         previous = {}
+    ACTIVE.append(record)
     try:
         return int(body() or 0)
     except BaseException as error:
@@ -223,6 +253,7 @@ def run(prog: str, body: Callable[[], int | None], interrupted: str = INTERRUPTE
             return 2
         raise
     finally:
+        ACTIVE.remove(record)
         restore_handlers(record, previous)
 
 

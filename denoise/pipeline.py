@@ -9,6 +9,7 @@ from pathlib import Path
 
 from tqdm import tqdm
 
+from core.entry import check_stopped
 from core.errors import FrameError, OutputError
 from export.frames import frame_indices, missing_between, missing_files, read_frame
 from imaging.image_io import write_exr
@@ -81,6 +82,7 @@ def denoise_folder(source: Path, target: Path, method: DenoisingMethod, on_frame
                 raise FrameError(f"{source / f'beauty_{index}.exr'}: {frame.beauty.shape[1]}x"
                                  f"{frame.beauty.shape[0]} pixels, but frame {indices[0]} has {size[1]}x{size[0]}")
             result = method.step(frame)
+            check_stopped()  # nothing written after a stop signal, whatever the method made of it
             path = target / f"result_{index}.exr"
             write_exr(path, {"": result})
         except (FrameError, OutputError) as error:
@@ -93,5 +95,6 @@ def denoise_folder(source: Path, target: Path, method: DenoisingMethod, on_frame
         report.replaced_values += method.last_replaced
         report.frames_with_replaced += method.last_replaced > 0
         if on_frame is not None:
+            check_stopped()
             on_frame(index, frame, result)
     return report

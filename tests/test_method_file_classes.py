@@ -5,6 +5,10 @@ Ctrl-C, which must still stop the command quickly with nothing written after the
 from __future__ import annotations
 
 import re
+import signal
+import subprocess
+import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -77,3 +81,138 @@ def test_a_percent_sign_in_help_text_is_printed_as_written(option, tmp_path, cap
     assert done.value.code == 0
     text = " ".join(capsys.readouterr().out.split())
     assert "--w W" in text and ("h %" in text or "in %" in text or "(default %(default)s %)" in text), text
+
+
+#: what filter() raises (line 12), with a class defined on line 5, and the one line's end
+RAISED = {
+    "GeneratorExit": ("", "raise GeneratorExit", r"filter\(\) raised GeneratorExit"),
+    "BaseException subclass": ("class Odd(BaseException):\n    pass", "raise Odd('odd')",
+                               r"filter\(\) raised Odd: odd"),
+    "str() raises": ("class Bad(Exception):\n    def __str__(self):\n        raise RuntimeError('boom')",
+                     "raise Bad()", r"filter\(\) raised Bad: \(its message could not be made"),
+}
+
+
+@pytest.mark.parametrize("case", list(RAISED))
+def test_any_exception_of_a_filter_is_one_line(case, exported, tmp_path, capsys, registry):
+    from denoise.__main__ import main
+
+    head, body, expected = RAISED[case]
+    path = tmp_path / "my_filter.py"
+    path.write_text(method_file(body, head=head))
+    out = tmp_path / "out"
+    assert main([str(exported), str(out), "--method-file", str(path), "--method", "mine"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "Traceback" not in err, err
+    assert re.search(r"^python -m denoise: error: mine \(.*my_filter.py:\d+\): ", err), err
+    assert re.search(expected, err), err
+    assert not (out / "result_0.exr").exists()
+
+
+@pytest.mark.parametrize(("source", "expected"), [
+    ("import sys\nraise GeneratorExit\n", r"my_filter.py:2: GeneratorExit"),
+    ("class Odd(BaseException):\n    pass\n\n\nraise Odd('x')\n", r"my_filter.py:5: Odd: x"),
+    ("class Bad(Exception):\n    def __str__(self):\n        raise RuntimeError('boom')\n\n\nraise Bad()\n",
+     r"my_filter.py:6: Bad: \(its message could not be made"),
+])
+def test_any_exception_at_import_is_one_line(source, expected, tmp_path, capsys, registry):
+    from denoise.__main__ import main
+
+    path = tmp_path / "my_filter.py"
+    path.write_text(source)
+    assert main(["--method-file", str(path), "--help"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "Traceback" not in err, err
+    assert re.search(f"^python -m denoise: error: {re.escape(str(tmp_path))}/{expected}", err), err
+
+
+def test_a_base_exception_in_the_benchmark_is_one_line(tmp_path):
+    """python -m benchmarks.denoise --methods mine: the same line (a command of its own)."""
+    path = tmp_path / "my_filter.py"
+    path.write_text(method_file("raise GeneratorExit"))
+    done = subprocess.run([sys.executable, "-m", "benchmarks.denoise", "--quick", "--no-timing", "--sequences",
+                           "glossy_shadow", "--work", str(tmp_path / "bench"), "--method-file", str(path),
+                           "--methods", "mine"], cwd=ROOT, capture_output=True, text=True, timeout=600)
+    assert done.returncode == 2 and done.stderr.count("\n") == 1, done.stderr[-3000:]
+    assert re.search(r"error: mine \(.*my_filter.py:12\): filter\(\) raised GeneratorExit", done.stderr), done.stderr
+
+
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
+def test_a_filter_that_swallows_the_stop_signal_still_stops(signum, exported, tmp_path):
+    """The filter catches the interruption and returns: the command still stops at once
+    (130 / 143, one line) and writes nothing after the signal."""
+    mark = tmp_path / "filtering"
+    path = tmp_path / "my_filter.py"
+    path.write_text(method_file(f"open({str(mark)!r}, 'w').close()\n        try:\n            time.sleep(100)\n"
+                                "        except BaseException:\n            pass\n"
+                                "        return arrays.tensor(arrays.color)"))
+    out = tmp_path / "out"
+    process = subprocess.Popen([sys.executable, "-m", "denoise", str(exported), str(out), "--method-file", str(path),
+                                "--method", "mine"], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                               text=True)
+    try:
+        deadline = time.monotonic() + 240
+        while not mark.exists() and process.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert mark.exists(), process.communicate(timeout=10)
+        time.sleep(0.3)
+        process.send_signal(signum)
+        sent = time.monotonic()
+        err = process.communicate(timeout=15)[1]
+        took = time.monotonic() - sent
+    finally:
+        if process.poll() is None:
+            process.kill()
+            process.wait(10)
+    assert process.returncode == 128 + signum and err.count("\n") == 1 and "Traceback" not in err, err
+    assert took < 2.0, took
+    assert not list(out.glob("*")) if out.exists() else True
+
+
+@pytest.mark.parametrize("raised", ["GeneratorExit", "Odd('odd')"])
+def test_a_base_exception_when_the_live_page_switches_to_the_method_is_one_line(raised, tmp_path):
+    """python -m denoise.live: the page switches from svgf to the method, whose filter raises
+    an exception that is not an Exception: the server stops in the one line, exit 2."""
+    import asyncio
+    import json
+
+    import aiohttp
+
+    from core.libllvm import find_libllvm
+
+    if find_libllvm() is None:
+        pytest.skip("no usable libLLVM: the live page needs a JIT variant")
+    path = tmp_path / "my_filter.py"
+    path.write_text(method_file(f"raise {raised}", head="class Odd(BaseException):\n    pass"))
+    process = subprocess.Popen([sys.executable, "-m", "denoise.live", "showcase", "--size", "32", "18", "--variant",
+                                "llvm_ad_rgb", "--port", "0", "--method-file", str(path), "--method", "svgf"],
+                               cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        url = process.stdout.readline().split("open ", 1)[1].split()[0]
+
+        async def view():
+            async with aiohttp.ClientSession() as session:
+                async with session.ws_connect(url + "ws", headers={"Origin": url.rstrip("/")}) as ws:
+                    switched = False
+                    while not ws.closed:
+                        message = await asyncio.wait_for(ws.receive(), 240)
+                        if message.type in (aiohttp.WSMsgType.CLOSE, aiohttp.WSMsgType.CLOSED,
+                                            aiohttp.WSMsgType.ERROR):
+                            return
+                        if message.type == aiohttp.WSMsgType.BINARY and not switched:
+                            await ws.send_str(json.dumps({"type": "method", "name": "mine"}))
+                            switched = True
+
+        asyncio.run(asyncio.wait_for(view(), 300))
+        err = process.communicate(timeout=60)[1]
+    finally:
+        if process.poll() is None:
+            process.send_signal(signal.SIGTERM)
+            try:
+                process.wait(10)
+            except subprocess.TimeoutExpired:
+                process.kill()
+                process.wait(10)
+    assert process.returncode == 2 and err.count("\n") == 1 and "Traceback" not in err, (process.returncode, err)
+    assert re.search(r"^python -m denoise.live: error: mine \(.*my_filter.py:\d+\): filter\(\) raised "
+                     r"(GeneratorExit|Odd: odd)$", err), err

@@ -22,6 +22,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from core.entry import check_stopped, interruption, message_of, stop_received
 from core.errors import FrameError, ToolkitError, UsageError
 from core.numbers import ascii_float, ascii_int
 from export.frames import FrameData
@@ -349,9 +350,12 @@ class DenoisingMethod:
             result = self.filter(FrameArrays(color, tensor(frame.normal), position), frame, index, valid)
         except ToolkitError:
             raise
-        except (Exception, SystemExit) as error:  # the method's own code failed: where, and what (Ctrl-C stays one)
+        except BaseException as error:  # the method's own code failed: where, and what (Ctrl-C stays one)
+            if interruption(error) is not None or stop_received() is not None:
+                raise
             raise MethodError(f"{self.name} ({self.hook_origin(error)}): {self.hook().__name__}() raised "
-                              f"{type(error).__name__}: {error}") from None
+                              f"{message_of(error)}") from None
+        check_stopped()  # a hook that caught the interruption: it still stops the command
         self.check_result(result, frame.beauty.shape[:2])
         if albedo is not None:
             result = remodulate(result, albedo)

@@ -17,6 +17,8 @@ import traceback
 import types
 from pathlib import Path
 
+from core.entry import check_stopped, interruption, message_of, stop_received
+
 from . import METHODS, DeclarationError, DenoisingMethod, register
 from .declarations import description_problem
 
@@ -64,8 +66,11 @@ def load_method_file(path: Path) -> list[type[DenoisingMethod]]:
         exec(code, module.__dict__)  # noqa: S102  the user's own method file, named on their command line
     except DeclarationError:
         raise
-    except (Exception, SystemExit) as error:  # an exception (or exit()) at import: where, and what; Ctrl-C stays one
-        raise DeclarationError(f"{path}:{_line_of(error, path)}: {type(error).__name__}: {error}") from None
+    except BaseException as error:  # any exception (or exit()) at import: where, and what; Ctrl-C stays one
+        if interruption(error) is not None or stop_received() is not None:
+            raise
+        raise DeclarationError(f"{path}:{_line_of(error, path)}: {message_of(error)}") from None
+    check_stopped()  # a file that caught the interruption while it ran
     defined = [value for value in vars(module).values() if isinstance(value, type)
                and issubclass(value, DenoisingMethod) and value.__module__ == module.__name__ and value.name]
     if not defined and set(METHODS) == before:
