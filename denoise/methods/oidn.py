@@ -19,6 +19,7 @@ that size and cropped back: OIDN's network darkens a constant 1x1 image to
 """
 from __future__ import annotations
 
+import threading
 import time
 from dataclasses import dataclass
 
@@ -63,6 +64,10 @@ class OIDNParams:
             raise UsageError(f"unknown OIDN quality {self.quality!r}; choose from {', '.join(QUALITIES)}")
 
 
+#: how long the main thread waits on an execute between checks for a stop signal
+WAIT_SLICE_S = 0.05
+
+
 class OIDN:
     """One OIDN CPU device and one committed ``RT`` filter per image size.
 
@@ -80,6 +85,7 @@ class OIDN:
         self.key = None
         self.buffers: dict[str, np.ndarray] = {}
         self.size = (0, 0)  # the last input's height and width (the buffers may be padded beyond it)
+        self.running: threading.Thread | None = None  # an execute a stop signal left running
 
     def check(self, operation: str) -> None:
         """Raises the device's pending error, if any (OIDN reports errors there)."""
@@ -131,6 +137,7 @@ class OIDN:
         for name, image in (("albedo", albedo), ("normal", normal)):
             if image is not None and image.shape != color.shape:
                 raise FrameError(f"OIDN: the {name} image has shape {image.shape}, the colour {color.shape}")
+        self.finish_running()
         height, width = color.shape[:2]
         self.size = (height, width)
         self.prepare(max(height, MIN_SIDE), max(width, MIN_SIDE), albedo is not None, normal is not None)
@@ -149,8 +156,38 @@ class OIDN:
             np.copyto(self.buffers["normal"], padded(normal))
 
     def execute(self) -> None:
-        self.filter.execute()
+        """Runs the network. On the main thread it runs on a worker thread that the main
+        thread waits on in short slices: one execute at 1280x720 ``high`` takes
+        seconds in native code (pyoidn's cffi call releases the GIL), and a stop
+        signal's handler runs only on the main thread, between Python's bytecodes. On
+        a stop the worker is left to finish into the filter's own buffers; nothing
+        reads them, and the next execute waits for it first."""
+        self.finish_running()
+        if threading.current_thread() is not threading.main_thread():
+            self.filter.execute()
+        else:
+            failed: list[BaseException] = []
+
+            def work(filter_=self.filter, device=self.device, buffers=self.buffers):  # all kept alive while it runs
+                try:
+                    filter_.execute()
+                except BaseException as error:  # noqa: BLE001  handed to the waiting thread
+                    failed.append(error)
+
+            self.running = threading.Thread(target=work, name="OIDN execute", daemon=True)
+            self.running.start()
+            while self.running.is_alive():
+                self.running.join(WAIT_SLICE_S)  # a stop signal's exception leaves here
+            self.running = None
+            if failed:
+                raise failed[0]
         self.check("executing the filter")
+
+    def finish_running(self) -> None:
+        """Waits for an execute that a stop signal left running (its buffers are shared)."""
+        running, self.running = getattr(self, "running", None), None
+        if running is not None:
+            running.join()
 
     def output(self) -> np.ndarray:
         height, width = self.size
@@ -163,11 +200,15 @@ class OIDN:
         return self.output()
 
     def release_filter(self) -> None:
+        self.finish_running()
         if self.filter is not None:
             self.filter.release()
             self.filter, self.key = None, None
 
     def __del__(self):
+        running = getattr(self, "running", None)
+        if running is not None and running.is_alive():  # the worker holds the filter and device: left to it
+            return
         try:
             self.release_filter()
             self.device.release()
