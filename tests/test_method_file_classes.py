@@ -199,9 +199,13 @@ def test_a_base_exception_when_the_live_page_switches_to_the_method_is_one_line(
                         if message.type in (aiohttp.WSMsgType.CLOSE, aiohttp.WSMsgType.CLOSED,
                                             aiohttp.WSMsgType.ERROR):
                             return
-                        if message.type == aiohttp.WSMsgType.BINARY and not switched:
-                            await ws.send_str(json.dumps({"type": "method", "name": "mine"}))
-                            switched = True
+                        if message.type == aiohttp.WSMsgType.BINARY:  # acknowledged as the page does
+                            length = int.from_bytes(message.data[:4], "little")
+                            frame = json.loads(message.data[4:4 + length])["frame"]
+                            if not switched:
+                                await ws.send_str(json.dumps({"type": "method", "name": "mine"}))
+                                switched = True
+                            await ws.send_str(json.dumps({"type": "ack", "frame": frame}))
 
         asyncio.run(asyncio.wait_for(view(), 300))
         err = process.communicate(timeout=60)[1]
