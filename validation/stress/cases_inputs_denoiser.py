@@ -12,7 +12,8 @@ import numpy as np
 from PIL import Image
 
 from validation.stress.cases_surfaces import refusals
-from validation.stress.cases_system import SystemCase
+from validation.stress.cases_system import SystemCase, one_error_line
+from validation.stress.system import python, run_command
 
 #: the project's scene files
 SCENES = Path(__file__).resolve().parents[2] / "scenes"
@@ -230,6 +231,49 @@ def validation_inputs(folder: Path) -> list[str]:
     return problems + ["--work was rendered into"] * (folder / "work").exists()
 
 
+#: a student's method file with ``{options}`` declared and ``{body}`` as its filter
+METHOD_FILE = """from denoise.methods import DenoisingMethod, Option
+
+
+class Mine(DenoisingMethod):
+    name, description = "mine", "a broken method"
+    options = {options}
+
+    def filter(self, arrays, frame, index, valid):
+        {body}
+"""
+#: (options, filter body, words of the one error line)
+BROKEN_METHODS = {
+    "an Option with action='version'": ("(Option('w', False, 'h', kind=None, action='version'),)",
+                                        "return arrays.tensor(arrays.color)", "action"),
+    "GeneratorExit in filter()": ("()", "raise GeneratorExit", "GeneratorExit"),
+    "a % in a help text, then --help": ("(Option('w', 1.0, 'h %', low=0.0),)", "return arrays.tensor(arrays.color)",
+                                       None)}
+
+
+def broken_method_files(folder: Path) -> list[str]:
+    """``python -m denoise --method-file``: a declaration argparse cannot take and an
+    exception that is not an Exception are one line naming the file; a ``%`` in a
+    help text is printed as written by ``--help``."""
+    (folder / "tiny.json").write_text(json.dumps({"scene": "showcase", "frames": 2, "size": [16, 9], "spp": 1,
+                                                  "reference_spp": 2}))
+    code, _, err = run_command(python("-m", "export", folder / "tiny.json", folder / "seq", "--local"))
+    if code:
+        return [f"the export failed: {err.strip()[-200:]}"]
+    problems = []
+    for name, (options, body, expect) in BROKEN_METHODS.items():
+        path = folder / "mine.py"
+        path.write_text(METHOD_FILE.format(options=options, body=body))
+        tail = ["--help"] if expect is None else [folder / "seq", folder / "out", "--method", "mine"]
+        code, out, err = run_command(python("-m", "denoise", "--method-file", path, *tail))
+        if expect is None:
+            problems += [] if code == 0 and "h %" in out else [f"{name}: exit {code}: {err.strip()[-200:]!r}"]
+            continue
+        problems += [f"{name}: {p}: {err.strip()[-200:]!r}" for p in
+                     one_error_line(code, err, "python -m denoise", expect) + ([] if "mine.py" in err else ["no file"])]
+    return problems + ["results written"] * bool(list((folder / "out").glob("result_*")))
+
+
 def denoiser_input_cases() -> list[SystemCase]:
     return [SystemCase("every JSON input: damaged specs are one line", damaged_json, fast=True, kind="inputs"),
             SystemCase("sizes, frame gaps, outputs into inputs: one line", sizes_gaps_and_outputs, fast=True,
@@ -242,4 +286,6 @@ def denoiser_input_cases() -> list[SystemCase]:
             SystemCase("denoise.train: damaged checkpoint, benchmark scene by path, output in --work: one line",
                        training_inputs, fast=True, kind="inputs"),
             SystemCase("denoise.validate: no judged frames, output in --work, a weight not a number: one line",
-                       validation_inputs, fast=True, kind="inputs")]
+                       validation_inputs, fast=True, kind="inputs"),
+            SystemCase("method files: a declaration argparse cannot take, a BaseException in filter(): one line",
+                       broken_method_files, kind="inputs")]
