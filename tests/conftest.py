@@ -196,3 +196,17 @@ def exported(variant_llvm_ad_rgb, tmp_path):
            folder)
     assert read_exr_rgb(folder / "beauty_0.exr").max() > 0, "the exported frame is black"
     return folder
+
+
+@pytest.fixture
+def registry():
+    """The method registry (and the live page's lists) as they were, after the test
+    (``--method-file`` and ``register`` add to them in this process)."""
+    from denoise.live.methods import refresh
+    from denoise.methods import METHODS
+
+    before = dict(METHODS)
+    yield
+    METHODS.clear()
+    METHODS.update(before)
+    refresh()

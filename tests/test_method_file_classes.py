@@ -12,22 +12,9 @@ import time
 from pathlib import Path
 
 import pytest
-
-from denoise.methods import METHODS
+from helpers import assert_loading_is_one_line, live_server_stopping
 
 ROOT = Path(__file__).resolve().parent.parent
-
-
-@pytest.fixture
-def registry():
-    """The registry (and the live page's lists) as they were, after the test."""
-    from denoise.live.methods import refresh
-
-    before = dict(METHODS)
-    yield
-    METHODS.clear()
-    METHODS.update(before)
-    refresh()
 
 
 def method_file(body: str = "return arrays.tensor(arrays.color)", options: str = "()",
@@ -58,15 +45,7 @@ DECLARATIONS = {
 
 @pytest.mark.parametrize("case", list(DECLARATIONS))
 def test_a_declaration_argparse_cannot_take_is_one_line(case, tmp_path, capsys, registry):
-    from denoise.__main__ import main
-
-    source, expected = DECLARATIONS[case]
-    path = tmp_path / "my_filter.py"
-    path.write_text(source)
-    assert main(["--method-file", str(path), "--help"]) == 2
-    err = capsys.readouterr().err
-    assert err.count("\n") == 1 and "Traceback" not in err and "\x1b" not in err, err
-    assert re.search(f"^python -m denoise: error: {re.escape(str(tmp_path))}/{expected}", err), err
+    assert_loading_is_one_line(*DECLARATIONS[case], tmp_path, capsys)
 
 
 @pytest.mark.parametrize("option", ["Option('w', 1.0, 'h %')", "Option('w', 1.0, 'h', unit='%')",
@@ -173,50 +152,13 @@ def test_a_filter_that_swallows_the_stop_signal_still_stops(signum, exported, tm
 def test_a_base_exception_when_the_live_page_switches_to_the_method_is_one_line(raised, tmp_path):
     """python -m denoise.live: the page switches from svgf to the method, whose filter raises
     an exception that is not an Exception: the server stops in the one line, exit 2."""
-    import asyncio
-    import json
-
-    import aiohttp
-
     from core.libllvm import find_libllvm
 
     if find_libllvm() is None:
         pytest.skip("no usable libLLVM: the live page needs a JIT variant")
     path = tmp_path / "my_filter.py"
     path.write_text(method_file(f"raise {raised}", head="class Odd(BaseException):\n    pass"))
-    process = subprocess.Popen([sys.executable, "-m", "denoise.live", "showcase", "--size", "32", "18", "--variant",
-                                "llvm_ad_rgb", "--port", "0", "--method-file", str(path), "--method", "svgf"],
-                               cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
-        url = process.stdout.readline().split("open ", 1)[1].split()[0]
-
-        async def view():
-            async with aiohttp.ClientSession() as session:
-                async with session.ws_connect(url + "ws", headers={"Origin": url.rstrip("/")}) as ws:
-                    switched = False
-                    while not ws.closed:
-                        message = await asyncio.wait_for(ws.receive(), 240)
-                        if message.type in (aiohttp.WSMsgType.CLOSE, aiohttp.WSMsgType.CLOSED,
-                                            aiohttp.WSMsgType.ERROR):
-                            return
-                        if message.type == aiohttp.WSMsgType.BINARY:  # acknowledged as the page does
-                            length = int.from_bytes(message.data[:4], "little")
-                            frame = json.loads(message.data[4:4 + length])["frame"]
-                            if not switched:
-                                await ws.send_str(json.dumps({"type": "method", "name": "mine"}))
-                                switched = True
-                            await ws.send_str(json.dumps({"type": "ack", "frame": frame}))
-
-        asyncio.run(asyncio.wait_for(view(), 300))
-        err = process.communicate(timeout=60)[1]
-    finally:
-        if process.poll() is None:
-            process.send_signal(signal.SIGTERM)
-            try:
-                process.wait(10)
-            except subprocess.TimeoutExpired:
-                process.kill()
-                process.wait(10)
-    assert process.returncode == 2 and err.count("\n") == 1 and "Traceback" not in err, (process.returncode, err)
+    code, err = live_server_stopping(path, "svgf", switch_to="mine")
+    assert code == 2 and err.count("\n") == 1 and "Traceback" not in err, (code, err)
     assert re.search(r"^python -m denoise.live: error: mine \(.*my_filter.py:\d+\): filter\(\) raised "
                      r"(GeneratorExit|Odd: odd)$", err), err

@@ -11,8 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
-from denoise.methods import METHODS
+from helpers import assert_loading_is_one_line, live_server_stopping
 
 ROOT = Path(__file__).resolve().parent.parent
 PAGE = ROOT / "docs" / "own_method.md"
@@ -20,18 +19,6 @@ PAGE = ROOT / "docs" / "own_method.md"
 
 def page_code() -> str:
     return re.search(r"```python\n(.*?)```", PAGE.read_text(), re.S).group(1)
-
-
-@pytest.fixture
-def registry():
-    """The registry (and the live page's lists) as they were, after the test."""
-    from denoise.live.methods import refresh
-
-    before = dict(METHODS)
-    yield
-    METHODS.clear()
-    METHODS.update(before)
-    refresh()
 
 
 @pytest.fixture
@@ -132,15 +119,7 @@ BROKEN.update({
 
 @pytest.mark.parametrize("case", list(BROKEN))
 def test_a_broken_method_file_is_one_line(case, tmp_path, capsys, registry):
-    from denoise.__main__ import main
-
-    source, expected = BROKEN[case]
-    path = tmp_path / "my_filter.py"
-    path.write_text(source)
-    assert main(["--method-file", str(path), "--help"]) == 2
-    err = capsys.readouterr().err
-    assert err.count("\n") == 1 and "Traceback" not in err, err
-    assert re.search(f"^python -m denoise: error: {re.escape(str(tmp_path))}/{expected}", err), err
+    assert_loading_is_one_line(*BROKEN[case], tmp_path, capsys)
 
 
 
@@ -219,10 +198,6 @@ def test_a_flag_clash_is_one_line_in_every_command(command, tmp_path):
 def test_a_bad_filter_stops_the_live_server_in_one_line(case, tmp_path):
     """python -m denoise.live: the first frame that the method cannot filter stops the
     server with the same one line (exit 2; the page loses its connection), no traceback."""
-    import asyncio
-
-    import aiohttp
-
     from core.libllvm import find_libllvm
 
     if find_libllvm() is None:
@@ -230,26 +205,8 @@ def test_a_bad_filter_stops_the_live_server_in_one_line(case, tmp_path):
     body, expected = BAD_FILTERS[case]
     path = tmp_path / "my_filter.py"
     path.write_text(method_file(body))
-    process = subprocess.Popen([sys.executable, "-m", "denoise.live", "showcase", "--size", "32", "18", "--variant",
-                                "llvm_ad_rgb", "--port", "0", "--method-file", str(path), "--method", "mine"],
-                               cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
-        url = process.stdout.readline().split("open ", 1)[1].split()[0]
-
-        async def view():
-            async with aiohttp.ClientSession() as session:
-                async with session.ws_connect(url + "ws", headers={"Origin": url.rstrip("/")}) as ws:
-                    while not ws.closed and (await asyncio.wait_for(ws.receive(), 240)).type not in (
-                            aiohttp.WSMsgType.CLOSE, aiohttp.WSMsgType.CLOSED, aiohttp.WSMsgType.ERROR):
-                        pass
-
-        asyncio.run(view())
-        err = process.communicate(timeout=60)[1]
-    finally:
-        if process.poll() is None:
-            process.kill()
-            process.wait(10)
-    assert process.returncode == 2 and err.count("\n") == 1 and "Traceback" not in err, err
+    code, err = live_server_stopping(path, "mine")
+    assert code == 2 and err.count("\n") == 1 and "Traceback" not in err, err
     assert re.search(r"^python -m denoise.live: error: mine \(.*my_filter.py:1[12]\): filter\(\) ", err), err
     assert re.search(expected, err.replace("(18, 32, 3)", "")), err
 
