@@ -245,10 +245,13 @@ def _mean(rows, sequence, method, key):
     return float(np.mean(values)) if values else float("nan")
 
 
-def best_method(results: dict, sequence: str) -> tuple[str, float]:
+def best_method(results: dict, sequence: str) -> tuple[str, float] | None:
+    """The denoising method of least mean relMSE on ``sequence`` (None: only raw ran)."""
     rows = results["results"]
     scores = {m: _mean(rows, sequence, m, "relmse") for m in dict.fromkeys(r["method"] for r in rows) if m != "raw"}
     scores = {m: v for m, v in scores.items() if np.isfinite(v)}
+    if not scores:
+        return None
     best = min(scores, key=scores.get)
     return best, scores[best]
 
@@ -257,6 +260,9 @@ def reference_checks(results: dict) -> list[str]:
     """One line per sequence; the ones that fail start with 'FAIL'."""
     lines = []
     for s in results["sequences"]:
+        if best_method(results, s["name"]) is None:
+            lines.append(f"not judged: {s['name']}: no method besides raw ran to set the reference noise against")
+            continue
         best, value = best_method(results, s["name"])
         ratio = s["reference_noise"] / value
         s["reference_noise_ratio"] = ratio

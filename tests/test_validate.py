@@ -199,3 +199,12 @@ def test_fit_on_a_short_spec_names_the_spec(tmp_path, capsys):
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and f"{spec}: 3 frames" in err, err
     assert not (tmp_path / "work").exists()
+
+
+def test_the_benchmark_with_raw_alone_reports_and_exits_0(tmp_path):
+    """``--methods raw`` ran, printed its table and then failed ranking the denoisers
+    for the reference check (``min() arg is an empty sequence``)."""
+    captured = benchmark(["--quick", "--no-timing", "--work", str(tmp_path / "work"), "--sequences", "dolly_lamps",
+                          "--methods", "raw"])
+    assert captured.returncode == 0 and "Traceback" not in captured.err, captured.err
+    assert "not judged: dolly_lamps: no method besides raw" in captured.out
