@@ -67,6 +67,7 @@ from denoise.temporal_metrics import stability, temporal_relmse
 from denoise.validate import render
 from export import Spec, reference_folder
 from export.frames import frame_indices, read_frame
+from export.ground_truth import check_work_folder
 from imaging.colour import side_by_side
 from imaging.image_io import read_exr_rgb as read_rgb, write_image, write_video
 from imaging.metrics import flip_error, relmse
@@ -418,6 +419,7 @@ def check_work_and_json(work: Path, json_path: Path | None, folders: list[Path] 
     the JSON is named .json and lies outside the sequences' ``folders`` it reads."""
     if work.exists() and not work.is_dir():
         raise OutputError(f"--work {work}: a file, not a folder")
+    check_work_folder(work)
     if json_path is not None and not json_path.is_dir() and json_path.suffix.lower() != ".json":
         raise UsageError(f"--json writes JSON: name it .json, got {json_path}")
     for folder in folders:

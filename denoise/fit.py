@@ -54,7 +54,7 @@ from core.inputs import check_outside
 from core.numbers import ascii_float, ascii_int
 from export import Spec, reference_folder
 from export.frames import frame_indices, read_frame, same_size
-from export.ground_truth import check_ground_truth
+from export.ground_truth import check_ground_truth, check_work_folder
 from imaging.image_io import atomic_path, check_writable, read_exr_rgb
 from imaging.metrics import relmse
 from renderer.variants import set_variant
@@ -284,6 +284,7 @@ def _main(argv: list[str] | None) -> int:
     if not (0.0 < args.rate <= 10.0):
         raise UsageError(f"--rate must be in (0, 10], got {args.rate}")
 
+    check_work_folder(args.work)
     for spec in specs:  # a fit never writes onto a spec it reads, nor into the frames it trains on
         check_outside({"--out": args.out, "--work": args.work}, {"SPEC.json": spec})
         frames = args.work / Path(spec).stem

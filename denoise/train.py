@@ -45,6 +45,7 @@ from core.numbers import ascii_float, ascii_int
 from course import data_dir, resolve_scene
 from export import Spec, export, reference_folder, sequences_for
 from export.frames import frame_indices, read_frame, same_size
+from export.ground_truth import check_work_folder
 from export.store import FolderInUseError, check_folder
 from imaging.image_io import atomic_path, check_writable, read_exr_rgb
 from renderer.variants import set_variant
@@ -100,6 +101,7 @@ def _main(argv: list[str] | None) -> int:
     specs = args.specs or TRAINING
     if not specs:
         raise UsageError("no training sequences (scenes/sequences/training/network/*.json is empty)")
+    check_work_folder(args.work)
     for spec in specs:  # a run never writes onto a spec it reads
         check_outside({"--out": args.out, "--work": args.work, "--plot": plot}, {"SPEC.json": spec})
     loaded = check_specs(specs)  # every refusal before any work

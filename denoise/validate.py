@@ -34,6 +34,7 @@ from core.inputs import check_outside
 from core.numbers import ascii_int
 from export import Spec, export, reference_folder
 from export.frames import frame_indices, read_frame
+from export.ground_truth import check_work_folder
 from export.store import FolderInUseError
 from imaging.image_io import atomic_path, check_writable, read_exr_rgb
 from imaging.metrics import relmse
@@ -136,6 +137,7 @@ def _main(argv: list[str] | None) -> int:
     loaded = {p: Spec.load(p, reference_spp=args.reference_spp) for p in specs}  # a bad spec before any work
     for spec in specs:
         check_frames(spec, loaded[spec].frames)
+    check_work_folder(args.work)
     for spec in specs:  # the command never writes onto a spec, a weights file or a frame folder it reads
         folder = args.work / spec.stem
         check_outside({"--work": args.work, "--json": args.json}, {"SPEC.json": spec})

@@ -54,6 +54,19 @@ def check_not_an_export_folder(flag: str, output: Path) -> None:
                              f"write outputs elsewhere")
 
 
+def check_work_folder(work: Path) -> None:
+    """Refuses a ``--work`` cache (where a command exports its sequences) that
+    is, or lies inside, an export's frames or ground truth (by their records):
+    new sequences would be written into an input."""
+    work = Path(work).absolute()
+    for folder in (work, *work.parents):
+        for record, what in ((SEQUENCE_RECORD, "frames"), (GROUND_TRUTH_RECORD, "ground truth")):
+            if (folder / record).is_file():
+                where = "is" if folder == work else f"lies inside {folder}, which is"
+                raise UsageError(f"--work {work} {where} an export's {what} ({record}), an input; "
+                                 f"give a folder of its own")
+
+
 def read_record(path: Path) -> dict | None:
     """An export's record, or None where there is none that can be read (no evidence either way)."""
     try:

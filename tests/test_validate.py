@@ -208,3 +208,31 @@ def test_the_benchmark_with_raw_alone_reports_and_exits_0(tmp_path):
                           "--methods", "raw"])
     assert captured.returncode == 0 and "Traceback" not in captured.err, captured.err
     assert "not judged: dolly_lamps: no method besides raw" in captured.out
+
+
+@pytest.mark.parametrize("inside", ["seq", "seq_reference", "seq/deeper"])
+@pytest.mark.parametrize("command", ["denoise.validate", "denoise.fit", "denoise.train", "benchmarks.denoise"])
+def test_a_work_folder_inside_an_exports_frames_or_truth_is_one_line(command, inside, tmp_path, capsys):
+    """Each command that exports its sequences into --work wrote new sequence folders (and a
+    checkpoint) inside a frame folder or a ground truth given as --work."""
+    import importlib
+
+    (tmp_path / "seq").mkdir()
+    (tmp_path / "seq" / "sequence.json").write_text("{}")
+    (tmp_path / "seq_reference").mkdir()
+    (tmp_path / "seq_reference" / "ground_truth.json").write_text("{}")
+    before = sorted(tmp_path.rglob("*"))
+    work = tmp_path / inside
+    argv = {"denoise.validate": [TINY_SPEC, "--work", str(work), "--methods", "asvgf"],
+            "denoise.fit": [TINY_SPEC, "--work", str(work), "--steps", "1", "--out", str(tmp_path / "p.json")],
+            "denoise.train": [TINY_SPEC, "--work", str(work), "--steps", "1", "--out", str(tmp_path / "w.json"),
+                              "--plot", str(tmp_path / "w.png")],
+            "benchmarks.denoise": ["--quick", "--no-timing", "--work", str(work), "--sequences", "dolly_lamps"],
+            }[command]
+    if command.startswith("benchmarks."):  # tests never import benchmarks/
+        captured = benchmark(argv)
+        code, err = captured.returncode, captured.err
+    else:
+        code, err = importlib.import_module(command).main(argv), capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1 and f"--work {work}" in err and "an input" in err, err
+    assert sorted(tmp_path.rglob("*")) == before
