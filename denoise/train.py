@@ -51,7 +51,7 @@ from imaging.image_io import atomic_path, check_writable, read_exr_rgb
 from renderer.variants import set_variant
 
 from . import training
-from .methods.learned_asvgf import WEIGHTS_FILE
+from .methods.learned_asvgf import WEIGHT_LIMIT, WEIGHTS_FILE
 from .training import BENCHMARK, HELD_OUT, ROOT, TRAINING, Settings
 from .worker_process import ignore_group_signals, run_in_worker
 
@@ -146,6 +146,9 @@ def _main(argv: list[str] | None) -> int:
               "final_train_loss": curve[-1][1], "final_held_out_loss": curve[-1][2],
               "machine": machine(), "date": datetime.date.today().isoformat(),
               "curve": [[int(s), round(a, 6), None if b is None else round(b, 6)] for s, a, b in curve]}
+    if not (np.isfinite(theta).all() and (np.abs(theta) <= WEIGHT_LIMIT).all()):
+        raise UsageError(f"the training ended with weights beyond {WEIGHT_LIMIT:g}, which no weights file may hold "
+                         f"(a diverging run: a lower --rate); {printable(args.out)} left as it was")
     network = training.network_of(theta, settings.features, settings.hidden)
     with atomic_path(args.out, ".json") as temporary:
         Path(temporary).write_text(json.dumps({**network.to_json(), "record": record}, indent=1) + "\n")

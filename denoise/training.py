@@ -41,7 +41,7 @@ from imaging.image_io import atomic_path, read_exr_rgb
 from .filters import FrameArrays, demodulate, remodulate, reproject
 from .methods import make
 from .methods.asvgf import fitted
-from .methods.learned_asvgf import FEATURES, OUTPUTS, TEMPORAL_FEATURES, Network, learned_asvgf
+from .methods.learned_asvgf import FEATURES, OUTPUTS, TEMPORAL_FEATURES, WEIGHT_LIMIT, Network, learned_asvgf
 from .svgf_common import levels_for
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -324,6 +324,8 @@ def checkpoint_problem(state: dict, settings: Settings, names: list[str]) -> str
             return f"{k} holds {state[k].dtype} of shape {state[k].shape}, not the {count} parameters' values"
         if not np.isfinite(state[k]).all():
             return f"{k} holds values that are not finite"
+    if (np.abs(state["theta"]) > WEIGHT_LIMIT).any():
+        return f"theta holds weights beyond {WEIGHT_LIMIT:g}, which no weights file may hold"
     if (state["v"] < 0).any():
         return "v (Adam's mean squared gradient) holds negative values"
     t, curve, seconds = state["t"], state["curve"], state["seconds"]
@@ -331,8 +333,10 @@ def checkpoint_problem(state: dict, settings: Settings, names: list[str]) -> str
         return f"t is {t.dtype} of shape {t.shape}, not a step count"
     if curve.dtype.kind != "f" or curve.ndim != 2 or curve.shape[1] != 3:
         return f"curve is {curve.dtype} of shape {curve.shape}, not rows of (step, loss, held-out loss)"
-    if int(t) != len(curve) or not np.array_equal(curve[:, 0], np.arange(len(curve))):
+    if int(t) != len(curve):
         return f"t is {int(t)}, but its curve holds {len(curve)} steps"
+    if not np.array_equal(curve[:, 0], np.arange(len(curve))):
+        return f"its curve's steps are not 0 to {len(curve) - 1} in order"
     losses = curve[:, 1:] if any(n in HELD_OUT for n in names) else curve[:, 1:2]  # else held out: NaN
     if not (np.isfinite(losses).all() and (losses >= 0).all()):
         return "its curve holds a loss that is not finite or is negative"

@@ -100,7 +100,10 @@ def damage_checkpoint(path: Path, case: str) -> None:
               "v negative": lambda s: s["v"].__setitem__(3, -1.0),
               "curve nan": lambda s: s["curve"].__setitem__((0, 1), np.nan),
               "seconds nan": lambda s: s.update(seconds=np.array(np.nan)),
-              "theta inf": lambda s: s["theta"].__setitem__(5, np.inf)}[case]
+              "theta inf": lambda s: s["theta"].__setitem__(5, np.inf),
+              "theta 1e30": lambda s: s.update(theta=s["theta"] * 1e30 + 1e30),
+              "theta 1e300": lambda s: s.update(theta=s["theta"] * 1e300 + 1e300),
+              "curve steps out of order": lambda s: s["curve"].__setitem__((0, 0), 7.0)}[case]
     change(state)
     with open(path, "wb") as file:
         np.savez(file, **state)
@@ -108,7 +111,8 @@ def damage_checkpoint(path: Path, case: str) -> None:
 
 @pytest.mark.parametrize("case", ["zero bytes", "cut in half", "a folder", "theta one short", "theta 2-D", "no m",
                                   "theta a string", "t=-1", "t=10**12", "curve 1-D", "m nan", "v negative",
-                                  "curve nan", "seconds nan", "theta inf"])
+                                  "curve nan", "seconds nan", "theta inf", "theta 1e30", "theta 1e300",
+                                  "curve steps out of order"])
 def test_a_damaged_checkpoint_is_one_line_before_any_step(setup, capfd, case):
     spec, work, out = setup
     path = checkpoint_of(work)

@@ -54,6 +54,8 @@ from .asvgf import ASVGFHistory, ASVGFParams, FilterValues, fitted, temporal_acc
 from .base import DenoisingMethod, Option
 
 #: the network's inputs, in order: a weights file names the ones it was trained on
+#: the largest magnitude of a weight a weights file (or a training's checkpoint) may hold
+WEIGHT_LIMIT = 1e6
 FEATURES = ("inverse_length", "gradient", "disoccluded", "current_change", "fast_slow", "slow_clip", "noise",
             "albedo")
 #: the inputs that come from the history (the "no temporal inputs" ablation drops them)
@@ -163,8 +165,8 @@ def load_network(path: Path) -> Network:
                 "not a numeric array" if array is None else f"shape {array.shape}")
             raise bad_weights(path, f"{key} must have shape {shape} for {len(features)} features and {hidden} hidden "
                               f"units, {found}")
-        if not np.all(np.isfinite(array)) or np.any(np.abs(array) > 1e6):
-            raise bad_weights(path, f"{key} has a value that is not finite or beyond 1e6")
+        if not np.all(np.isfinite(array)) or np.any(np.abs(array) > WEIGHT_LIMIT):
+            raise bad_weights(path, f"{key} has a value that is not finite or beyond {WEIGHT_LIMIT:g}")
         arrays[key] = array.astype(np.float32)
     return Network(tuple(features), **arrays)
 
