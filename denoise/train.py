@@ -29,6 +29,7 @@ import hashlib
 import json
 import os
 import platform
+import re
 import shlex
 import sys
 import time
@@ -161,13 +162,25 @@ def _main(argv: list[str] | None) -> int:
 
 
 def scene_file(name: str) -> str:
-    """A spec's scene as the export resolves it, by its content (SHA-256), so that
-    every spelling of one scene, and a copy of its file, compare equal; a scene
-    not found stays its name (the check of the folders says so, before any work)."""
+    """A spec's scene as the export resolves it, by its content (SHA-256 of its
+    words, comments left out and numbers read as numbers), so that every
+    spelling of one scene, a copy of its file, and a copy with other comments,
+    spacing or number formats compare equal; a scene not found stays its name
+    (the check of the folders says so, before any work)."""
     try:
-        return hashlib.sha256(resolve_scene(name, data_dir()).read_bytes()).hexdigest()
+        text = resolve_scene(name, data_dir()).read_text(errors="replace")
     except (UsageError, OSError):
         return name
+    words = re.findall(r"[{}]|[^\s{}]+", re.sub(r"#[^\n]*", " ", text))
+    return hashlib.sha256(" ".join(number_or_word(w) for w in words).encode()).hexdigest()
+
+
+def number_or_word(word: str) -> str:
+    """``word`` as a number's canonical text where it is one (``1.0``, ``1``, ``1e0`` alike)."""
+    try:
+        return repr(float(word))
+    except ValueError:
+        return word
 
 
 def check_specs(paths: list[Path]) -> list[tuple[Path, Spec]]:
