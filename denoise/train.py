@@ -52,6 +52,7 @@ from imaging.image_io import atomic_path, check_writable, read_exr_rgb
 from renderer.variants import set_variant
 
 from . import training
+from .methods.base import RADIANCE_LIMIT
 from .methods.learned_asvgf import WEIGHT_LIMIT, WEIGHTS_FILE
 from .training import BENCHMARK, HELD_OUT, ROOT, TRAINING, Settings
 from .worker_process import ignore_group_signals, run_in_worker
@@ -249,6 +250,8 @@ def check_frames(folder: Path, indices: list[int]) -> None:
     for i in indices:
         frame = read_frame(folder, i)
         truth_path = reference_folder(folder) / f"beauty_{i}.exr"
+        if truth_path.exists() and not truth_path.is_file():
+            raise FrameError(f"{truth_path}: not a regular file, where frame {i}'s ground truth belongs")
         if not truth_path.is_file():
             raise UsageError(f"{folder}: no ground truth for frame {i} (no {truth_path}; python -m export renders it)")
         try:
@@ -264,6 +267,11 @@ def check_frames(folder: Path, indices: list[int]) -> None:
             if bad:
                 raise FrameError(f"{path}: {bad} pixels of {image.shape[0] * image.shape[1]} are not finite "
                                  f"(NaN or infinite); the training needs finite frames and targets")
+        for path, image in ((folder / f"beauty_{i}.exr", frame.beauty), (truth_path, truth)):
+            bad = int(((image < 0) | (image > RADIANCE_LIMIT)).any(axis=-1).sum())
+            if bad:  # a render's radiance is never negative
+                raise FrameError(f"{path}: {bad} pixels of {image.shape[0] * image.shape[1]} have a negative "
+                                 f"radiance or one beyond {RADIANCE_LIMIT:g}; not a render's")
 
 
 def train_worker(connection, folders: list[Path], settings: Settings, checkpoint: Path) -> None:

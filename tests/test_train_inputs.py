@@ -146,14 +146,14 @@ def test_a_sound_checkpoint_resumes(setup, capfd):
     assert json.loads(out.read_text())["record"]["steps"] == 2
 
 
-def nan_patch(path: Path, whole: bool) -> None:
+def damaged_pixels(path: Path, whole: bool, value: float = np.nan) -> None:
     from imaging.image_io import read_exr_rgb, write_exr
 
     image = read_exr_rgb(path)
     if whole:
-        image[:] = np.nan
+        image[:] = value
     else:
-        image[2:12, 3:13] = np.nan
+        image[2:12, 3:13] = value
     write_exr(path, {"": image})
 
 
@@ -163,6 +163,10 @@ def nan_patch(path: Path, whole: bool) -> None:
     ("all-NaN truth", "tiny_showcase_reference/beauty_1.exr", "not finite"),
     ("NaN patch in the truth", "tiny_showcase_reference/beauty_2.exr", "100 pixels"),
     ("NaN patch in the beauty", "tiny_showcase/beauty_0.exr", "not finite"),
+    ("a truth of -1000", "tiny_showcase_reference/beauty_1.exr", "negative radiance"),
+    ("a beauty patch of -3e38", "tiny_showcase/beauty_0.exr", "100 pixels"),
+    ("a truth patch of 3e38", "tiny_showcase_reference/beauty_2.exr", "beyond"),
+    ("a FIFO for a truth", "tiny_showcase_reference/beauty_1.exr", "not a regular file"),
 ])
 def test_damaged_or_non_finite_frames_are_one_line_naming_the_file(setup, capfd, case, file, words):
     spec, work, out = setup
@@ -171,8 +175,13 @@ def test_damaged_or_non_finite_frames_are_one_line_naming_the_file(setup, capfd,
         path.write_bytes(path.read_bytes()[:path.stat().st_size // 2])
     elif case == "garbage matrix":
         path.write_bytes(b"garbage, not matrices")
+    elif case == "a FIFO for a truth":
+        path.unlink()
+        os.mkfifo(path)
+    elif "NaN" in case:
+        damaged_pixels(path, case.startswith("all"))
     else:
-        nan_patch(path, case.startswith("all"))
+        damaged_pixels(path, "patch" not in case, float(case.split(" of ")[1]))
     refused(capfd, train(spec, work, out), str(path), words)
     assert out.read_text() == "before\n" and not (work / "w.checkpoint.npz").exists()
 
