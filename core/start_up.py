@@ -7,6 +7,7 @@ print the interrupted line and exit with 128 + the signal at once, until
 in Python's own start-up, which no program can handle, but for a command that
 :mod:`core.launcher` re-executed: it blocks them across the ``exec``.
 """
+import atexit
 import os
 import signal
 
@@ -32,3 +33,14 @@ def exit_on_signals(prog: str) -> None:
     # blocked by a launcher that re-executed this command (core.launcher): a signal
     # that came during this Python's start-up is pending, and is handled now
     signal.pthread_sigmask(signal.SIG_UNBLOCK, STOP_SIGNALS)
+    atexit.register(ignore_stop_signals)
+
+
+def ignore_stop_signals() -> None:
+    """The last of a command's exit hooks: the stop signals ignored for the rest of
+    the interpreter's teardown, where Python puts the default action back for
+    any signal a Python handler took (a signal would then end the process
+    without a word). A command that ends by ``sys.exit`` (argparse's
+    ``--help`` among them) has written all it writes by then."""
+    for signum in STOP_SIGNALS:
+        signal.signal(signum, signal.SIG_IGN)

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import signal
 import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -214,3 +215,17 @@ def test_the_launcher_blocks_the_stop_signals_across_its_exec(monkeypatch):
         for signum, handler in handlers.items():
             signal.signal(signum, handler)
     assert set(STOP_SIGNALS) <= seen["mask"]
+
+
+def test_a_signal_after_the_exit_hooks_is_ignored_not_a_silent_death():
+    """A command that ends by sys.exit (argparse's --help) tears Python down with the
+    default action back on every signal a Python handler took: a Ctrl-C then ended it
+    by the signal with no line. Its last exit hook ignores the stop signals instead."""
+    code = ("import atexit, os, signal, sys\n"
+            "from core.start_up import exit_on_signals\n"
+            "exit_on_signals('python -m x')\n"
+            "atexit._run_exitfuncs()\n"
+            "os.kill(os.getpid(), signal.SIGINT)\n"
+            "print('still here')\n")
+    done = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0 and done.stdout == "still here\n" and done.stderr == "", done
