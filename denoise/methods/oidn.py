@@ -85,7 +85,7 @@ class OIDN:
         self.key = None
         self.buffers: dict[str, np.ndarray] = {}
         self.size = (0, 0)  # the last input's height and width (the buffers may be padded beyond it)
-        self.running: threading.Thread | None = None  # an execute a stop signal left running
+        self.running: threading.Event | None = None  # set when an execute a stop signal left running ends
 
     def check(self, operation: str) -> None:
         """Raises the device's pending error, if any (OIDN reports errors there)."""
@@ -161,23 +161,28 @@ class OIDN:
         seconds in native code (pyoidn's cffi call releases the GIL), and a stop
         signal's handler runs only on the main thread, between Python's bytecodes. On
         a stop the worker is left to finish into the filter's own buffers; nothing
-        reads them, and the next execute waits for it first."""
+        reads them, and the next execute waits for it first. The worker's end is an
+        Event it sets, not ``Thread.is_alive``: Python 3.11's ``join`` marks a thread
+        stopped when a signal's exception cuts the join short."""
         self.finish_running()
         if threading.current_thread() is not threading.main_thread():
             self.filter.execute()
         else:
             failed: list[BaseException] = []
+            done = threading.Event()
 
             def work(filter_=self.filter, device=self.device, buffers=self.buffers):  # all kept alive while it runs
                 try:
                     filter_.execute()
                 except BaseException as error:  # noqa: BLE001  handed to the waiting thread
                     failed.append(error)
+                finally:
+                    done.set()
 
-            self.running = threading.Thread(target=work, name="OIDN execute", daemon=True)
-            self.running.start()
-            while self.running.is_alive():
-                self.running.join(WAIT_SLICE_S)  # a stop signal's exception leaves here
+            self.running = done
+            threading.Thread(target=work, name="OIDN execute", daemon=True).start()
+            while not done.wait(WAIT_SLICE_S):  # a stop signal's exception leaves here
+                pass
             self.running = None
             if failed:
                 raise failed[0]
@@ -187,7 +192,7 @@ class OIDN:
         """Waits for an execute that a stop signal left running (its buffers are shared)."""
         running, self.running = getattr(self, "running", None), None
         if running is not None:
-            running.join()
+            running.wait()
 
     def output(self) -> np.ndarray:
         height, width = self.size
@@ -207,7 +212,7 @@ class OIDN:
 
     def __del__(self):
         running = getattr(self, "running", None)
-        if running is not None and running.is_alive():  # the worker holds the filter and device: left to it
+        if running is not None and not running.is_set():  # the worker holds the filter and device: left to it
             return
         try:
             self.release_filter()
