@@ -9,7 +9,12 @@
   the file and returns 2; ``MemoryError`` one line and 2;
 - Ctrl-C (SIGINT), SIGTERM and SIGHUP print one line and return 130 / 143 / 129; the
   handler raises :class:`Interrupted` (a ``BaseException``), so every
-  ``atomic_path`` on the way out removes its temporary file. An error whose
+  ``atomic_path`` on the way out removes its temporary file. Its first call
+  also starts a watchdog: where the process has not ended :data:`GRACE_S`
+  after the signal (user code that swallows the interruption in a loop, a
+  thread that never ends), the watchdog removes the temporary files of the
+  writes in progress (:data:`TEMPORARY`), prints the line unless it was
+  printed, and ends the process with the same code. An error whose
   chain (``__cause__`` / ``__context__``) holds such an interruption counts
   as one: native extensions (Dr.Jit's start-up) wrap it in an ImportError or
   SystemError. So does any error after a stop signal came: some native code
@@ -32,6 +37,7 @@ import os
 import signal
 import sys
 import threading
+import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from typing import NoReturn
@@ -50,6 +56,55 @@ class Interrupted(BaseException):
         self.signum = signum
 
 
+#: seconds a command has, after a stop signal reached its handler, to end before the watchdog ends it
+GRACE_S = 1.5
+#: the temporary files of the atomic writes in progress: the watchdog removes them before it ends the process
+TEMPORARY: set[str] = set()
+#: seconds after the signal up to which the watchdog waits for our own cleanups (:func:`own_cleanup`)
+CLEANUP_S = 10.0
+#: the :func:`own_cleanup` blocks running now
+CLEANUPS: list[str] = []
+
+
+@contextmanager
+def own_cleanup(what: str) -> Iterator[None]:
+    """Marks an orderly cleanup of ours (closing a Dask cluster, whose workers would
+    otherwise be cut off mid-conversation and log errors): the watchdog waits for it,
+    up to :data:`CLEANUP_S` after the signal, before it ends the process."""
+    CLEANUPS.append(what)
+    try:
+        yield
+    finally:
+        CLEANUPS.remove(what)
+
+
+def end_now(code: int, line: str | None = None) -> NoReturn:
+    """Ends the process at once with ``code``, from any thread: the temporary files of
+    :data:`TEMPORARY` removed, ``line`` (if any) on stderr, the worker processes of
+    :mod:`multiprocessing` (Dask's included) terminated, no teardown."""
+    try:
+        for path in list(TEMPORARY):
+            try:
+                os.unlink(path)
+            except OSError:
+                pass
+        if line is not None:
+            os.write(2, f"{line}\n".encode())
+        processes = sys.modules.get("multiprocessing")
+        for child in processes.active_children() if processes is not None else ():
+            child.terminate()
+    finally:
+        os._exit(code)
+
+
+def watchdog(seconds: float, expire: Callable[[], None]) -> threading.Timer:
+    """A started daemon timer that calls ``expire`` after ``seconds``."""
+    timer = threading.Timer(seconds, expire)
+    timer.daemon = True
+    timer.start()
+    return timer
+
+
 class SignalRecord:
     """The stop signals delivered while :func:`run`'s body runs, and the handler that
     records each before it raises: native code that calls back into Python (a
@@ -57,17 +112,50 @@ class SignalRecord:
     raised exception with one of its own that does not chain it, so that
     :func:`run` goes by the record, not by the exception alone."""
 
-    def __init__(self):
+    def __init__(self, line: str = ""):
         self.received: list[int] = []
         self.finished = False  # the body has ended: record, do not raise (see restore_handlers)
+        self.line = line  # the interrupted line, printed once: by run or by the watchdog
+        self.lock = threading.Lock()
+        self.said = False
+        self.over = False  # run has returned: the watchdog no longer acts
+        self.watchdog: threading.Timer | None = None
+        self.signalled = 0.0  # time.monotonic() at the first stop signal
 
     def handler(self, signum, frame):
         self.received.append(signum)
         if self.finished:
             return
+        if self.watchdog is None:
+            self.signalled = time.monotonic()
+            self.watchdog = watchdog(GRACE_S, self.expire)
         if signum == signal.SIGINT:
             raise KeyboardInterrupt
         raise Interrupted(signum)
+
+    def say(self) -> None:
+        """Prints the interrupted line, unless it was printed."""
+        with self.lock:
+            if not self.said:
+                self.said = True
+                print(self.line, file=sys.stderr)
+
+    def expire(self) -> None:
+        """The watchdog: the body did not end within the grace period after the signal."""
+        with self.lock:  # held to the end: run cannot print the line, nor return, meanwhile
+            if self.over:
+                return
+            if CLEANUPS and time.monotonic() < self.signalled + CLEANUP_S:
+                self.watchdog = watchdog(0.1, self.expire)
+            else:
+                end_now(128 + self.received[0], None if self.said else self.line)
+
+    def end(self) -> None:
+        """The body is over (run returns): the watchdog no longer acts."""
+        with self.lock:
+            self.over = True
+        if self.watchdog is not None:
+            self.watchdog.cancel()
 
 
 #: the records of the :func:`run` bodies in progress, innermost last
@@ -218,7 +306,7 @@ def printable(value: object) -> str:
 def run(prog: str, body: Callable[[], int | None], interrupted: str = INTERRUPTED) -> int:
     """Runs ``body`` under the error contract; returns the exit code. ``interrupted``:
     the line after ``PROG: `` when a signal stops it (a command that writes no files says so)."""
-    record = SignalRecord()
+    record = SignalRecord(f"{prog}: {interrupted}")
     handlers = dict.fromkeys((signal.SIGINT, signal.SIGTERM, signal.SIGHUP), record.handler)
     try:
         previous = {signum: signal.signal(signum, handler) for signum, handler in handlers.items()}
@@ -232,7 +320,7 @@ def run(prog: str, body: Callable[[], int | None], interrupted: str = INTERRUPTE
         if signum is None and record.received:  # whatever native code made of the handler's exception
             signum = record.received[0]
         if signum is not None:
-            print(f"{prog}: {interrupted}", file=sys.stderr)
+            record.say()
             return 128 + int(signum)
         if isinstance(error, ToolkitError):
             print(f"{prog}: error: {one_line(error)}", file=sys.stderr)
@@ -253,6 +341,7 @@ def run(prog: str, body: Callable[[], int | None], interrupted: str = INTERRUPTE
             return 2
         raise
     finally:
+        record.end()
         ACTIVE.remove(record)
         restore_handlers(record, previous)
 
@@ -275,7 +364,13 @@ def finish(code: int) -> NoReturn:
     """Ends a command with ``code`` once :func:`run` has returned it: every file
     is complete, so a stop signal during the interpreter's teardown (Dr.Jit's
     shutdown takes a moment, and Python restores the default handlers there,
-    which would end the process by the signal without a word) is ignored."""
+    which would end the process by the signal without a word) is ignored.
+
+    After a stop signal (``code`` 128 + one), a teardown that has not ended
+    :data:`GRACE_S` later (a thread that never ends, an exit handler that waits)
+    is cut short with the same code: the line was printed."""
     for signum in STOP_SIGNALS:
         signal.signal(signum, signal.SIG_IGN)
+    if code - 128 in STOP_SIGNALS:
+        watchdog(GRACE_S, lambda: end_now(code))
     sys.exit(code)

@@ -18,6 +18,7 @@ import re
 import tempfile
 from pathlib import Path
 
+from core.entry import TEMPORARY
 from core.errors import OutputError, write_failure
 
 #: A section name: letters, digits, ``-`` and ``_`` (it is spelt into the markers)
@@ -87,6 +88,7 @@ def write_text_atomically(path: str | Path, text: str) -> None:
         handle, tmp = tempfile.mkstemp(prefix=".", suffix=".tmp", dir=path.parent)
     except OSError as error:
         raise OutputError(f"{path}: cannot write into {path.parent}: {write_failure(error)}") from None
+    TEMPORARY.add(tmp)  # removed by core.entry's watchdog where it ends the process meanwhile
     try:
         with os.fdopen(handle, "w", encoding="utf-8") as file:
             file.write(text)
@@ -98,3 +100,5 @@ def write_text_atomically(path: str | Path, text: str) -> None:
         if why is not None:  # a full disk: name the page, not the temporary file
             raise OutputError(f"{path}: {why}") from None
         raise
+    finally:
+        TEMPORARY.discard(tmp)

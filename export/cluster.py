@@ -31,6 +31,7 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
+from core.entry import own_cleanup
 from core.errors import UsageError
 from core.libllvm import prepare_libllvm
 
@@ -157,9 +158,10 @@ def dask_client(scheduler: str | None = None, workers: int | None = None) -> Ite
         silence_dask()
         raise
     finally:
-        client.close()
-        if cluster is not None:
-            cluster.close()
+        with own_cleanup("closing the Dask cluster"):  # core.entry's watchdog waits for it
+            client.close()
+            if cluster is not None:
+                cluster.close()
 
 
 @contextmanager

@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
+from core.entry import TEMPORARY
 from core.errors import NO_ROOM, FrameError, OutputError, SceneError, write_failure  # noqa: F401 (NO_ROOM re-exported)
 
 #: Longest file name (bytes) where the folder's file system does not say
@@ -109,6 +110,7 @@ def atomic_path(path: str | Path, suffix: str) -> Iterator[Path]:
             raise OutputError(f"{path}: cannot write into {folder}: {write_failure(error)}") from None
     else:
         raise OutputError(f"{path}: cannot find a free temporary name in {folder}")
+    TEMPORARY.add(str(tmp))  # removed by core.entry's watchdog where it ends the process meanwhile
     try:
         try:
             yield tmp
@@ -124,6 +126,8 @@ def atomic_path(path: str | Path, suffix: str) -> Iterator[Path]:
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
+    finally:
+        TEMPORARY.discard(str(tmp))
 
 
 def write_image(path: str | Path, pixels: np.ndarray) -> None:

@@ -116,15 +116,13 @@ def test_a_base_exception_in_the_benchmark_is_one_line(tmp_path):
     assert re.search(r"error: mine \(.*my_filter.py:12\): filter\(\) raised GeneratorExit", done.stderr), done.stderr
 
 
-@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
-def test_a_filter_that_swallows_the_stop_signal_still_stops(signum, exported, tmp_path):
-    """The filter catches the interruption and returns: the command still stops at once
-    (130 / 143, one line) and writes nothing after the signal."""
+def stop_while_filtering(signum: int, body: str, exported: Path, tmp_path: Path) -> None:
+    """``python -m denoise`` with a method whose filter runs ``body`` after marking that it
+    started: the signal then stops the command within 2 s (130 / 143, one line), with
+    nothing written after it, not even a temporary file."""
     mark = tmp_path / "filtering"
     path = tmp_path / "my_filter.py"
-    path.write_text(method_file(f"open({str(mark)!r}, 'w').close()\n        try:\n            time.sleep(100)\n"
-                                "        except BaseException:\n            pass\n"
-                                "        return arrays.tensor(arrays.color)"))
+    path.write_text(method_file(f"open({str(mark)!r}, 'w').close()\n{body}"))
     out = tmp_path / "out"
     process = subprocess.Popen([sys.executable, "-m", "denoise", str(exported), str(out), "--method-file", str(path),
                                 "--method", "mine"], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
@@ -146,6 +144,21 @@ def test_a_filter_that_swallows_the_stop_signal_still_stops(signum, exported, tm
     assert process.returncode == 128 + signum and err.count("\n") == 1 and "Traceback" not in err, err
     assert took < 2.0, took
     assert not list(out.glob("*")) if out.exists() else True
+
+
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
+def test_a_filter_that_swallows_the_stop_signal_still_stops(signum, exported, tmp_path):
+    """The filter catches the interruption and returns: the command still stops at once."""
+    stop_while_filtering(signum, "        try:\n            time.sleep(100)\n        except BaseException:\n"
+                         "            pass\n        return arrays.tensor(arrays.color)", exported, tmp_path)
+
+
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
+def test_a_filter_that_never_lets_the_stop_signal_out_still_stops(signum, exported, tmp_path):
+    """The filter loops for ever, swallowing every interruption: the handler's watchdog ends
+    the command once its grace period is over."""
+    stop_while_filtering(signum, "        while True:\n            try:\n                time.sleep(0.2)\n"
+                         "            except BaseException:\n                pass", exported, tmp_path)
 
 
 @pytest.mark.parametrize("raised", ["GeneratorExit", "Odd('odd')"])
