@@ -68,9 +68,10 @@ CLEANUPS: list[str] = []
 
 @contextmanager
 def own_cleanup(what: str) -> Iterator[None]:
-    """Marks an orderly cleanup of ours (closing a Dask cluster, whose workers would
-    otherwise be cut off mid-conversation and log errors): the watchdog waits for it,
-    up to :data:`CLEANUP_S` after the signal, before it ends the process."""
+    """Marks code of ours that stops in order on its own after a signal (starting or
+    closing a Dask cluster, whose workers would otherwise be cut off mid-conversation
+    and log errors): the watchdog waits for it, up to :data:`CLEANUP_S` after the
+    signal, before it ends the process."""
     CLEANUPS.append(what)
     try:
         yield

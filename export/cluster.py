@@ -139,8 +139,8 @@ def dask_client(scheduler: str | None = None, workers: int | None = None) -> Ite
     else:
         cores = os.cpu_count() or 1
         workers = workers or cores
-        try:
-            with workers_ignoring_sigint():
+        try:  # a start cut short by a signal unwinds in Dask's own time: core.entry's watchdog waits for it
+            with own_cleanup("starting the Dask cluster"), workers_ignoring_sigint():
                 cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
                                        dashboard_address=":0", silence_logs=logging.ERROR, preload=[__name__])
         except BaseException:
