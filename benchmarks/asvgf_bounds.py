@@ -41,7 +41,8 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from benchmarks.denoise import ASVGF_RELMSE_BAR, BASELINE, QUALITY, QUALITY_FROM, REFERENCE_SPP, SEQUENCES
+from benchmarks.denoise import QUALITY, REFERENCE_SPP, SEQUENCES
+from benchmarks.denoise_report import ASVGF_RELMSE_BAR, BASELINE
 from benchmarks.records import check_json, machine, write_json
 from core import entry
 from core.entry import ArgumentParser
@@ -51,6 +52,7 @@ from denoise.filters import demodulate, remodulate
 from denoise.fit import prepare
 from denoise.methods import from_name
 from denoise.methods.asvgf import GRADIENT_FLOOR, ASVGFParams, asvgf, box_statistics, fitted, to_ycocg
+from denoise.temporal_metrics import QUALITY_FROM
 from export import reference_folder
 from export.frames import frame_indices, read_frame
 from imaging.metrics import relmse

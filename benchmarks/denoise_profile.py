@@ -38,7 +38,8 @@ if __name__ == "__main__":  # first: ./.venv's Python, the libLLVM, then Dr.Jit 
 
 import drjit as dr
 
-from benchmarks.denoise import QUICK_TIMING, RESULTS_PAGE, SEQUENCES, TIMING, check_work_and_json, timing_folder
+from benchmarks.denoise import QUICK_TIMING, SEQUENCES, TIMING, check_work_and_json, timing_folder
+from benchmarks.denoise_report import RESULTS_PAGE
 from benchmarks.kernel_profile import profile
 from benchmarks.records import machine, write_json
 from core import entry
