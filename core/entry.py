@@ -33,6 +33,7 @@ Anything else is a bug and keeps its traceback.
 from __future__ import annotations
 
 import argparse
+import functools
 import os
 import signal
 import sys
@@ -304,6 +305,18 @@ def printable(value: object) -> str:
                    else c.encode("unicode_escape").decode("ascii") for c in str(value))
 
 
+def swallowed(record: SignalRecord, unraisable: Callable, info) -> None:
+    """``sys.unraisablehook`` while :func:`run`'s body runs: the handler's interruption,
+    raised inside a finalizer or a weakref callback (where Python prints "Exception
+    ignored" and goes on), is not printed but raised again, by the same signal
+    delivered anew from another thread a moment later (at once, the handler would
+    raise inside this hook); anything else goes to ``unraisable``."""
+    if isinstance(info.exc_value, (KeyboardInterrupt, Interrupted)) and record.received:
+        threading.Timer(0.05, os.kill, (os.getpid(), record.received[-1])).start()
+        return
+    unraisable(info)
+
+
 def run(prog: str, body: Callable[[], int | None], interrupted: str = INTERRUPTED) -> int:
     """Runs ``body`` under the error contract; returns the exit code. ``interrupted``:
     the line after ``PROG: `` when a signal stops it (a command that writes no files says so)."""
@@ -314,6 +327,8 @@ def run(prog: str, body: Callable[[], int | None], interrupted: str = INTERRUPTE
     except ValueError:  # not the main thread (e.g. under a test runner's worker)
         previous = {}
     ACTIVE.append(record)
+    unraisable = sys.unraisablehook
+    sys.unraisablehook = functools.partial(swallowed, record, unraisable)
     try:
         return int(body() or 0)
     except BaseException as error:
@@ -342,6 +357,7 @@ def run(prog: str, body: Callable[[], int | None], interrupted: str = INTERRUPTE
             return 2
         raise
     finally:
+        sys.unraisablehook = unraisable
         record.end()
         ACTIVE.remove(record)
         restore_handlers(record, previous)
