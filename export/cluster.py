@@ -115,9 +115,12 @@ def check_scheduler(address: str) -> str:
 def silence_dask() -> None:
     """After an interruption or a failure the user gets one line from the
     command, not the errors Dask logs while it drops the cancelled work and
-    shuts down."""
-    for name in ("distributed", "tornado", "asyncio"):
-        logging.getLogger(name).setLevel(logging.CRITICAL)
+    shuts down. Their child loggers too: Dask gives some a level of their own
+    (``tornado.application`` logged a closed stream's traceback)."""
+    families = ("distributed", "tornado", "asyncio")
+    for name in [*families, *list(logging.root.manager.loggerDict)]:
+        if name.split(".")[0] in families:
+            logging.getLogger(name).setLevel(logging.CRITICAL)
 
 
 @contextmanager
