@@ -357,21 +357,22 @@ def run(prog: str, body: Callable[[], int | None], interrupted: str = INTERRUPTE
             return 2
         raise
     finally:
+        arrived = len(record.received)
+        record.finished = True  # a stop signal from here on is recorded, not raised out of this block
         sys.unraisablehook = unraisable
         record.end()
         ACTIVE.remove(record)
-        restore_handlers(record, previous)
+        restore_handlers(record, previous, arrived)
 
 
-def restore_handlers(record: SignalRecord, previous: dict) -> None:
-    """Puts back the handlers :func:`run` replaced. A stop signal that comes
-    meanwhile (another thread's C handler may have caught it, and
-    ``signal.signal`` runs the pending Python handler) is recorded, not raised
-    out of here as a traceback, then given to the handler put back."""
+def restore_handlers(record: SignalRecord, previous: dict, arrived: int) -> None:
+    """Puts back the handlers :func:`run` replaced. A stop signal that came
+    after the first ``arrived`` (another thread's C handler may have caught it,
+    and ``signal.signal`` runs the pending Python handler) was recorded, not
+    raised out of here as a traceback, and is given to the handler put back."""
     if not previous:
         return
     record.finished = True
-    arrived = len(record.received)
     for signum, handler in previous.items():
         signal.signal(signum, handler)
     deliver(record.received[arrived:], previous)
