@@ -6,11 +6,15 @@ through the pixel centres, then Mitsuba's path tracer at 1 spp through
 jittered positions, with the camera of the moment (``live_camera``, whose
 basis is opaque data) and the first point light where the viewer put it.
 
-The beauty and the G-buffer passes are frozen Dr.Jit functions
-(``dr.freeze``): after their first frame they replay the recorded kernels
-with the new camera, light and seed instead of tracing again. The G-buffer
-pass computes whitted's AOVs alone (:func:`render_gbuffers`, the same
-function as whitted's ``sample``), not its shading, which it would discard.
+After a camera move, one frozen Dr.Jit function (``dr.freeze``) computes the
+G-buffers and the beauty in one kernel (:func:`render_both`); while the camera
+stays, another computes the beauty alone (:func:`render_beauty`). After their
+first frame they replay the recorded kernel with the new camera, light and seed
+instead of tracing again; each replay walks the scene (its inputs), so a frame
+pays one walk, and the scene holds the path tracer (a C++ integrator), not
+whitted (a Python one, slower to walk), which is kept aside for its per-shape
+ids. The G-buffers are whitted's AOVs alone (:func:`gbuffer_values`, the same
+function as whitted's ``sample``), not its shading, which they would discard.
 The denoiser works on NumPy frames (:class:`denoise.pipeline.Denoiser`
 checks values on the host), which a frozen function cannot replay.
 
@@ -69,8 +73,12 @@ class SceneRenderer:
         description["sensor_jittered"] = dict(description["sensor"], pixel_centers=False)
         noisy = scene_dict(self.scene, RenderOptions(width=width, height=height, jitter=True, bounces=BOUNCES,
                                                      shadows=True))
-        self.integrator = mi.load_dict(without_ambient(with_path_tracer(noisy))["integrator"])
+        # whitted analyses the scene (its per-shape ids); the scene holds the path tracer, which renders
+        # the beauty: a frozen pass walks its inputs every frame, and a Python integrator costs more to walk
+        self.whitted = mi.load_dict(description["integrator"])
+        description["integrator"] = without_ambient(with_path_tracer(noisy))["integrator"]
         self.mi_scene = load_scene_dict(description)
+        self.integrator = self.mi_scene.integrator()
         self.params = mi.traverse(self.mi_scene)
         sensors = {s.id(): s for s in self.mi_scene.sensors()}
         self.centre_sensor, self.jittered_sensor = sensors["sensor"], sensors["sensor_jittered"]
@@ -78,10 +86,10 @@ class SceneRenderer:
         self.light_key = f"light_{lights[0]}.position" if lights else None
         self.light = self.scene.lights[lights[0]].position if lights else None
         # whitted's per-shape object ids (what whitted.render analyses before sampling), an input of the G-buffer pass
-        self.object_ids = self.mi_scene.integrator().analyse(self.mi_scene).tables["ids"]
-        self.last_camera, self.layers = None, None
+        self.object_ids = self.whitted.analyse(self.mi_scene).tables["ids"]
+        self.last_camera, self.layers, self.ids, self.matrices = None, None, None, None
         self.render_beauty = dr.freeze(render_beauty) if freeze else render_beauty
-        self.render_gbuffers = dr.freeze(render_gbuffers) if freeze else render_gbuffers
+        self.render_both = dr.freeze(render_both) if freeze else render_both
 
     def at_size(self, width: int, height: int) -> SceneRenderer:
         """This renderer, or the same scene's at another frame size (loaded anew)."""
@@ -110,32 +118,35 @@ class SceneRenderer:
         self.params.update()
 
     def render(self, view: View, seed: int) -> tuple[FrameData, dict[str, float]]:
-        """The frame of ``view`` (beauty with sampler seed ``seed``) and the
-        seconds of each pass ("gbuffers", "render"); the G-buffers are those
-        of the last frame while the camera stays where it was."""
+        """The frame of ``view`` (beauty with sampler seed ``seed``) and the seconds
+        of each stage: "render" (the kernel, with the G-buffers after a camera move)
+        and "gbuffers" (the G-buffer layers and the camera's matrices made ready on
+        the host, after a camera move). While the camera stays where it was, the
+        G-buffers are those of the last frame."""
         start = time.perf_counter()
         self.set_view(view)
+        seed = mi.UInt32(seed)
         if view.camera != self.last_camera:  # the G-buffers depend on the camera alone
-            pixels = self.render_gbuffers(self.mi_scene, self.centre_sensor, self.object_ids)
-            layers = split_layers(to_image(pixels, self.width, self.height), GBUFFER_AOVS, rgb=False)
+            gbuffers, pixels = self.render_both(self.mi_scene, self.centre_sensor, self.jittered_sensor,
+                                                self.object_ids, seed)
+            beauty = to_image(pixels, self.width, self.height)
+            rendered = time.perf_counter()
+            layers = split_layers(to_image(gbuffers, self.width, self.height), GBUFFER_AOVS, rgb=False)
             # the layers the denoiser checks (Denoiser.usable_frame) and uploads, contiguous once per
             # view: as strided views of the interleaved image, each frame would pay a slow pass and a copy
             self.layers = {name: np.ascontiguousarray(layer) if name in CONTIGUOUS_LAYERS else layer
                            for name, layer in layers.items()}
+            self.ids = self.layers["id"].astype(np.int32)
+            near, far = depth_range(view.camera, self.layers["position"][self.ids >= 0])
+            self.matrices = camera_matrices(view.camera, self.width, self.height, near, far)
             self.last_camera = view.camera
+        else:
+            beauty = to_image(self.render_beauty(self.mi_scene, self.jittered_sensor, seed), self.width, self.height)
+            rendered = time.perf_counter()
         layers = self.layers
-        gbuffers = time.perf_counter()
-        pixels = self.render_beauty(self.mi_scene, self.integrator, self.jittered_sensor, mi.UInt32(seed))
-        beauty = to_image(pixels, self.width, self.height)
-        end = time.perf_counter()
-        camera = view.camera
-        ids = layers["id"].astype(np.int32)
-        near, far = depth_range(camera, layers["position"][ids >= 0])
-        world_to_camera, world_to_screen = camera_matrices(camera, self.width, self.height, near, far)
-        frame = FrameData(beauty, layers["normal"], layers["position"], layers["depth"], ids,
-                          [o.to_world for o in self.scene.objects], world_to_camera, world_to_screen,
-                          albedo=layers["albedo"])
-        return frame, {"gbuffers": gbuffers - start, "render": end - gbuffers}
+        frame = FrameData(beauty, layers["normal"], layers["position"], layers["depth"], self.ids,
+                          [o.to_world for o in self.scene.objects], *self.matrices, albedo=layers["albedo"])
+        return frame, {"render": rendered - start, "gbuffers": time.perf_counter() - rendered}
 
 
 def camera_rays(sensor, seed) -> tuple:
@@ -166,25 +177,35 @@ def sample_image(scene, integrator, sensor, seed) -> list:
         return [spectrum.x, spectrum.y, spectrum.z] + list(aovs)
 
 
-def render_beauty(scene, integrator, sensor, seed) -> mi.Float:
-    """The noisy 1-spp beauty, RGB per pixel as consecutive floats (the function that is frozen)."""
-    return interleaved(sample_image(scene, integrator, sensor, seed)[:3])
+def render_beauty(scene, sensor, seed) -> mi.Float:
+    """The noisy 1-spp beauty by the scene's integrator, RGB per pixel as consecutive floats
+    (a function that is frozen: the pass of a frame whose camera did not move)."""
+    return interleaved(sample_image(scene, scene.integrator(), sensor, seed)[:3])
 
 
-def render_gbuffers(scene, sensor, object_ids: mi.TensorXf) -> mi.Float:
-    """whitted's AOVs :data:`GBUFFER_AOVS` through the pixel centres, their
-    channels per pixel as consecutive floats (the function that is frozen):
-    exactly what ``whitted``'s ``sample`` returns as its AOVs (the same
-    function, :func:`mi_plugins.first_hit.first_hit_values`), without its
-    shading, which the G-buffers do not use. ``object_ids`` is whitted's
-    per-shape id table, an input here so that the frozen function may read it."""
+def gbuffer_values(scene, sensor, object_ids: mi.TensorXf) -> list:
+    """whitted's AOVs :data:`GBUFFER_AOVS` through the pixel centres of ``sensor``:
+    exactly what ``whitted``'s ``sample`` returns as its AOVs (the same function,
+    :func:`mi_plugins.first_hit.first_hit_values`), without its shading, which the
+    G-buffers do not use. ``object_ids`` is whitted's per-shape id table, an input
+    so that a frozen function may read it."""
     with dr.suspend_grad():
         ray, _, _ = camera_rays(sensor, mi.UInt32(0))
         active = dr.full(mi.Bool, True, dr.width(ray.d.x))
         si = scene.ray_intersect(mi.Ray3f(ray), active)
         values = first_hit_values(GBUFFER_AOVS, si, active,
                                   lambda: object_ids.array[dr.reinterpret_array(mi.UInt32, si.shape)])
-        return interleaved([finite(v) for v in values])
+        return [finite(v) for v in values]
+
+
+def render_both(scene, centre_sensor, jittered_sensor, object_ids: mi.TensorXf, seed) -> tuple[mi.Float, mi.Float]:
+    """(G-buffers, beauty), each a pixel's channels consecutive (:func:`gbuffer_values`,
+    :func:`render_beauty`), computed by one kernel (a function that is frozen: a walk of
+    the scene and a launch a frame, not two)."""
+    gbuffers = dr.ravel(mi.ArrayXf(*gbuffer_values(scene, centre_sensor, object_ids)))
+    beauty = dr.ravel(mi.ArrayXf(*sample_image(scene, scene.integrator(), jittered_sensor, seed)[:3]))
+    dr.eval(gbuffers, beauty)
+    return gbuffers, beauty
 
 
 def interleaved(channels: list) -> mi.Float:
@@ -216,10 +237,12 @@ class JPEGEncoder:
         self.scale = np.float32((TONE_MAP_ENTRIES - 1) / TONE_MAP_WHITE)
 
     def __call__(self, image: np.ndarray) -> bytes:
-        index = np.nan_to_num(np.asarray(image, np.float32) * self.scale + np.float32(0.5), nan=0.0)
-        index = np.clip(index, 0, TONE_MAP_ENTRIES - 1).astype(np.int32)
+        index = np.multiply(image, self.scale, dtype=np.float32)
+        index += np.float32(0.5)
+        np.fmax(index, 0.0, out=index)  # fmax: NaN becomes 0 (code 0), in the same pass
+        np.minimum(index, TONE_MAP_ENTRIES - 1, out=index)  # +inf the table's last entry
         buffer = io.BytesIO()
-        Image.fromarray(self.table[index]).save(buffer, "JPEG", quality=self.quality)
+        Image.fromarray(np.take(self.table, index.astype(np.uint16))).save(buffer, "JPEG", quality=self.quality)
         return buffer.getvalue()
 
 
