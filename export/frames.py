@@ -243,8 +243,12 @@ def depth_range(camera, points: np.ndarray) -> tuple[float, float]:
     frame's points and points that moved moderately map to z/w in (0, 1)."""
     direction = np.asarray(camera.direction, np.float64)
     direction = direction / np.linalg.norm(direction)
-    points = np.asarray(points, np.float64).reshape(-1, 3)
-    depth = (points - np.asarray(camera.center, np.float64)) @ direction
+    centre = np.asarray(camera.center, np.float64)
+    points = np.asarray(points).reshape(-1, 3)
+    # (points - centre) @ direction in float64, a component at a time: no (N, 3) float64 copy
+    depth = (points[:, 0] - centre[0]) * direction[0]
+    for axis in (1, 2):
+        depth += (points[:, axis] - centre[axis]) * direction[axis]
     depth = depth[np.isfinite(depth) & (depth > 0)]
     if depth.size == 0:
         return 1e-2, 1e3  # nothing visible: the course framework's own planes

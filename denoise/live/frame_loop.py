@@ -44,8 +44,8 @@ from converters.to_mitsuba import load_scene_dict
 from export import GBUFFER_AOVS
 from export.frames import FrameData, camera_matrices, depth_range
 from imaging.colour import tone_map
+from mi_plugins.aovs import AOV_CHANNELS
 from mi_plugins.first_hit import finite, first_hit_values
-from renderer.job import split_layers
 
 from .methods import RAW, method_for, retuned
 from .session import Session, View
@@ -55,8 +55,6 @@ IN_FLIGHT = 2
 #: path depth beyond direct light, as the export's specs (``bounces``)
 BOUNCES = 3
 JPEG_QUALITY = 85
-#: the G-buffer layers kept contiguous (see :meth:`SceneRenderer.render`)
-CONTIGUOUS_LAYERS = ("normal", "position", "albedo")
 
 
 class SceneRenderer:
@@ -131,11 +129,8 @@ class SceneRenderer:
                                                 self.object_ids, seed)
             beauty = to_image(pixels, self.width, self.height)
             rendered = time.perf_counter()
-            layers = split_layers(to_image(gbuffers, self.width, self.height), GBUFFER_AOVS, rgb=False)
-            # the layers the denoiser checks (Denoiser.usable_frame) and uploads, contiguous once per
-            # view: as strided views of the interleaved image, each frame would pay a slow pass and a copy
-            self.layers = {name: np.ascontiguousarray(layer) if name in CONTIGUOUS_LAYERS else layer
-                           for name, layer in layers.items()}
+            self.layers = {name: to_image(layer, self.width, self.height).squeeze(-1) if len(AOV_CHANNELS[name]) == 1
+                           else to_image(layer, self.width, self.height) for name, layer in gbuffers.items()}
             self.ids = self.layers["id"].astype(np.int32)
             near, far = depth_range(view.camera, self.layers["position"][self.ids >= 0])
             self.matrices = camera_matrices(view.camera, self.width, self.height, near, far)
@@ -198,11 +193,14 @@ def gbuffer_values(scene, sensor, object_ids: mi.TensorXf) -> list:
         return [finite(v) for v in values]
 
 
-def render_both(scene, centre_sensor, jittered_sensor, object_ids: mi.TensorXf, seed) -> tuple[mi.Float, mi.Float]:
-    """(G-buffers, beauty), each a pixel's channels consecutive (:func:`gbuffer_values`,
-    :func:`render_beauty`), computed by one kernel (a function that is frozen: a walk of
-    the scene and a launch a frame, not two)."""
-    gbuffers = dr.ravel(mi.ArrayXf(*gbuffer_values(scene, centre_sensor, object_ids)))
+def render_both(scene, centre_sensor, jittered_sensor, object_ids: mi.TensorXf, seed) -> tuple[dict, mi.Float]:
+    """(G-buffers, beauty): each G-buffer layer by name (:data:`GBUFFER_AOVS`) and the
+    beauty an array of its own, a pixel's channels consecutive (:func:`gbuffer_values`,
+    :func:`render_beauty`), all computed by one kernel (a function that is frozen: one
+    walk of the scene and one launch a frame, not two; each layer NumPy reads as one
+    contiguous view, which the denoiser checks and uploads as it is)."""
+    values = iter(gbuffer_values(scene, centre_sensor, object_ids))
+    gbuffers = {name: dr.ravel(mi.ArrayXf(*[next(values) for _ in AOV_CHANNELS[name]])) for name in GBUFFER_AOVS}
     beauty = dr.ravel(mi.ArrayXf(*sample_image(scene, scene.integrator(), jittered_sensor, seed)[:3]))
     dr.eval(gbuffers, beauty)
     return gbuffers, beauty
