@@ -328,6 +328,44 @@ def clamp_box(color: mi.TensorXf, radius: int = 3) -> tuple[mi.Vector3f, mi.Vect
     return mean, sigma
 
 
+def box_mean(values: mi.Float, width: int, height: int, radius: int) -> mi.Float:
+    """Mean of ``values`` (one channel, row order) over each pixel's (2r+1)² box
+    inside the image: :func:`clamp_box`'s mean without its σ, for a caller that
+    needs no more. Separable (a row pass, then a column pass over the row sums),
+    through shifted planes where no gradient is tracked, else gathers."""
+    x0, y0 = pixel_coordinates(width, height)
+    shifted = usable(values)
+    if shifted:
+        planes = ShiftedPlanes([values], margin_for(width, radius))
+        dr.eval(values)  # with the planes, in one kernel
+    row_sum = mi.Float(0.0)
+    for dx in range(-radius, radius + 1):
+        x = x0 + dx
+        if shifted:
+            v = planes.at(0, dx)
+        else:
+            v = dr.gather(mi.Float, values, mi.UInt32(y0 * width + dr.clip(x, 0, width - 1)))
+        row_sum += dr.select((x >= 0) & (x < width), v, 0.0)
+    if shifted:
+        sums = ShiftedPlanes([row_sum], margin_for(width, radius))
+    else:
+        dr.eval(row_sum)
+    total, rows = mi.Float(0.0), mi.Float(0.0)
+    for dy in range(-radius, radius + 1):
+        y = y0 + dy
+        inside = (y >= 0) & (y < height)
+        if shifted:
+            s = sums.at(0, dy * width)
+        else:
+            s = dr.gather(mi.Float, row_sum, mi.UInt32(dr.clip(y, 0, height - 1) * width + x0))
+        total += dr.select(inside, s, 0.0)
+        rows += dr.select(inside, 1.0, 0.0)
+    mean = total / (mi.Float(dr.minimum(x0 + radius, width - 1) - dr.maximum(x0 - radius, 0) + 1) * rows)
+    if shifted:  # read while the planes are held (see denoise.neighbours)
+        dr.eval(mean)
+    return mean
+
+
 def accumulate(current: mi.TensorXf, previous: mi.TensorXf | None, index: mi.UInt32 | None, valid: mi.Bool | None,
                p: TemporalParams = TemporalParams(), bounds: mi.TensorXf | None = None) -> mi.TensorXf:
     """``α·C_i + (1-α)·clamp(C̄_{i-1})`` with the history clamped to mean ± k·σ of

@@ -129,6 +129,25 @@ def test_clamp_box_is_the_same_with_shifted_planes(variant_vectorised_rgb, buffe
     assert all(np.isfinite(a).all() and np.array_equal(a, b) for a, b in zip(shifted, gathered))
 
 
+@pytest.mark.parametrize("radius", [1, 3])
+def test_box_mean_is_the_mean_over_the_box_inside_the_image(variant_vectorised_rgb, buffers, monkeypatch, radius):
+    """One channel's box mean (A-SVGF's lambda): shifted planes and gathers alike, both
+    the mean of each pixel's (2r+1)^2 box cut to the image, as NumPy computes it."""
+    import mitsuba as mi
+
+    from denoise.filters import box_mean
+
+    c, _, _, _ = buffers
+    values = c[..., 1].astype(np.float32)
+    height, width = values.shape
+    shifted, gathered = both_ways(monkeypatch, lambda: np.array(box_mean(mi.Float(values.ravel()), width, height,
+                                                                           radius)))
+    assert np.array_equal(shifted, gathered)
+    expected = np.array([[values[max(0, y - radius):y + radius + 1, max(0, x - radius):x + radius + 1].mean()
+                          for x in range(width)] for y in range(height)])
+    assert np.allclose(shifted.reshape(height, width), expected, rtol=1e-5, atol=1e-6 * np.abs(values).max())
+
+
 def test_a_steady_frame_maps_no_new_memory(variant_vectorised_rgb, buffers, monkeypatch):
     """From the second frame of a size on, every plane comes from the pool
     (no NumPy view made, no wait for the queue), and the output stays the gathers'."""

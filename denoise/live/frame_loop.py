@@ -132,7 +132,8 @@ class SceneRenderer:
             self.layers = {name: to_image(layer, self.width, self.height).squeeze(-1) if len(AOV_CHANNELS[name]) == 1
                            else to_image(layer, self.width, self.height) for name, layer in gbuffers.items()}
             self.ids = self.layers["id"].astype(np.int32)
-            near, far = depth_range(view.camera, self.layers["position"][self.ids >= 0])
+            hit = (self.ids >= 0).ravel()  # np.compress: several times quicker than a 2-D boolean index
+            near, far = depth_range(view.camera, np.compress(hit, self.layers["position"].reshape(-1, 3), axis=0))
             self.matrices = camera_matrices(view.camera, self.width, self.height, near, far)
             self.last_camera = view.camera
         else:

@@ -49,7 +49,7 @@ import mitsuba as mi
 from core.errors import UsageError
 from core.json_input import JSONInputError, read_json
 
-from ..filters import FrameArrays, clamp_box, luminance
+from ..filters import FrameArrays, box_mean, clamp_box, luminance
 from ..svgf_common import SVGFParams, atrous_level, estimate_variance, levels_for
 from .base import DenoisingMethod, Option, edge_options, levels_option
 
@@ -217,9 +217,8 @@ def temporal_accumulation(frame: FrameArrays, history: ASVGFHistory | None, inde
     previous_length = dr.gather(mi.Float, history.length, index, valid)
     valid = valid & dr.all(dr.isfinite(fast)) & dr.all(dr.isfinite(slow))
     fast = dr.select(valid, fast, c)
-    if gradient is None:
-        mean_f, _ = box_statistics(frame, to_ycocg(fast), p.box_radius)
-        lam = temporal_gradient(mean_c.x, mean_f.x, v)
+    if gradient is None:  # λ needs the fast history's box mean of Y alone
+        lam = temporal_gradient(mean_c.x, box_mean(to_ycocg(fast).x, frame.width, frame.height, p.box_radius), v)
     else:
         lam = gradient
     length = dr.select(valid, dr.minimum(1.0 + previous_length * (1.0 - lam), v.slow_frames), 1.0)
@@ -228,7 +227,10 @@ def temporal_accumulation(frame: FrameArrays, history: ASVGFHistory | None, inde
                    dr.maximum(alpha, 1.0 / v.fast_frames))
     fast = dr.select(valid, fast, c)
     dr.eval(fast)
-    mean_fast, sigma_fast = differentiable_box_statistics(frame, to_ycocg(fast), p.clip_radius)
+    if dr.grad_enabled(fast):  # a fit differentiates through the box's sigma
+        mean_fast, sigma_fast = differentiable_box_statistics(frame, to_ycocg(fast), p.clip_radius)
+    else:  # the same statistics in one pass over the box, sigma about the centre (no cancellation)
+        mean_fast, sigma_fast = box_statistics(frame, to_ycocg(fast), p.clip_radius)
     clipped = clip_ycocg(to_ycocg(slow), mean_fast, sigma_fast, v.clip_width)
     if statistics is not None:
         statistics.update(valid=valid, gradient=lam, slow_history=slow, slow_clipped=clipped)
