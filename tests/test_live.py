@@ -107,6 +107,26 @@ def test_frames_are_tone_mapped_as_the_previews(value, expected):
     assert np.abs(decoded - expected).max() <= 2
 
 
+def test_a_frame_is_one_jpeg_with_both_images_in_their_own_blocks():
+    """Raw and denoised go as one JPEG (one decode in the page), side by side, each in a
+    column of whole 8-pixel blocks and its colour not subsampled: at a width that is no
+    multiple of 8, neither bleeds into the other."""
+    import io
+
+    from PIL import Image
+
+    from denoise.live.frame_loop import JPEGEncoder, slot_width
+
+    dark, bright = np.zeros((18, 29, 3), np.float32), np.zeros((18, 29, 3), np.float32)
+    dark[..., 0], bright[..., 1] = 0.3, 3.0  # red beside green: subsampled colour would bleed across
+    decoded = np.asarray(Image.open(io.BytesIO(JPEGEncoder()(dark, bright))).convert("RGB"), np.int32)
+    slot = slot_width(29)
+    assert slot == 32 and decoded.shape == (18, 2 * slot, 3)
+    for image, start in ((dark, 0), (bright, slot)):
+        expected = JPEGEncoder().codes(image).astype(np.int32)
+        assert np.abs(decoded[:, start:start + 29] - expected).max() <= 3
+
+
 def test_binary_message_is_refused():
     with pytest.raises(MessageError, match="text message"):
         parse_message(b'{"type": "step"}', "svgf")

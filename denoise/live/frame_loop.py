@@ -227,7 +227,7 @@ TONE_MAP_ENTRIES = 1 << 16
 
 
 class JPEGEncoder:
-    """HDR frames as JPEG, tone-mapped as the previews are (:func:`imaging.colour.tone_map`)
+    """HDR frames as one JPEG, tone-mapped as the previews are (:func:`imaging.colour.tone_map`)
     through a table of that function, built once (a frame is then one lookup)."""
 
     def __init__(self, quality: int = JPEG_QUALITY):
@@ -235,21 +235,43 @@ class JPEGEncoder:
         self.table = tone_map(np.linspace(0.0, TONE_MAP_WHITE, TONE_MAP_ENTRIES, dtype=np.float64))
         self.scale = np.float32((TONE_MAP_ENTRIES - 1) / TONE_MAP_WHITE)
 
-    def __call__(self, image: np.ndarray) -> bytes:
+    def codes(self, image: np.ndarray) -> np.ndarray:
+        """``image`` (H, W, 3) tone-mapped to 8-bit codes."""
         index = np.multiply(image, self.scale, dtype=np.float32)
         index += np.float32(0.5)
         np.fmax(index, 0.0, out=index)  # fmax: NaN becomes 0 (code 0), in the same pass
         np.minimum(index, TONE_MAP_ENTRIES - 1, out=index)  # +inf the table's last entry
+        return np.take(self.table, index.astype(np.uint16))
+
+    def __call__(self, *images: np.ndarray) -> bytes:
+        """The images (each H x W x 3) side by side in one JPEG, each in a column
+        :func:`slot_width` wide (its block columns its own: no block straddles two)."""
+        height, width = images[0].shape[:2]
+        slot = slot_width(width)
+        codes = np.zeros((height, slot * len(images), 3), np.uint8)
+        for k, image in enumerate(images):
+            column = codes[:, k * slot:(k + 1) * slot]
+            column[:, :width] = self.codes(image)
+            column[:, width:] = column[:, width - 1:width]  # the last column repeated: no edge in a block
         buffer = io.BytesIO()
-        Image.fromarray(np.take(self.table, index.astype(np.uint16))).save(buffer, "JPEG", quality=self.quality)
+        Image.fromarray(codes).save(buffer, "JPEG", quality=self.quality, subsampling=0)  # 4:4:4
         return buffer.getvalue()
 
 
-def packet(header: dict, raw: bytes, denoised: bytes) -> bytes:
-    """One frame for the page: a little-endian uint32 header length, the JSON
-    header (which holds both images' lengths), the raw JPEG, the denoised JPEG."""
-    text = json.dumps(dict(header, raw_bytes=len(raw), denoised_bytes=len(denoised))).encode()
-    return struct.pack("<I", len(text)) + text + raw + denoised
+def slot_width(width: int) -> int:
+    """An image's column in a frame's JPEG: its width rounded up to JPEG's 8-pixel blocks,
+    so that no block holds both images (the colour is not subsampled, which a decoder's
+    upsampling would smear across the seam)."""
+    return -(-width // 8) * 8
+
+
+def packet(header: dict, image: bytes) -> bytes:
+    """One frame for the page: a little-endian uint32 header length, the JSON header,
+    then one JPEG holding the raw and the denoised image side by side (the header's
+    ``images``: 2; 1 where the method is raw), each :func:`slot_width` wide: the
+    page decodes one image a frame, not two."""
+    text = json.dumps(dict(header, image_bytes=len(image), slot=slot_width(header["width"]))).encode()
+    return struct.pack("<I", len(text)) + text + image
 
 
 class FrameLoop(threading.Thread):
@@ -320,19 +342,20 @@ class FrameLoop(threading.Thread):
             method, values, resets = view.method, view.values, reset
             result = denoiser.step(frame) if denoiser is not None else frame.beauty
             denoised = time.perf_counter()
-            raw_jpeg = self.encode(frame.beauty)
-            denoised_jpeg = raw_jpeg if view.method == RAW else self.encode(result)
+            images = (frame.beauty,) if view.method == RAW else (frame.beauty, result)
+            jpeg = self.encode(*images)
             encoded = time.perf_counter()
             ms = {"render": seconds["render"] * 1000, "gbuffers": seconds["gbuffers"] * 1000,
                   "denoise": (denoised - start) * 1000, "encode": (encoded - denoised) * 1000,
                   "transport": self.transport_ms}
             header = {"type": "frame", "frame": self.frame, "width": self.renderer.width,
-                      "height": self.renderer.height, "method": view.method, "variant": self.variant,
+                      "height": self.renderer.height, "images": len(images), "method": view.method,
+                      "variant": self.variant,
                       "frozen": self.renderer.frozen, "ms": {k: (None if v is None else round(v, 2))
                                                              for k, v in ms.items()}}
             with self.session.changed:
                 self.sent_at[self.frame] = time.perf_counter()
                 self.session.published = self.frame
-            self.publish(packet(header, raw_jpeg, denoised_jpeg))
+            self.publish(packet(header, jpeg))
             self.frame += 1
 
