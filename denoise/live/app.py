@@ -29,7 +29,7 @@ MAX_SIDE = 4096
 #: what a signal's stop prints after ``python -m denoise.live: `` (the page writes no files)
 STOPPED = "stopped (the live page writes no files)"
 #: seconds a thread runs before Python hands the GIL to another that waits (Python's default: 0.005)
-SWITCH_INTERVAL_S = 0.0005
+SWITCH_INTERVAL_S = 0.0002
 #: a viewer that stops the loop sees the error; the join is bounded so Ctrl-C stays quick
 JOIN_S = 1.0
 
