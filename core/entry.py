@@ -9,10 +9,12 @@
   the file and returns 2; ``MemoryError`` one line and 2;
 - Ctrl-C (SIGINT), SIGTERM and SIGHUP print one line and return 130 / 143 / 129; the
   handler raises :class:`Interrupted` (a ``BaseException``), so every
-  ``atomic_path`` on the way out removes its temporary file. Its first call
-  also starts a watchdog: where the process has not ended :data:`GRACE_S`
-  after the signal (user code that swallows the interruption in a loop, a
-  thread that never ends), the watchdog removes the temporary files of the
+  ``atomic_path`` on the way out removes its temporary file. The first
+  signal also starts a watchdog, at once (:class:`SignalWakeup`: even while a
+  long native call defers the handler): where the process has not ended
+  :data:`GRACE_S` after the signal (user code that swallows the interruption
+  in a loop, a thread that never ends, a frame's render or an EXR write that
+  takes long), the watchdog removes the temporary files of the
   writes in progress (:data:`TEMPORARY`), prints the line unless it was
   printed, and ends the process with the same code. An error whose
   chain (``__cause__`` / ``__context__``) holds such an interruption counts
@@ -123,17 +125,25 @@ class SignalRecord:
         self.over = False  # run has returned: the watchdog no longer acts
         self.watchdog: threading.Timer | None = None
         self.signalled = 0.0  # time.monotonic() at the first stop signal
+        self.first = 0  # the first stop signal, known before its handler runs (see arrived)
 
     def handler(self, signum, frame):
         self.received.append(signum)
         if self.finished:
             return
-        if self.watchdog is None:
-            self.signalled = time.monotonic()
-            self.watchdog = watchdog(GRACE_S, self.expire)
+        self.arrived(signum)
         if signum == signal.SIGINT:
             raise KeyboardInterrupt
         raise Interrupted(signum)
+
+    def arrived(self, signum: int) -> None:
+        """A stop signal reached the process: the watchdog starts, unless it has (called by
+        the handler, and earlier by :class:`SignalWakeup` while a native call defers the handler)."""
+        if self.finished or self.watchdog is not None:
+            return
+        self.first = signum
+        self.signalled = time.monotonic()
+        self.watchdog = watchdog(GRACE_S, self.expire)
 
     def say(self) -> None:
         """Prints the interrupted line, unless it was printed."""
@@ -150,7 +160,7 @@ class SignalRecord:
             if CLEANUPS and time.monotonic() < self.signalled + CLEANUP_S:
                 self.watchdog = watchdog(0.1, self.expire)
             else:
-                end_now(128 + self.received[0], None if self.said else self.line)
+                end_now(128 + (self.received[0] if self.received else self.first), None if self.said else self.line)
 
     def end(self) -> None:
         """The body is over (run returns): the watchdog no longer acts."""
@@ -158,6 +168,44 @@ class SignalRecord:
             self.over = True
         if self.watchdog is not None:
             self.watchdog.cancel()
+
+
+class SignalWakeup:
+    """Starts a :class:`SignalRecord`'s watchdog the moment a stop signal reaches the
+    process. Python runs a signal's handler only between the main thread's bytecodes, so
+    during a long native call (a frame's render, an EXR write) the handler, and with it
+    the watchdog, would wait for the call to end; Python's C-level handler writes the
+    signal's number to the wakeup fd at once, and a thread reading it starts the
+    watchdog (the calls that take long release the GIL: Mitsuba's render, OpenEXR's
+    write). Off the main thread (no wakeup fd can be set there) it does nothing."""
+
+    def __init__(self, record: SignalRecord):
+        self.record = record
+        self.read, self.write = os.pipe()
+        os.set_blocking(self.write, False)
+        try:
+            self.previous = signal.set_wakeup_fd(self.write, warn_on_full_buffer=False)
+        except ValueError:  # not the main thread
+            os.close(self.read)
+            os.close(self.write)
+            self.read = None
+            return
+        threading.Thread(target=self.watch, name="stop signal wakeup", daemon=True).start()
+
+    def watch(self) -> None:
+        try:
+            while data := os.read(self.read, 64):  # b"": every writer closed (see close)
+                for signum in data:
+                    if signum in STOP_SIGNALS:
+                        self.record.arrived(signum)
+        finally:
+            os.close(self.read)
+
+    def close(self) -> None:
+        """Puts back the wakeup fd there was; the thread ends."""
+        if self.read is not None:
+            signal.set_wakeup_fd(self.previous)
+            os.close(self.write)
 
 
 #: the records of the :func:`run` bodies in progress, innermost last
@@ -321,6 +369,7 @@ def run(prog: str, body: Callable[[], int | None], interrupted: str = INTERRUPTE
     """Runs ``body`` under the error contract; returns the exit code. ``interrupted``:
     the line after ``PROG: `` when a signal stops it (a command that writes no files says so)."""
     record = SignalRecord(f"{prog}: {interrupted}")
+    wakeup = SignalWakeup(record)  # before the handlers: a signal meanwhile is Python's default, not ours raised here
     handlers = dict.fromkeys((signal.SIGINT, signal.SIGTERM, signal.SIGHUP), record.handler)
     try:
         previous = {signum: signal.signal(signum, handler) for signum, handler in handlers.items()}
@@ -362,7 +411,10 @@ def run(prog: str, body: Callable[[], int | None], interrupted: str = INTERRUPTE
         sys.unraisablehook = unraisable
         record.end()
         ACTIVE.remove(record)
-        restore_handlers(record, previous, arrived)
+        try:
+            restore_handlers(record, previous, arrived)
+        finally:
+            wakeup.close()
 
 
 def restore_handlers(record: SignalRecord, previous: dict, arrived: int) -> None:

@@ -74,3 +74,33 @@ def test_ctrl_c_while_the_workers_start_is_one_line(tmp_path):
         return workers or None
 
     export_interrupted(tmp_path, ["--workers", "2"], starting)
+
+
+#: a frame whose ground-truth batch is one render of several seconds (about 90 M samples)
+LONG_FRAME = dict(TINY, size=[1200, 1200], frames=1, reference_spp=128)
+#: the stop contract's 2 s, and the moment the OS takes to free a render's memory (about 1 s for this one)
+LONG_FRAME_STOP_S = 3.0
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+def test_a_signal_during_a_long_render_ends_the_export_at_once(tmp_path, signum):
+    """A frame's render is one native call, during which Python cannot run the handler:
+    the watchdog starts when the signal arrives (core.entry.SignalWakeup), not when the
+    render returns, and ends the export with the one line and no temporary file."""
+    from export.files import LOCK_NAME
+    from validation.stress.system import interrupt, temporary_files
+
+    spec = tmp_path / "long.json"
+    spec.write_text(json.dumps(LONG_FRAME))
+    target = tmp_path / "out" / "long"
+    result = interrupt([sys.executable, "-m", "export", str(spec), str(target), "--local"], delay=8.0,
+                       signum=signum, cwd=ROOT, timeout=120, after_handler=True)
+    print(f"{signal.Signals(signum).name}: exit {result.seconds:.2f} s after the signal, code {result.code}")
+    assert result.running, "the export ended before the signal"
+    assert result.code == 128 + signum, result.stderr[-2000:]
+    assert result.seconds <= LONG_FRAME_STOP_S
+    lines = result.stderr.strip().splitlines()
+    assert lines and "interrupted" in lines[-1], result.stderr[-2000:]
+    # no file of a write in progress; the lock file may stay (an flock, released with the process)
+    assert [p for p in temporary_files(tmp_path / "out") if p.name != LOCK_NAME] == []
