@@ -129,8 +129,8 @@ class SceneRenderer:
                                                 self.object_ids, seed)
             beauty = to_image(pixels, self.width, self.height)
             rendered = time.perf_counter()
-            self.layers = {name: to_image(layer, self.width, self.height).squeeze(-1) if len(AOV_CHANNELS[name]) == 1
-                           else to_image(layer, self.width, self.height) for name, layer in gbuffers.items()}
+            images = {name: to_image(layer, self.width, self.height) for name, layer in gbuffers.items()}
+            self.layers = {name: image[..., 0] if image.shape[-1] == 1 else image for name, image in images.items()}
             self.ids = self.layers["id"].astype(np.int32)
             hit = (self.ids >= 0).ravel()  # np.compress: several times quicker than a 2-D boolean index
             near, far = depth_range(view.camera, np.compress(hit, self.layers["position"].reshape(-1, 3), axis=0))
