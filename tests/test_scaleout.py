@@ -6,6 +6,9 @@ from __future__ import annotations
 import json
 import os
 import signal
+import threading
+import time
+from contextlib import contextmanager
 from pathlib import Path
 
 import pytest
@@ -75,35 +78,50 @@ def test_byte_comparison_fails_on_order_dependent_sums(tmp_path, in_process, mon
     assert folder_bytes(broken) != folder_bytes(in_process)
 
 
-def worker_killer(killed: dict):
-    """An ``after_task`` hook that SIGKILLs, once, a worker process the scheduler
-    has tasks on. The scheduler's view is what decides KilledWorker and retries
-    (a dead worker's ``processing`` tasks are the suspicious ones), and after the
-    first result 13 tasks remain, so some worker always holds one; the worker's
-    own executing set, looked at instead, was empty at times under load."""
+@contextmanager
+def killing_a_busy_worker():
+    """Beside an export in this process: SIGKILLs, once, a worker process the
+    scheduler has tasks on, as soon as there is one; yields what it killed.
+    The scheduler's view is what decides KilledWorker and retries (a dead
+    worker's ``processing`` tasks are the suspicious ones). It watches from a
+    thread of its own from the start: a hook run after each result saw nothing
+    busy at times, since tasks this small can all finish before the first
+    result is recorded."""
     from distributed import default_client
 
-    def kill_a_busy_worker(task):
-        if killed:
-            return
-        client = default_client()
-        pids = client.run(os.getpid)
-        for address, keys in client.processing().items():
-            if keys and address in pids:
-                os.kill(pids[address], signal.SIGKILL)
-                killed.update(address=address, pid=pids[address], keys=[str(k) for k in keys])
-                return
+    killed, done = {}, threading.Event()
 
-    return kill_a_busy_worker
+    def watch():
+        while not done.is_set():
+            try:
+                client = default_client()
+                busy = [address for address, keys in client.processing().items() if keys]
+                pids = client.run(os.getpid) if busy else {}
+            except Exception:  # noqa: BLE001  no client yet, or one starting or closing
+                busy = []
+            for address in busy:
+                if address in pids:
+                    keys = client.processing().get(address, ())
+                    os.kill(pids[address], signal.SIGKILL)
+                    killed.update(address=address, pid=pids[address], keys=[str(k) for k in keys])
+                    return
+            time.sleep(0.005)
+
+    watcher = threading.Thread(target=watch, daemon=True)
+    watcher.start()
+    try:
+        yield killed
+    finally:
+        done.set()
+        watcher.join()
 
 
 def test_killed_worker_is_replaced_and_the_result_is_unchanged(tmp_path, in_process):
     """SIGKILL one of two worker processes while it holds tasks; Dask (its
     nanny restarts the process) reruns them; the files equal one process's."""
-    killed = {}
-    kill_a_busy_worker = worker_killer(killed)
     target = tmp_path / "seq"
-    assert export_with(target, workers=2, after_task=kill_a_busy_worker) == [0, 1]
+    with killing_a_busy_worker() as killed:
+        assert export_with(target, workers=2) == [0, 1]
     assert killed, "no worker was busy after any result: the test did not kill anything"
     with pytest.raises(ProcessLookupError):
         os.kill(killed["pid"], 0)
@@ -139,10 +157,9 @@ def test_kill_check_fails_when_dask_may_not_retry(tmp_path, in_process):
 
     outcomes = []
     for attempt in range(3):
-        killed = {}
-        with dask.config.set({"distributed.scheduler.allowed-failures": 0}):
+        with dask.config.set({"distributed.scheduler.allowed-failures": 0}), killing_a_busy_worker() as killed:
             try:
-                export_with(tmp_path / f"seq{attempt}", workers=2, after_task=worker_killer(killed))
+                export_with(tmp_path / f"seq{attempt}", workers=2)
             except KilledWorker:
                 return
         assert killed, "no worker was busy after any result: the test did not kill anything"
