@@ -169,18 +169,24 @@ def wait_for_handler(process: subprocess.Popen, timeout: float = 30) -> None:
 
 
 def interrupt(argv: list, delay: float, signum: int, cwd: Path = ROOT, timeout: float = 30,
-              env: dict | None = None, group: bool = False, after_handler: bool = False) -> Interrupted:
+              env: dict | None = None, group: bool = False, after_handler: bool = False,
+              ready: Callable[[], bool] | None = None) -> Interrupted:
     """Starts ``argv`` in a session of its own, sends ``signum`` after ``delay``
     seconds (``group``: to its whole process group, as a terminal's Ctrl-C
     does), and waits (up to ``timeout``) for it to exit. ``after_handler``:
     the delay counts from the command's first line (:func:`wait_for_handler`),
-    not from Python's own start-up, which no program can handle."""
+    not from Python's own start-up, which no program can handle. ``ready``:
+    the delay counts from the moment it holds (say, a first output written:
+    a point in the work that no machine's speed moves), polled up to ``timeout``."""
     with tempfile.TemporaryFile() as err:
         process = subprocess.Popen([str(a) for a in argv], cwd=cwd, stdout=subprocess.DEVNULL, stderr=err,
                                    start_new_session=True, env={**os.environ, **(env or {})})
         try:
             if after_handler:
                 wait_for_handler(process)
+            end = time.perf_counter() + timeout
+            while ready is not None and not ready() and process.poll() is None and time.perf_counter() < end:
+                time.sleep(0.002)
             time.sleep(delay)
             running = process.poll() is None
             if group:
