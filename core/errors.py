@@ -14,7 +14,42 @@ from pathlib import Path
 
 
 class ToolkitError(Exception):
-    """Base class: a problem with what the user gave us, not a bug."""
+    """Base class: a problem with what the user gave us, not a bug.
+
+    A message may end in a remedy that names one command's means (its flags:
+    ``--force``, ``--batch-spp``, ``--data``). Such an error is made of its
+    ``problem`` and that ``remedy`` (``str(error)`` is ``problem; remedy``) and
+    says what the remedy provides (``need``, one of the ``NEED_*`` names
+    below), so that a command that runs another's code, and has other means,
+    gives its own (:meth:`with_remedy`) instead of rewriting the text."""
+
+    def __init__(self, problem: str = "", remedy: str | None = None, need: str | None = None):
+        super().__init__(f"{problem}; {remedy}" if remedy else problem)
+        self.problem, self.remedy, self.need = problem, remedy, need
+
+    def __reduce__(self):  # pickled whole (Dask sends a worker's errors back), whatever the subclass's __init__
+        return rebuild, (type(self), self.args, self.__dict__)
+
+    def with_remedy(self, remedy: str) -> ToolkitError:
+        """The same error with ``remedy`` in place of its own."""
+        return rebuild(type(self), (f"{self.problem}; {remedy}",), {**self.__dict__, "remedy": remedy})
+
+
+#: what a remedy provides (:attr:`ToolkitError.need`): the course's scenes found,
+NEED_COURSE = "the course's scenes"
+#: fewer samples in one render,
+NEED_SMALLER_RENDER = "fewer samples per render"
+#: a folder no other export wrote into
+NEED_OWN_FOLDER = "a folder of its own"
+
+
+def rebuild(kind: type, args: tuple, state: dict) -> ToolkitError:
+    """A :class:`ToolkitError` of type ``kind`` with these ``args`` and attributes, not
+    through its ``__init__`` (whose parameters differ between subclasses)."""
+    error = kind.__new__(kind)
+    error.args = args
+    error.__dict__.update(state)
+    return error
 
 
 class SceneError(ToolkitError):
@@ -25,8 +60,8 @@ class SceneError(ToolkitError):
     """
 
     def __init__(self, path: str | Path, line: int, col: int, message: str):
+        super().__init__(f"{path}:{line}:{col}: {message}")
         self.path, self.line, self.col, self.message = str(path), line, col, message
-        super().__init__(f"{self.path}:{line}:{col}: {message}")
 
 
 class UsageError(ToolkitError):

@@ -16,7 +16,7 @@ import shlex
 from dataclasses import dataclass
 from pathlib import Path
 
-from core.errors import UsageError
+from core.errors import NEED_COURSE, UsageError
 
 REPO = Path(__file__).resolve().parent.parent
 #: our own scenes, looked up by name before the course's
@@ -87,17 +87,16 @@ def resolve_scene(name: str, data: Path | None) -> Path:
             raise UsageError(f"scene name {name!r} is ambiguous in {folder}: "
                              + ", ".join(m.name for m in matches))
     where = ", ".join(str(f) for f in folders)
-    if not data:
-        hint = f" (set --data to the course's data folder, or {ENVIRONMENT} to the course folder)"
+    if not data:  # the remedy names --data, which not every command has (ToolkitError.need)
+        raise UsageError(f"no scene {name!r} in {where}",
+                         f"set --data to the course's data folder, or {ENVIRONMENT} to the course folder", NEED_COURSE)
+    chosen = f"${ENVIRONMENT}={os.environ[ENVIRONMENT]}" if os.environ.get(ENVIRONMENT) else "--data"
+    if not data.is_dir():
+        hint = f" ({data} {'is a file, not a folder' if data.exists() else 'does not exist'}; {chosen} chose it)"
+    elif not any(data.glob("*.txt")):
+        hint = f" ({data} holds no scene files (*.txt); {chosen} chose it, and should be the course's data folder)"
     else:
-        chosen = f"${ENVIRONMENT}={os.environ[ENVIRONMENT]}" if os.environ.get(ENVIRONMENT) else "--data"
-        if not data.is_dir():
-            hint = f" ({data} {'is a file, not a folder' if data.exists() else 'does not exist'}; {chosen} chose it)"
-        elif not any(data.glob("*.txt")):
-            hint = (f" ({data} holds no scene files (*.txt); {chosen} chose it, and should be the course's "
-                    "data folder)")
-        else:
-            hint = ""
+        hint = ""
     raise UsageError(f"no scene {name!r} in {where}{hint}")
 
 

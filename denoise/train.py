@@ -33,28 +33,28 @@ import re
 import shlex
 import sys
 import time
-from collections.abc import Iterator
-from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
 
 from core.entry import ArgumentParser, finish, one_line, printable, run
-from core.errors import FrameError, SpecError, ToolkitError, UsageError
+from core.errors import FrameError, LimitError, SpecError, ToolkitError, UsageError
 from core.inputs import check_outside
 from core.numbers import ascii_float, ascii_int
 from course import data_dir, resolve_scene
-from export import Spec, export, reference_folder, sequences_for
+from export import Spec, reference_folder, sequences_for
 from export.frames import frame_indices, read_frame, same_size
 from export.ground_truth import check_work_folder
-from export.store import FolderInUseError, check_folder
+from export.store import check_folder
 from imaging.image_io import atomic_path, check_writable, read_exr_rgb
+from renderer.checks import available_memory
 from renderer.variants import set_variant
 
 from . import training
 from .methods.base import RADIANCE_LIMIT
 from .methods.learned_asvgf import WEIGHT_LIMIT, WEIGHTS_FILE
 from .training import BENCHMARK, HELD_OUT, ROOT, TRAINING, Settings
+from .validate import cache_remedies, render
 from .worker_process import ignore_group_signals, run_in_worker
 
 DOCS = ROOT / "docs"
@@ -107,6 +107,7 @@ def _main(argv: list[str] | None) -> int:
     for spec in specs:  # a run never writes onto a spec it reads
         check_outside({"--out": args.out, "--work": args.work, "--plot": plot}, {"SPEC.json": spec})
     loaded = check_specs(specs)  # every refusal before any work
+    check_memory(loaded)
     names = [path.stem for path, _ in loaded]
     if len(set(names)) != len(names):
         raise UsageError("two training sequences of one name: they would share a folder in --work")
@@ -133,8 +134,7 @@ def _main(argv: list[str] | None) -> int:
     for folder in folders:  # what is there already, before any rendering prints its progress
         check_frames(folder, checked[folder])
     for (_, spec), folder in zip(loaded, folders):
-        with own_advice():
-            export(spec, folder)
+        render(spec, folder)
         check_frames(folder, [i for i in frame_indices(folder) if i not in checked[folder]])
     theta, curve, seconds = train_interruptibly(folders, settings, checkpoint, args.quiet)
     given = argv if argv is not None else sys.argv[1:]
@@ -211,33 +211,26 @@ def check_specs(paths: list[Path]) -> list[tuple[Path, Spec]]:
     return loaded
 
 
-#: advice in the export's and the scene lookup's messages that names flags this command lacks -> ours
-ADVICE = {"set --data to the course's data folder, or COURSE_ROOT": "set COURSE_ROOT",
-          "lower --batch-spp": "make the spec's size smaller"}
-
-
-@contextmanager
-def own_advice() -> Iterator[None]:
-    """The export's errors with advice this command can follow (a folder in use:
-    its remedy; else :data:`ADVICE`)."""
-    try:
-        yield
-    except FolderInUseError as error:
-        raise FolderInUseError(error.problem, "remove that folder, or give another --work") from None
-    except ToolkitError as error:
-        text = str(error)
-        for theirs, ours in ADVICE.items():
-            text = text.replace(theirs, ours)
-        if text == str(error):
-            raise
-        raise UsageError(text) from None
+def check_memory(loaded: list[tuple[Path, Spec]], memory: int | None = None) -> None:
+    """A :class:`LimitError` where training would hold more than the memory
+    available (``memory``: bytes; measured if None), before anything is rendered:
+    it holds every frame at once (:func:`denoise.training.training_memory`)."""
+    memory = available_memory() if memory is None else memory
+    needed = training.training_memory([(path.stem, spec) for path, spec in loaded])
+    if memory is not None and needed > memory:
+        frames = sum(spec.frames for _, spec in loaded)
+        largest = max(loaded, key=lambda item: item[1].size[0] * item[1].size[1])
+        raise LimitError(f"training holds every frame in memory: about {needed / 2 ** 30:.1f} GiB for {frames} "
+                         f"frames (the largest {largest[1].size[0]}x{largest[1].size[1]}, {largest[0]}), but "
+                         f"{memory / 2 ** 30:.1f} GiB is available; train on smaller frames or fewer of them "
+                         f"(a step reads {training.CROP[0]}x{training.CROP[1]} crops)")
 
 
 def check_work(loaded: list[tuple[Path, Spec]], work: Path) -> None:
     """Every sequence's scene and its folders in ``work`` (new, or made with the
     same settings), before anything is rendered. Writes nothing."""
-    with own_advice():
-        for path, spec in loaded:
+    for path, spec in loaded:
+        with cache_remedies(work / path.stem):
             for sequence in sequences_for([(path.stem, spec)], work / path.stem):
                 check_folder(sequence)
 

@@ -73,6 +73,21 @@ class Frame:
     previous: np.ndarray | None
 
 
+#: bytes per pixel of a frame that :func:`load_sequence` keeps (its buffers, target and
+#: back projection), and of a frame of a held-out sequence during its whole-frame loss
+LOADED_BYTES, HELD_OUT_BYTES = 80, 280
+#: what the process holds besides (Python, Dr.Jit, the libraries)
+BASE_BYTES = 1 << 30
+
+
+def training_memory(specs: list[tuple[str, object]]) -> int:
+    """Bytes a training run holds at its peak for sequences ``(name, spec)``:
+    every frame loaded at once, and the largest held-out sequence's loss pass."""
+    pixels = {name: spec.frames * spec.size[0] * spec.size[1] for name, spec in specs}
+    held = [pixels[name] for name in pixels if name in HELD_OUT]
+    return BASE_BYTES + LOADED_BYTES * sum(pixels.values()) + HELD_OUT_BYTES * max(held, default=0)
+
+
 def load_sequence(folder: Path) -> list[Frame]:
     """Every frame of an exported folder with its ground truth, as asvgf gets it
     (usable values, albedo demodulation, back projection)."""

@@ -24,18 +24,20 @@ if __name__ == "__main__":  # first: ./.venv's Python, the libLLVM, then Dr.Jit 
 import argparse
 import json
 import sys
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
 
 from core.entry import ArgumentParser, finish, printable, run
-from core.errors import UsageError
+from core.errors import NEED_COURSE, NEED_OWN_FOLDER, NEED_SMALLER_RENDER, ToolkitError, UsageError
 from core.inputs import check_outside
 from core.numbers import ascii_int
+from course import ENVIRONMENT
 from export import Spec, export, reference_folder
 from export.frames import frame_indices, read_frame
 from export.ground_truth import check_work_folder
-from export.store import FolderInUseError
 from imaging.image_io import atomic_path, check_writable, read_exr_rgb
 from imaging.metrics import relmse
 from renderer.variants import set_variant
@@ -66,15 +68,31 @@ def _parser() -> argparse.ArgumentParser:
     return parser
 
 
-def render(spec: Spec, folder: Path, **where) -> None:
-    """``export(spec, folder)`` for a command whose --work is a cache: a folder
-    made with other settings is refused naming --work, not export's --force
-    (a flag these commands do not have)."""
+#: the remedy, by what it provides (``core.errors.NEED_*``), in the export's errors as a
+#: command tells them whose --work is a cache and which has no --data, --batch-spp or --force
+CACHE_REMEDIES = {NEED_COURSE: f"set {ENVIRONMENT} to the course folder",
+                  NEED_SMALLER_RENDER: "make the spec's size smaller"}
+
+
+@contextmanager
+def cache_remedies(folder: Path) -> Iterator[None]:
+    """The export's errors (and the scene lookup's) about the sequence in
+    ``folder`` with the remedies of a command whose --work is a cache
+    (:data:`CACHE_REMEDIES`; a folder made with other settings: remove it)."""
     try:
+        yield
+    except ToolkitError as error:
+        remedy = (f"remove {folder} and {reference_folder(folder)} to render them again, or give another --work"
+                  if error.need == NEED_OWN_FOLDER else CACHE_REMEDIES.get(error.need))
+        if remedy is None:
+            raise
+        raise error.with_remedy(remedy) from None
+
+
+def render(spec: Spec, folder: Path, **where) -> None:
+    """``export(spec, folder)`` for a command whose --work is a cache (:func:`cache_remedies`)."""
+    with cache_remedies(folder):
         export(spec, folder, **where)
-    except FolderInUseError as error:
-        raise FolderInUseError(error.problem, f"remove {folder} and {reference_folder(folder)} to render them "
-                                              "again, or give another --work") from None
 
 
 def check_frames(spec: Path, frames: int) -> None:

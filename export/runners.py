@@ -2,14 +2,16 @@
 missing tasks run in this process or on Dask, the manifest written."""
 from __future__ import annotations
 
+import os
 import time
 from collections.abc import Callable
 from pathlib import Path
 
 import mitsuba as mi
 
-from core.errors import SceneError, SpecError, UsageError
+from core.errors import NEED_SMALLER_RENDER, LimitError, SceneError, SpecError, UsageError
 from course import data_dir, resolve_scene
+from renderer.checks import available_memory
 
 from .cluster import cluster_description, dask_client, run_futures
 from .files import locked, remove_staging
@@ -50,11 +52,11 @@ def sequences_for(specs: list[tuple[str, Spec]], out: Path, data: Path | None = 
         width, height = spec.size
         if width * height * min(batch_spp, spec.reference_spp // 2) > MAX_SAMPLES_PER_RENDER:
             raise SpecError(f"{where}: {width}x{height} at {batch_spp} spp per batch is more than "
-                            f"{MAX_SAMPLES_PER_RENDER} samples in one render; lower --batch-spp")
+                            f"{MAX_SAMPLES_PER_RENDER} samples in one render", "lower --batch-spp", NEED_SMALLER_RENDER)
         try:
             path = resolve_scene(spec.scene, data_dir(data)).resolve()
         except UsageError as error:
-            raise SpecError(f"{where}: scene: {error}") from None
+            raise SpecError(f"{where}: scene: {error.problem}", error.remedy, error.need) from None
         try:
             scene = course_scene(str(path))
         except SceneError as error:  # the scene file's own line, named as the spec's scene
@@ -78,6 +80,30 @@ def check_distinct_folders(sequences: list[Sequence]) -> None:
                                 f"rename one of the specs")
 
 
+#: a render task's peak memory: bytes per pixel of its frame, and what its process holds
+#: besides (measured with the export's peak RSS at several sizes: docs/export.md)
+RENDER_BYTES_PER_PIXEL, RENDER_BASE_BYTES = 320, 400 * 2 ** 20
+
+
+def check_memory(sequences: list[Sequence], processes: int, memory: int | None = None) -> None:
+    """A :class:`LimitError` where ``processes`` render tasks at once, each of
+    the largest frame, would need more memory than is available (``memory``:
+    bytes; measured if None); raised before anything is written, where a
+    render would otherwise be killed for memory."""
+    memory = available_memory() if memory is None else memory
+    if not sequences or memory is None:
+        return
+    largest = max(sequences, key=lambda s: s.spec.size[0] * s.spec.size[1])
+    width, height = largest.spec.size
+    one = RENDER_BASE_BYTES + RENDER_BYTES_PER_PIXEL * width * height
+    if processes * one > memory:
+        at_once = f"; {processes} at once, {processes * one / 2 ** 30:.1f} GiB" if processes > 1 else ""
+        raise LimitError(f"{largest.spec.source or largest.name}: a render of its {width}x{height} frames needs "
+                         f"about {one / 2 ** 30:.1f} GiB of memory{at_once}, but {memory / 2 ** 30:.1f} GiB is "
+                         f"available", ("give fewer --workers, or " if processes > 1 else "") + "make the spec's "
+                         "size smaller", NEED_SMALLER_RENDER)
+
+
 def export_sequences(sequences: list[Sequence], force: bool = False, scheduler: str | None = None,
                      workers: int | None = None, local: bool = False, manifest: Path | None = None,
                      after_task: Callable[[Task], None] | None = None, client=None,
@@ -91,6 +117,8 @@ def export_sequences(sequences: list[Sequence], force: bool = False, scheduler: 
     if not force:
         for sequence in sequences:
             check_folder(sequence)
+    if client is None and not scheduler:  # renders on this machine: this process, or a LocalCluster's workers
+        check_memory(sequences, 1 if local else workers or os.cpu_count() or 1)
     with locked([folder for s in sequences for folder in (Path(s.target), s.reference)]):
         for sequence in sequences:
             claim_folder(sequence, force)

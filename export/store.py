@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from core.errors import SpecError
+from core.errors import NEED_OWN_FOLDER, SpecError
 from core.json_input import JSONInputError, read_json
 from imaging.image_io import write_exr
 
@@ -127,12 +127,11 @@ def _comparable(settings: dict, other: dict) -> dict:
 
 class FolderInUseError(SpecError):
     """A sequence's folder holds what another export wrote: ``problem`` says
-    what; the message adds the export's remedy (``--force``), which a command
-    that uses the folder as its cache replaces with its own."""
+    what; the remedy is the export's (``--force``), which a command that uses
+    the folder as its cache replaces with its own (:meth:`ToolkitError.with_remedy`)."""
 
     def __init__(self, problem: str, remedy: str = "use --force to start over, or another folder"):
-        super().__init__(f"{problem}; {remedy}")
-        self.problem = problem
+        super().__init__(problem, remedy, NEED_OWN_FOLDER)
 
 
 def check_folder(sequence: Sequence) -> None:

@@ -141,6 +141,23 @@ def test_cli_refuses_bad_specs_with_one_line(tmp_path, capsys):
         assert not (tmp_path / "out").exists()
 
 
+@pytest.mark.parametrize("where, remedy", [(["--local"], "; make the spec's size smaller"),
+                                           (["--workers", "2"], "; give fewer --workers, or make the spec's size")])
+def test_frames_too_large_for_the_memory_are_one_line_before_any_render(tmp_path, capsys, where, remedy):
+    """A 16384x16384 frame (within every spec limit) was killed for memory in its
+    first render; now one line, exit 2, nothing written, no worker started."""
+    from export import main
+
+    spec = tmp_path / "huge.json"
+    spec.write_text(json.dumps(dict(TINY, size=[16384, 16384], reference_spp=2)))
+    assert main([str(spec), str(tmp_path / "out"), *where]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith(f"python -m export: error: {spec}: a render of its 16384x16384 "
+                                                   "frames needs about "), err
+    assert "GiB is available" + remedy in err, err
+    assert not (tmp_path / "out").exists()
+
+
 def test_folder_made_with_other_settings_is_refused(tmp_path, uninterrupted, capsys):
     import shutil
 

@@ -483,3 +483,30 @@ def test_a_missing_data_folder_is_one_line(tmp_path, capsys):
         lines = [line for line in done.stderr.splitlines() if "using scalar_rgb instead" not in line]
         assert done.returncode == 2 and len(lines) == 1 and f"--data {data}: " in lines[0], done.stderr
         assert not (tmp_path / "r").exists()
+
+
+def error_cases():
+    from core.errors import NEED_COURSE, LimitError, SceneError
+    from export.store import FolderInUseError
+
+    return {"usage": UsageError("no scene 'x' in scenes", "set --data to it", NEED_COURSE),
+            "folder in use": FolderInUseError("out/seq: made with other settings"),
+            "scene": SceneError("a.txt", 3, 7, "expected a number"),
+            "plain": LimitError("too large")}
+
+
+@pytest.mark.parametrize("name", ["usage", "folder in use", "scene", "plain"])
+def test_an_error_keeps_its_parts_through_pickle_and_a_new_remedy(name):
+    """Errors cross processes (Dask sends a worker's back) with problem, remedy and
+    need kept, whatever the subclass's __init__ takes (SceneError's failed to
+    unpickle); with_remedy swaps the remedy alone."""
+    import pickle
+
+    error = error_cases()[name]
+    copy = pickle.loads(pickle.dumps(error))
+    assert type(copy) is type(error) and str(copy) == str(error) and vars(copy) == vars(error)
+    swapped = error.with_remedy("do this instead")
+    assert type(swapped) is type(error) and swapped.need == error.need and swapped.problem == error.problem
+    assert str(swapped) == f"{error.problem}; do this instead"
+    if error.remedy:
+        assert str(error) == f"{error.problem}; {error.remedy}"

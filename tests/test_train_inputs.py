@@ -223,10 +223,19 @@ def test_a_folder_of_other_settings_names_only_flags_the_command_has(setup, capf
     assert "--force" not in err
 
 
-def test_a_scene_not_found_names_only_flags_the_command_has(tmp_path, capfd):
+@pytest.mark.parametrize("course", ["found", "absent"])
+def test_a_scene_not_found_names_only_flags_the_command_has(tmp_path, capfd, monkeypatch, course):
+    """Without the course, the scene lookup's remedy ("set --data ..., or
+    COURSE_ROOT ...") becomes this command's: it has no --data."""
+    import course as course_module
+
+    if course == "absent":
+        monkeypatch.delenv("COURSE_ROOT", raising=False)
+        monkeypatch.setattr(course_module, "DEFAULT_ROOT", tmp_path / "no_course")
     spec = tmp_path / "nowhere.json"
     spec.write_text(json.dumps({**TINY, "scene": "no_such_scene_anywhere"}))
-    refused(capfd, train(spec, tmp_path / "work", tmp_path / "w.json"), "no_such_scene_anywhere")
+    err = refused(capfd, train(spec, tmp_path / "work", tmp_path / "w.json"), "no_such_scene_anywhere")
+    assert ("; set COURSE_ROOT to the course folder" in err) == (course == "absent"), err
     assert not (tmp_path / "work").exists()
 
 
@@ -268,3 +277,17 @@ def test_an_error_in_the_worker_is_sent_as_one_line(setup):
     assert [tag for tag, _ in sent] == ["error", "error"]
     assert sent[0][1].startswith(f"{beauty}: not a readable EXR") and "\n" not in sent[0][1]
     assert sent[1][1].startswith("the training's worker process failed (AttributeError: ") and "\n" not in sent[1][1]
+
+
+def test_frames_too_many_to_hold_are_refused_before_any_render(tmp_path, capfd):
+    """Training holds every frame at once: a set that cannot fit in any memory
+    here is one line before anything is rendered; the default set fits in 4 GiB."""
+    from denoise.train import check_memory, check_specs
+    from denoise.training import TRAINING
+
+    spec = tmp_path / "huge.json"
+    spec.write_text(json.dumps({**TINY, "size": [16384, 16384], "frames": 100, "reference_spp": 4}))
+    refused(capfd, train(spec, tmp_path / "work", tmp_path / "w.json"), "training holds every frame in memory",
+            f"16384x16384, {spec})", "GiB is available")
+    assert not (tmp_path / "work").exists()
+    check_memory(check_specs(TRAINING), memory=4 << 30)

@@ -111,6 +111,21 @@ def test_a_folder_made_with_other_settings_names_no_flag_that_does_not_exist(tmp
     assert "another --work" in err
 
 
+def test_a_render_too_large_for_one_batch_names_no_flag_that_does_not_exist(tmp_path):
+    """The export's remedy "lower --batch-spp" becomes the cache commands' own
+    (denoise.validate, fit, train, the benchmarks render through render())."""
+    from core.errors import SpecError
+    from denoise.validate import render
+    from export import Spec
+
+    spec = Spec.from_dict({"scene": "lamps", "frames": 1, "size": [16384, 16384], "spp": 1, "reference_spp": 64})
+    with pytest.raises(SpecError) as error:
+        render(spec, tmp_path / "work" / "big")
+    assert str(error.value).endswith("samples in one render; make the spec's size smaller"), error.value
+    assert "--" not in str(error.value)
+    assert not (tmp_path / "work").exists()
+
+
 def test_an_unusable_libllvm_is_named_not_a_scalar_fallback(tmp_path):
     """With the libLLVM unusable the command fell back to scalar_rgb in silence, then refused a work folder
     made under llvm_ad_rgb with a flag it does not have; it has no scalar form, so it says why in one line."""
