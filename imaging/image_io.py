@@ -369,6 +369,21 @@ def read_exr(path: str | Path) -> dict[str, np.ndarray]:
         return {name: np.asarray(channel.pixels, np.float32) for name, channel in exr.channels().items()}
 
 
+def exr_size(path: str | Path) -> tuple[int, int] | None:
+    """(width, height) of an EXR from its header alone, without its pixels;
+    None where the header cannot be read (reading the file says why)."""
+    import OpenEXR  # noqa: PLC0415  as in read_exr
+
+    try:
+        if not Path(path).is_file() or not utf8_path(path):
+            return None
+        with OpenEXR.File(str(path), header_only=True) as exr:
+            low, high = exr.header()["dataWindow"]
+        return int(high[0] - low[0] + 1), int(high[1] - low[1] + 1)
+    except (OSError, RuntimeError, ValueError, KeyError, TypeError):
+        return None
+
+
 def utf8_path(path: str | Path) -> bool:
     """Whether ``path`` is text OpenEXR can open (a file name's bytes that are not UTF-8 are not)."""
     try:

@@ -498,6 +498,31 @@ def test_denoise_rejects_bad_frames(variant_llvm_ad_rgb, tmp_path, capsys, damag
     assert err.count("\n") == 1 and message in err, err
 
 
+@pytest.mark.parametrize("spare", [-1, 0], ids=["one byte short", "just enough"])
+def test_frames_too_large_for_the_memory_are_one_line_before_any_frame(variant_llvm_ad_rgb, tmp_path, capsys,
+                                                                       monkeypatch, spare):
+    """The first frame's header gives the size; frames that would take more
+    memory than is available are refused before the first is read (an 8192x8192
+    folder was killed for memory), with the memory here made just short."""
+    import denoise.pipeline as pipeline
+    from denoise.__main__ import main
+    from imaging.image_io import exr_size
+
+    folder = tmp_path / "frames"
+    _small_folder(folder)
+    assert exr_size(folder / "beauty_0.exr") == (5, 4) and exr_size(folder / "nothing.exr") is None
+    monkeypatch.setattr(pipeline, "available_memory", lambda: pipeline.BASE_BYTES + pipeline.BYTES_PER_PIXEL * 20
+                        + spare)
+    code = main([str(folder), str(tmp_path / "out"), "--method", "bilateral", "--radius", "1"])
+    err = capsys.readouterr().err
+    if spare < 0:
+        assert code == 2 and err.count("\n") == 1, err
+        assert f"{folder / 'beauty_0.exr'}: 5x4 frames need about 0.5 GiB of memory to denoise" in err, err
+        assert not (tmp_path / "out").exists()
+    else:
+        assert code == 0 and err == "", err
+
+
 def _small_folder_one(folder, index, size):
     from export.frames import FrameData, write_frame
 
