@@ -57,6 +57,7 @@ from export.frames import frame_indices, read_frame, same_size
 from export.ground_truth import check_ground_truth, check_work_folder
 from imaging.image_io import atomic_path, check_writable, read_exr_rgb
 from imaging.metrics import relmse
+from renderer.checks import check_memory
 from renderer.variants import set_variant
 
 from .filters import FrameArrays, demodulate, remodulate, reproject
@@ -309,6 +310,7 @@ def _main(argv: list[str] | None) -> int:
 
     check_writable("--out", args.out)  # before minutes of fitting, not after
     loaded = [(path, Spec.load(path)) for path in specs]  # all checked before any work
+    check_frames_fit(loaded)
     shortest, spec = min(loaded, key=lambda loaded_spec: loaded_spec[1].frames)
     switch = check_switch_frame(args.switch_frame, spec.frames, shortest)
     set_variant("llvm_ad_rgb", jit=True)
@@ -322,6 +324,24 @@ def _main(argv: list[str] | None) -> int:
     if not args.quiet:
         print(f"lowest loss {best[0]:.6f} (hand-set {hand_set_loss:.6f}); parameters written to {printable(args.out)}")
     return 0
+
+
+#: a fit holds every frame of every sequence (each twice: as rendered and switched) with
+#: its derivatives: bytes per pixel of a spec's frame, and what the process holds besides
+#: (measured from the peak memory of fits at two sizes: docs/asvgf.md)
+FIT_BYTES_PER_PIXEL, FIT_BASE_BYTES = 1400, 512 * 2 ** 20
+
+
+def check_frames_fit(loaded: list[tuple[Path, Spec]], memory: int | None = None) -> None:
+    """Every frame of ``loaded`` held at once within the memory available
+    (``memory``: bytes; measured if None), else a :class:`LimitError` before
+    anything is rendered."""
+    frames = sum(spec.frames for _, spec in loaded)
+    pixels = sum(spec.frames * spec.size[0] * spec.size[1] for _, spec in loaded)
+    path, spec = max(loaded, key=lambda item: item[1].size[0] * item[1].size[1])
+    check_memory(FIT_BASE_BYTES + FIT_BYTES_PER_PIXEL * pixels,
+                 f"fitting on {frames} frames held at once (the largest {spec.size[0]}x{spec.size[1]}, {path})",
+                 "fit on smaller frames or fewer of them", memory=memory)
 
 
 def fit_steps(targets: list[Path], switch_frame: int, steps: int, rate: float, quiet: bool):

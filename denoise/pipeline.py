@@ -10,10 +10,10 @@ from pathlib import Path
 from tqdm import tqdm
 
 from core.entry import check_stopped
-from core.errors import FrameError, LimitError, OutputError
+from core.errors import FrameError, OutputError
 from export.frames import frame_indices, missing_between, missing_files, read_frame
 from imaging.image_io import exr_size, write_exr
-from renderer.checks import available_memory
+from renderer.checks import check_memory
 
 from .methods.base import DenoisingMethod
 
@@ -53,19 +53,14 @@ def check_folder(source: Path, require_albedo: bool = False) -> list[int]:
 BYTES_PER_PIXEL, BASE_BYTES = 900, 512 * 2 ** 20
 
 
-def check_memory(first: Path, memory: int | None = None) -> None:
-    """A :class:`LimitError` where frames of ``first``'s size (its header read
-    alone) would take more memory to denoise than is available (``memory``:
-    bytes; measured if None): one line before any frame, not a process killed
-    for memory in the first."""
+def check_frames_fit(first: Path, memory: int | None = None) -> None:
+    """Frames of ``first``'s size (its header read alone) within the memory
+    available (``memory``: bytes; measured if None): else a :class:`LimitError`
+    before any frame, not a process killed for memory in the first."""
     size = exr_size(first)
-    memory = available_memory() if memory is None else memory
-    if size is None or memory is None:
-        return
-    needed = BASE_BYTES + BYTES_PER_PIXEL * size[0] * size[1]
-    if needed > memory:
-        raise LimitError(f"{first}: {size[0]}x{size[1]} frames need about {needed / 2 ** 30:.1f} GiB of memory to "
-                         f"denoise, but {memory / 2 ** 30:.1f} GiB is available; denoise smaller frames")
+    if size is not None:
+        check_memory(BASE_BYTES + BYTES_PER_PIXEL * size[0] * size[1],
+                     f"{first}: denoising {size[0]}x{size[1]} frames", "denoise smaller frames", memory=memory)
 
 
 @dataclass
@@ -91,7 +86,7 @@ def denoise_folder(source: Path, target: Path, method: DenoisingMethod, on_frame
     run with the results before it kept, as the error says. The progress bar
     is shown only when stderr is a terminal."""
     indices = check_folder(source, require_albedo)
-    check_memory(source / f"beauty_{indices[0]}.exr")
+    check_frames_fit(source / f"beauty_{indices[0]}.exr")
     report = FolderReport()
     size = None
     for index in tqdm(indices, desc="denoising", unit="frame", delay=PROGRESS_DELAY_S, leave=False,

@@ -38,7 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from core.entry import ArgumentParser, finish, one_line, printable, run
-from core.errors import FrameError, LimitError, SpecError, ToolkitError, UsageError
+from core.errors import FrameError, SpecError, ToolkitError, UsageError
 from core.inputs import check_outside
 from core.numbers import ascii_float, ascii_int
 from course import data_dir, resolve_scene
@@ -47,7 +47,7 @@ from export.frames import frame_indices, read_frame, same_size
 from export.ground_truth import check_work_folder
 from export.store import check_folder
 from imaging.image_io import atomic_path, check_writable, read_exr_rgb
-from renderer.checks import available_memory
+from renderer.checks import check_memory
 from renderer.variants import set_variant
 
 from . import training
@@ -107,7 +107,7 @@ def _main(argv: list[str] | None) -> int:
     for spec in specs:  # a run never writes onto a spec it reads
         check_outside({"--out": args.out, "--work": args.work, "--plot": plot}, {"SPEC.json": spec})
     loaded = check_specs(specs)  # every refusal before any work
-    check_memory(loaded)
+    check_frames_fit(loaded)
     names = [path.stem for path, _ in loaded]
     if len(set(names)) != len(names):
         raise UsageError("two training sequences of one name: they would share a folder in --work")
@@ -211,19 +211,16 @@ def check_specs(paths: list[Path]) -> list[tuple[Path, Spec]]:
     return loaded
 
 
-def check_memory(loaded: list[tuple[Path, Spec]], memory: int | None = None) -> None:
-    """A :class:`LimitError` where training would hold more than the memory
-    available (``memory``: bytes; measured if None), before anything is rendered:
-    it holds every frame at once (:func:`denoise.training.training_memory`)."""
-    memory = available_memory() if memory is None else memory
-    needed = training.training_memory([(path.stem, spec) for path, spec in loaded])
-    if memory is not None and needed > memory:
-        frames = sum(spec.frames for _, spec in loaded)
-        largest = max(loaded, key=lambda item: item[1].size[0] * item[1].size[1])
-        raise LimitError(f"training holds every frame in memory: about {needed / 2 ** 30:.1f} GiB for {frames} "
-                         f"frames (the largest {largest[1].size[0]}x{largest[1].size[1]}, {largest[0]}), but "
-                         f"{memory / 2 ** 30:.1f} GiB is available; train on smaller frames or fewer of them "
-                         f"(a step reads {training.CROP[0]}x{training.CROP[1]} crops)")
+def check_frames_fit(loaded: list[tuple[Path, Spec]], memory: int | None = None) -> None:
+    """Every frame of ``loaded`` held at once within the memory available
+    (``memory``: bytes; measured if None; :func:`denoise.training.training_memory`),
+    else a :class:`LimitError` before anything is rendered."""
+    frames = sum(spec.frames for _, spec in loaded)
+    path, spec = max(loaded, key=lambda item: item[1].size[0] * item[1].size[1])
+    check_memory(training.training_memory([(p.stem, s) for p, s in loaded]),
+                 f"training on {frames} frames held at once (the largest {spec.size[0]}x{spec.size[1]}, {path})",
+                 f"train on smaller frames or fewer of them (a step reads {training.CROP[0]}x"
+                 f"{training.CROP[1]} crops)", memory=memory)
 
 
 def check_work(loaded: list[tuple[Path, Spec]], work: Path) -> None:

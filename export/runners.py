@@ -9,9 +9,9 @@ from pathlib import Path
 
 import mitsuba as mi
 
-from core.errors import NEED_SMALLER_RENDER, LimitError, SceneError, SpecError, UsageError
+from core.errors import NEED_SMALLER_RENDER, SceneError, SpecError, UsageError
 from course import data_dir, resolve_scene
-from renderer.checks import available_memory
+from renderer.checks import check_memory
 
 from .cluster import cluster_description, dask_client, run_futures
 from .files import locked, remove_staging
@@ -85,23 +85,20 @@ def check_distinct_folders(sequences: list[Sequence]) -> None:
 RENDER_BYTES_PER_PIXEL, RENDER_BASE_BYTES = 320, 400 * 2 ** 20
 
 
-def check_memory(sequences: list[Sequence], processes: int, memory: int | None = None) -> None:
-    """A :class:`LimitError` where ``processes`` render tasks at once, each of
-    the largest frame, would need more memory than is available (``memory``:
-    bytes; measured if None); raised before anything is written, where a
-    render would otherwise be killed for memory."""
-    memory = available_memory() if memory is None else memory
-    if not sequences or memory is None:
+def check_renders_fit(sequences: list[Sequence], processes: int, memory: int | None = None) -> None:
+    """``processes`` render tasks at once, each of the largest frame, within the
+    memory available (``memory``: bytes; measured if None): else a
+    :class:`LimitError` before anything is written, where a render would
+    otherwise be killed for memory."""
+    if not sequences:
         return
     largest = max(sequences, key=lambda s: s.spec.size[0] * s.spec.size[1])
     width, height = largest.spec.size
     one = RENDER_BASE_BYTES + RENDER_BYTES_PER_PIXEL * width * height
-    if processes * one > memory:
-        at_once = f"; {processes} at once, {processes * one / 2 ** 30:.1f} GiB" if processes > 1 else ""
-        raise LimitError(f"{largest.spec.source or largest.name}: a render of its {width}x{height} frames needs "
-                         f"about {one / 2 ** 30:.1f} GiB of memory{at_once}, but {memory / 2 ** 30:.1f} GiB is "
-                         f"available", ("give fewer --workers, or " if processes > 1 else "") + "make the spec's "
-                         "size smaller", NEED_SMALLER_RENDER)
+    at_once = f" ({processes} at once)" if processes > 1 else ""
+    check_memory(processes * one, f"{largest.spec.source or largest.name}: rendering its {width}x{height} frames"
+                 f"{at_once}", ("give fewer --workers, or " if processes > 1 else "") + "make the spec's size smaller",
+                 NEED_SMALLER_RENDER, memory)
 
 
 def export_sequences(sequences: list[Sequence], force: bool = False, scheduler: str | None = None,
@@ -118,7 +115,7 @@ def export_sequences(sequences: list[Sequence], force: bool = False, scheduler: 
         for sequence in sequences:
             check_folder(sequence)
     if client is None and not scheduler:  # renders on this machine: this process, or a LocalCluster's workers
-        check_memory(sequences, 1 if local else workers or os.cpu_count() or 1)
+        check_renders_fit(sequences, 1 if local else workers or os.cpu_count() or 1)
     with locked([folder for s in sequences for folder in (Path(s.target), s.reference)]):
         for sequence in sequences:
             claim_folder(sequence, force)

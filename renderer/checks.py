@@ -76,6 +76,16 @@ def available_memory() -> int | None:
     return min(limits) if limits else None
 
 
+def check_memory(needed: int, what: str, remedy: str, need: str | None = None, memory: int | None = None) -> None:
+    """A :class:`LimitError` ``WHAT needs about N GiB of memory, but M GiB is
+    available; REMEDY`` where ``needed`` bytes exceed the memory available
+    (``memory``; measured if None; no check where it cannot be measured):
+    raised before the work, which would otherwise be killed for memory."""
+    memory = available_memory() if memory is None else memory
+    if memory is not None and needed > memory:
+        raise LimitError(f"{what} needs about {_gib(needed)} of memory, but {_gib(memory)} is available", remedy, need)
+
+
 def _gib(n: int) -> str:
     return f"{n / 2**30:.1f} GiB"
 

@@ -505,19 +505,20 @@ def test_frames_too_large_for_the_memory_are_one_line_before_any_frame(variant_l
     memory than is available are refused before the first is read (an 8192x8192
     folder was killed for memory), with the memory here made just short."""
     import denoise.pipeline as pipeline
+    import renderer.checks as checks
     from denoise.__main__ import main
     from imaging.image_io import exr_size
 
     folder = tmp_path / "frames"
     _small_folder(folder)
     assert exr_size(folder / "beauty_0.exr") == (5, 4) and exr_size(folder / "nothing.exr") is None
-    monkeypatch.setattr(pipeline, "available_memory", lambda: pipeline.BASE_BYTES + pipeline.BYTES_PER_PIXEL * 20
+    monkeypatch.setattr(checks, "available_memory", lambda: pipeline.BASE_BYTES + pipeline.BYTES_PER_PIXEL * 20
                         + spare)
     code = main([str(folder), str(tmp_path / "out"), "--method", "bilateral", "--radius", "1"])
     err = capsys.readouterr().err
     if spare < 0:
         assert code == 2 and err.count("\n") == 1, err
-        assert f"{folder / 'beauty_0.exr'}: 5x4 frames need about 0.5 GiB of memory to denoise" in err, err
+        assert f"{folder / 'beauty_0.exr'}: denoising 5x4 frames needs about 0.5 GiB of memory" in err, err
         assert not (tmp_path / "out").exists()
     else:
         assert code == 0 and err == "", err

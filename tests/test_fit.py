@@ -102,6 +102,21 @@ def test_fit_refuses_bad_arguments(tmp_path, capsys):
     assert not (tmp_path / "p.txt").exists()
 
 
+def test_frames_too_many_to_hold_are_refused_before_any_render(tmp_path, capsys):
+    """A fit holds every frame with its derivatives (8 frames at 1920x1080: about
+    20 GiB): a set beyond the memory is one line before anything is rendered."""
+    from denoise.fit import main
+
+    spec = tmp_path / "big.json"
+    spec.write_text(json.dumps(dict(TINY, size=[16384, 16384], frames=8, reference_spp=4)))
+    assert main([str(spec), "--work", str(tmp_path / "work"), "--out", str(tmp_path / "p.json")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith(f"python -m denoise.fit: error: fitting on 8 frames held at once "
+                                                   f"(the largest 16384x16384, {spec}) needs about "), err
+    assert "GiB is available; fit on smaller frames or fewer of them" in err, err
+    assert not (tmp_path / "work").exists() and not (tmp_path / "p.json").exists()
+
+
 def test_diverging_step_is_refused(variant_vectorised_rgb):
     from core.errors import UsageError
     from denoise.fit import Fit

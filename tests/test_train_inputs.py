@@ -282,12 +282,12 @@ def test_an_error_in_the_worker_is_sent_as_one_line(setup):
 def test_frames_too_many_to_hold_are_refused_before_any_render(tmp_path, capfd):
     """Training holds every frame at once: a set that cannot fit in any memory
     here is one line before anything is rendered; the default set fits in 4 GiB."""
-    from denoise.train import check_memory, check_specs
+    from denoise.train import check_frames_fit, check_specs
     from denoise.training import TRAINING
 
     spec = tmp_path / "huge.json"
     spec.write_text(json.dumps({**TINY, "size": [16384, 16384], "frames": 100, "reference_spp": 4}))
-    refused(capfd, train(spec, tmp_path / "work", tmp_path / "w.json"), "training holds every frame in memory",
-            f"16384x16384, {spec})", "GiB is available")
+    refused(capfd, train(spec, tmp_path / "work", tmp_path / "w.json"), "training on 100 frames held at once",
+            f"16384x16384, {spec}) needs about", "GiB is available; train on smaller frames")
     assert not (tmp_path / "work").exists()
-    check_memory(check_specs(TRAINING), memory=4 << 30)
+    check_frames_fit(check_specs(TRAINING), memory=4 << 30)
