@@ -40,11 +40,13 @@ from export.frames import frame_indices, read_frame
 from export.ground_truth import check_work_folder
 from imaging.image_io import atomic_path, check_writable, read_exr_rgb
 from imaging.metrics import relmse
+from renderer.checks import check_memory
 from renderer.variants import set_variant
 
 from .methods import from_name, method_names
+from .pipeline import BASE_BYTES as FRAME_BASE_BYTES, BYTES_PER_PIXEL as FRAME_BYTES_PER_PIXEL
 from .temporal_metrics import QUALITY_FROM
-from .training import HELD_OUT, ROOT, TRAINING
+from .training import HELD_OUT, LOADED_BYTES, ROOT, TRAINING
 
 #: the methods judged when --methods is not given
 METHODS = ("asvgf", "learned-asvgf", "learned-asvgf-no-temporal-inputs", "learned-asvgf-half-hidden")
@@ -102,6 +104,18 @@ def check_frames(spec: Path, frames: int) -> None:
                          f">= {QUALITY_FROM}, so a sequence needs at least {QUALITY_FROM + 1} frames")
 
 
+def check_sequence_fits(loaded: dict[Path, Spec], memory: int | None = None) -> None:
+    """The largest sequence judged within the memory available (``memory``:
+    bytes; measured if None), else a :class:`LimitError` before anything is
+    rendered: :func:`judge` holds its frames and truth while a method
+    denoises one frame at a time."""
+    path, spec = max(loaded.items(), key=lambda item: item[1].frames * item[1].size[0] * item[1].size[1])
+    pixels = spec.size[0] * spec.size[1]
+    check_memory(FRAME_BASE_BYTES + (LOADED_BYTES * spec.frames + FRAME_BYTES_PER_PIXEL) * pixels,
+                 f"{path}: judging its {spec.frames} frames of {spec.size[0]}x{spec.size[1]}",
+                 "judge smaller frames or fewer of them", memory=memory)
+
+
 def cell(name: str) -> str:
     """A name a user chose (a spec's, a weights file's) as one Markdown table cell."""
     return printable(name).replace("|", "\\|")
@@ -155,6 +169,7 @@ def _main(argv: list[str] | None) -> int:
     loaded = {p: Spec.load(p, reference_spp=args.reference_spp) for p in specs}  # a bad spec before any work
     for spec in specs:
         check_frames(spec, loaded[spec].frames)
+    check_sequence_fits(loaded)
     check_work_folder(args.work)
     for spec in specs:  # the command never writes onto a spec, a weights file or a frame folder it reads
         folder = args.work / spec.stem

@@ -126,6 +126,21 @@ def test_a_render_too_large_for_one_batch_names_no_flag_that_does_not_exist(tmp_
     assert not (tmp_path / "work").exists()
 
 
+def test_a_sequence_too_large_for_the_memory_is_one_line_before_any_render(tmp_path, capsys):
+    """judge() holds a sequence's frames and truth: a sequence beyond the memory is refused before rendering."""
+    import json
+
+    from denoise.validate import main
+
+    spec = tiny_spec(tmp_path, 5)
+    spec.write_text(json.dumps({**json.loads(spec.read_text()), "size": [16384, 16384]}))
+    assert main([str(spec), "--work", str(tmp_path / "work"), "--methods", "asvgf", "--reference-spp", "2"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"{spec}: judging its 5 frames of 16384x16384 needs about " in err, err
+    assert "GiB is available; judge smaller frames or fewer of them" in err, err
+    assert not (tmp_path / "work").exists()
+
+
 def test_an_unusable_libllvm_is_named_not_a_scalar_fallback(tmp_path):
     """With the libLLVM unusable the command fell back to scalar_rgb in silence, then refused a work folder
     made under llvm_ad_rgb with a flag it does not have; it has no scalar form, so it says why in one line."""
