@@ -9,6 +9,8 @@ import platform
 from pathlib import Path
 
 from core.errors import OutputError
+from core.inputs import check_outside
+from denoise.methods import data_files
 from imaging.image_io import atomic_path, check_writable
 
 
@@ -40,12 +42,13 @@ def stamp(command: list[str]) -> dict:
 
 def check_json(path: Path | None) -> None:
     """A ``--json`` target, checked before the measurement (which may take hours):
-    not a folder, and a file we may write."""
+    not a folder, not a file a method reads, and a file we may write."""
     if path is None:
         return
 
     if path.is_dir():
         raise OutputError(f"--json {path}: a folder; give a file name such as {path / 'results.json'}")
+    check_outside({"--json": path}, data_files())
     check_writable("--json", path)
     # its folder made now: where that fails (e.g. under /proc, which root may "write"),
     # the OSError names it at once, not after the measurement

@@ -61,8 +61,8 @@ from renderer.checks import check_memory
 from renderer.variants import set_variant
 
 from .filters import FrameArrays, demodulate, remodulate, reproject
-from .methods import from_name, make
-from .methods.asvgf import FITTED_OPTIONS, FilterValues, asvgf, fitted, hand_set
+from .methods import data_files, from_name, make
+from .methods.asvgf import FITTED_OPTIONS, PARAMETER_FILE, FilterValues, asvgf, fitted, hand_set
 from .temporal_metrics import QUALITY_FROM
 from .validate import render
 from .worker_process import ignore_group_signals, run_in_worker
@@ -308,6 +308,7 @@ def _main(argv: list[str] | None) -> int:
         print_evaluation(args.evaluate, switch)
         return 0
 
+    check_outside({"--out": args.out}, data_files(keep=(PARAMETER_FILE,)))  # a fit writes parameters, no weights
     check_writable("--out", args.out)  # before minutes of fitting, not after
     loaded = [(path, Spec.load(path)) for path in specs]  # all checked before any work
     check_frames_fit(loaded)

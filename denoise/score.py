@@ -45,7 +45,7 @@ from imaging.image_io import atomic_path, check_writable, read_exr_rgb
 from imaging.metrics import flip_error, relmse
 from renderer.variants import set_variant
 
-from .methods import from_name
+from .methods import data_files, from_name
 from .methods.user import add_method_file_option, load_method_files
 from .pipeline import check_folder
 from .temporal_metrics import stability, temporal_relmse
@@ -337,7 +337,7 @@ def _main(argv: list[str] | None) -> int:
                 raise OutputError(f"{flag} {path}: a folder, not a file")
             check_writable(flag, path)
     check_outside({"--plot": args.plot, "--json": args.json},
-                  {"RESULTS": args.results, "--reference": args.reference, "--frames": args.frames})
+                  {"RESULTS": args.results, "--reference": args.reference, "--frames": args.frames, **data_files()})
     check_pattern(args.pattern)  # the cheap checks before Dr.Jit starts
     if args.compare and args.frames is None:
         raise UsageError("--compare runs our methods on the frames: give --frames FRAME_DIR")

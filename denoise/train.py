@@ -51,8 +51,9 @@ from renderer.checks import check_memory
 from renderer.variants import set_variant
 
 from . import training
+from .methods import data_files
 from .methods.base import RADIANCE_LIMIT
-from .methods.learned_asvgf import WEIGHT_LIMIT, WEIGHTS_FILE
+from .methods.learned_asvgf import ABLATIONS, WEIGHT_LIMIT, WEIGHTS_FILE
 from .training import BENCHMARK, HELD_OUT, ROOT, TRAINING, Settings
 from .validate import cache_remedies, render
 from .worker_process import ignore_group_signals, run_in_worker
@@ -118,6 +119,7 @@ def _main(argv: list[str] | None) -> int:
         check_outside({"--out": args.out, "--plot": plot},
                       {f"frame folder (--work) of {path.name}": frames,
                        f"ground truth (--work) of {path.name}": reference_folder(frames)})
+    check_outside({"--out": args.out}, data_files(keep=(WEIGHTS_FILE, *ABLATIONS.values())))  # weights, no parameters
     check_writable("--out", args.out)
     check_writable("--plot", plot)
     settings = Settings(training.feature_set(args.temporal_inputs), args.hidden, args.seed, args.rate, args.steps)

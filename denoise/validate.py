@@ -43,7 +43,7 @@ from imaging.metrics import relmse
 from renderer.checks import check_memory
 from renderer.variants import set_variant
 
-from .methods import from_name, method_names
+from .methods import data_files, from_name, method_names
 from .pipeline import BASE_BYTES as FRAME_BASE_BYTES, BYTES_PER_PIXEL as FRAME_BYTES_PER_PIXEL
 from .temporal_metrics import QUALITY_FROM
 from .training import HELD_OUT, LOADED_BYTES, ROOT, TRAINING
@@ -178,6 +178,7 @@ def _main(argv: list[str] | None) -> int:
                                               f"ground truth (--work) of {spec.stem}": reference_folder(folder)})
     for path in named.values():
         check_outside({"--json": args.json}, {"--network": path})
+    check_outside({"--json": args.json}, data_files())
     if args.json is not None:
         check_writable("--json", args.json)
     set_variant(None, jit=True)  # the methods have no scalar form: an unusable libLLVM is one line naming it

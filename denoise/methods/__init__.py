@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import re
 import sys
+from pathlib import Path
 
 if sys.argv[:1] == ["-m"]:  # first: `python -m denoise.methods` imports this before its __main__
     from core.launcher import start_before_package
@@ -146,6 +147,18 @@ def method_names() -> tuple[str, ...]:
         names += [cls.name] + ([f"{cls.name}+temporal"] if accumulates else [])
         names += [f"{cls.name}-{preset}" for preset in cls.presets]
     return tuple(names)
+
+
+def data_files(keep: tuple[Path, ...] = ()) -> dict[str, Path]:
+    """Every registered method's :attr:`~DenoisingMethod.data_files` but ``keep``
+    (a command's own output, as fit's parameters), labelled for
+    :func:`core.inputs.check_outside`: outputs never land on them."""
+    files = {}
+    for cls in METHODS.values():
+        for path in cls.data_files:
+            if path not in keep:
+                files.setdefault(path, f"file {path.name} that {cls.name} reads")
+    return {label: path for path, label in files.items()}
 
 
 def benchmark_names() -> tuple[str, ...]:

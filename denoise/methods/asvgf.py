@@ -362,6 +362,7 @@ class ASVGF(DenoisingMethod):
     demodulates = True
     options = (levels_option(None, "as svgf, from the width"),) + FITTED_OPTIONS
     benchmark = ("asvgf",)
+    data_files = (PARAMETER_FILE,)
 
     @classmethod
     def defaults(cls) -> dict:

@@ -275,6 +275,9 @@ class DenoisingMethod:
     benchmark: tuple[str, ...] = ()
     #: named parameter sets for benchmark names (``oidn-fast``: ``{"oidn_quality": "fast"}``)
     presets: dict[str, dict] = {}
+    #: the files the method reads unless told otherwise (fitted parameters, trained weights):
+    #: no command writes an output onto one (:func:`denoise.methods.data_files`)
+    data_files: tuple[Path, ...] = ()
 
     common_options = (
         Option("temporal", True, "each frame on its own (no history)", kind=None, action="store_false"),

@@ -50,7 +50,7 @@ from core.json_input import JSONInputError, read_json
 
 from ..filters import FrameArrays, luminance
 from ..svgf_common import atrous_level, levels_for
-from .asvgf import ASVGFHistory, ASVGFParams, FilterValues, fitted, temporal_accumulation, variance
+from .asvgf import PARAMETER_FILE, ASVGFHistory, ASVGFParams, FilterValues, fitted, temporal_accumulation, variance
 from .base import DenoisingMethod, Option
 
 #: the network's inputs, in order: a weights file names the ones it was trained on
@@ -307,6 +307,7 @@ class LearnedASVGF(DenoisingMethod):
     options = (weights_option(WEIGHTS_FILE),)
     presets = {name: {"network": str(path)} for name, path in ABLATIONS.items()}
     benchmark = ("learned-asvgf",) + tuple(f"learned-asvgf-{name}" for name in ABLATIONS)
+    data_files = (WEIGHTS_FILE, *ABLATIONS.values(), PARAMETER_FILE)
 
     def __init__(self, **props):
         super().__init__(**props)
