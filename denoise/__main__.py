@@ -117,6 +117,9 @@ def add_method_options(parser: argparse.ArgumentParser) -> set[str]:
         elif defaults:
             help_text += " (default " + "; ".join(f"{shown} for {', '.join(names)}"
                                                   for shown, names in defaults.items()) + ")"
+        readers = [name for name, _ in users]
+        if option.group is not None and readers != groups[option.group]:  # the title names more methods
+            help_text += f"; {', '.join(readers)} only"
         help_text = help_text.replace("%", "%%")  # argparse formats help with %: the text as written
         where = parser if option.group is None else titled[option.group]
         try:
@@ -203,8 +206,8 @@ def _main(argv: list[str] | None) -> int:
                 row.append(truth)
             panels.append(row)
 
-    report = denoise_folder(args.source, args.target, method, on_frame,
-                            require_albedo=getattr(args, "demodulate", False))
+    report = denoise_folder(args.source, args.target, method, on_frame,  # demodulation asked by flag or demod+
+                            require_albedo=bool(method.props["demodulate"]))
     if args.video is not None:
         write_video(args.video, [side_by_side(row) for row in panels], fps=args.fps)
     extra = (" with PNG previews" if args.png else "") + (f", video {printable(args.video)}" if args.video else "")

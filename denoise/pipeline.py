@@ -39,7 +39,8 @@ def check_folder(source: Path, require_albedo: bool = False) -> list[int]:
     with_albedo = [i for i in indices if (source / f"albedo_{i}.exr").exists()]
     if require_albedo and len(with_albedo) < len(indices):
         lacking = sorted(set(indices) - set(with_albedo))
-        raise FrameError(f"{source}: --demodulate needs albedo_i.exr, and frame {lacking[0]} has none"
+        raise FrameError(f"{source}: demodulation (--demodulate, or demod+ in the method's name) needs albedo_i.exr, "
+                         f"and frame {lacking[0]} has none"
                          + (f" ({len(lacking)} frames lack it)" if len(lacking) > 1 else ""))
     if 0 < len(with_albedo) < len(indices):
         lacking = sorted(set(indices) - set(with_albedo))

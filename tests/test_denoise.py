@@ -524,6 +524,21 @@ def test_frames_too_large_for_the_memory_are_one_line_before_any_frame(variant_l
         assert code == 0 and err == "", err
 
 
+@pytest.mark.parametrize("asked", [["--method", "atrous", "--demodulate"], ["--method", "demod+atrous"]],
+                         ids=["--demodulate", "demod+"])
+def test_demodulation_without_albedo_is_refused_however_asked(variant_llvm_ad_rgb, tmp_path, capsys, asked):
+    """demod+atrous on frames without albedo ran as plain atrous (the same bytes), in silence."""
+    from denoise.__main__ import main
+
+    folder = tmp_path / "frames"
+    _small_folder(folder)
+    assert main([str(folder), str(tmp_path / "out"), *asked, "--levels", "1"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "demodulation (--demodulate, or demod+ in the method's name) needs albedo_i.exr" \
+        in err, err
+    assert not (tmp_path / "out").exists()
+
+
 def _small_folder_one(folder, index, size):
     from export.frames import FrameData, write_frame
 

@@ -292,3 +292,26 @@ def test_a_prefixed_name_runs_in_python_m_denoise(exported, tmp_path):
 
     assert main([str(exported), str(tmp_path / "out"), "--method", "demod+outliers+atrous+temporal"]) == 0
     assert (tmp_path / "out" / "result_1.exr").exists()
+
+
+def test_help_names_the_methods_each_option_applies_to():
+    """A --help group's title lists every method with an option in it; an option
+    that fewer of them read says which ("--sigma-color ...; bilateral, atrous
+    only"): the title alone sent users to asvgf --sigma-color, which it refuses."""
+    import re
+
+    from denoise.__main__ import _parser
+    from denoise.methods import declared_options
+
+    parser, _ = _parser()
+    checked = 0
+    for group in parser._action_groups:
+        titled = re.fullmatch(r"(.+) \((.+)\)", group.title or "")
+        if not titled:
+            continue
+        for action in group._group_actions:
+            readers = [name for name, _ in declared_options()[action.option_strings[0]][1]]
+            if readers != titled.group(2).split(", "):
+                assert action.help.endswith(f"; {', '.join(readers)} only"), (action.option_strings, action.help)
+                checked += 1
+    assert checked >= 2  # --sigma-color and --sigma-normal at least

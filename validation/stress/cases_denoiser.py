@@ -384,7 +384,8 @@ def denoise_cases() -> list[DenoiseCase]:
         *[DenoiseCase(f"{method} on huge finite values (1e20 to 3e38)", huge_values(method))
           for method in ("bilateral", "atrous", "svgf", "oidn", "oidn-guided")],
         DenoiseCase("albedo for some frames only", albedo_damage(False, "albedo_1.exr: missing")),
-        DenoiseCase("--demodulate without albedo", albedo_damage(True, "--demodulate needs albedo_i.exr")),
+        DenoiseCase("--demodulate without albedo", albedo_damage(True, "(--demodulate, or demod+ in the method's name) "
+                                                                 "needs albedo_i.exr")),
         DenoiseCase("a damaged frame after written ones", damaged_folder(
             _truncate("beauty_1.exr"), "the result of frame 0 was written")),
     ]
