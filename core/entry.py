@@ -43,6 +43,7 @@ import threading
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
+from pathlib import Path
 from typing import NoReturn
 
 from core.errors import UsageError
@@ -331,10 +332,20 @@ def interruption(error: BaseException) -> int | None:
 
 class ArgumentParser(argparse.ArgumentParser):
     """argparse whose errors are :class:`core.errors.UsageError` (one line, exit 2
-    under :func:`run`), not a usage block; every user-facing command parses with it."""
+    under :func:`run`), not a usage block; every user-facing command parses with it.
+    An empty value of a path argument (``type=Path``) is refused: ``Path("")`` is
+    the current folder, where an output landed in silence (``""`` from an unset
+    shell variable); ``.`` says so when meant."""
 
     def error(self, message: str):
         raise UsageError(" ".join(message.split()))
+
+    def _get_value(self, action, arg_string):  # argparse's one conversion point, groups' arguments included
+        if action.type is Path and arg_string == "":
+            name = "/".join(action.option_strings) or action.metavar or action.dest
+            raise UsageError(f"{name if isinstance(name, str) else action.dest}: an empty path (give . for the "
+                             f"current folder)")
+        return super()._get_value(action, arg_string)
 
 
 def one_line(error: BaseException) -> str:

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
 from pathlib import Path
 
 from core.errors import UsageError
@@ -40,8 +41,12 @@ def settings_key(settings: dict) -> str:
 
 
 def reference_folder(target: Path) -> Path:
-    """Where the export writes the ground truth of the frame folder ``target``."""
+    """Where the export writes the ground truth of the frame folder ``target``:
+    beside it, named after it (a target that ends in ``.`` or ``..`` is named by
+    the folder it means: ``.``'s would be ``./_reference``, inside the frames)."""
     target = Path(target)
+    if target.name in ("", ".", ".."):
+        target = Path(os.path.normpath(os.path.abspath(target)))
     return target.parent / f"{target.name}_reference"
 
 

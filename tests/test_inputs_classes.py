@@ -539,3 +539,34 @@ def test_no_output_lands_on_a_file_a_method_reads(tmp_path, capsys, monkeypatch,
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and f"is the input file {target.name} that " in err, err
     assert target.read_bytes() == before
+
+
+@pytest.mark.parametrize("module, argv, name", [
+    ("export", ["scenes/sequences/dolly_lamps.json", "", "--local"], "SPEC.json... OUT"),
+    ("denoise.__main__", ["{tmp}", ""], "OUT_DIR"),
+    ("denoise.train", ["--work", ""], "--work"),
+    ("denoise.validate", ["--json", ""], "--json"),
+    ("denoise.score", ["{tmp}", "--reference", ""], "--reference"),
+], ids=["export OUT", "denoise OUT_DIR", "train --work", "validate --json", "score --reference"])
+def test_an_empty_path_is_refused_not_the_current_folder(tmp_path, capsys, monkeypatch, module, argv, name):
+    """Path("") is the current folder: export, denoise and train wrote into the
+    repository's root (an unset shell variable as OUT). Every path argument refuses it."""
+    import importlib
+
+    monkeypatch.chdir(tmp_path)
+    before = sorted(tmp_path.iterdir())
+    main = importlib.import_module(module).main
+    assert main([a.replace("{tmp}", str(tmp_path)) for a in argv]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"error: {name}: an empty path (give . for the current folder)" in err, err
+    assert sorted(tmp_path.iterdir()) == before
+
+
+@pytest.mark.parametrize("target, expected", [(".", "{cwd}_reference"), ("a/b/..", "{cwd}/a_reference"),
+                                              ("seq", "seq_reference"), ("x/seq/", "x/seq_reference")])
+def test_the_ground_truth_is_named_after_the_folder_a_target_means(tmp_path, monkeypatch, target, expected):
+    """'.' put the ground truth in ./_reference, inside the frames; 'a/b/..' in a/b/.._reference."""
+    from export.ground_truth import reference_folder
+
+    monkeypatch.chdir(tmp_path)
+    assert reference_folder(Path(target)) == Path(expected.replace("{cwd}", str(tmp_path)))
