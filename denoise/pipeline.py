@@ -12,6 +12,7 @@ from tqdm import tqdm
 from core.entry import check_stopped
 from core.errors import FrameError, OutputError
 from export.frames import frame_indices, missing_between, missing_files, read_frame
+from export.ground_truth import check_export_finished
 from imaging.image_io import exr_size, write_exr
 from renderer.checks import check_memory
 
@@ -27,6 +28,7 @@ def check_folder(source: Path, require_albedo: bool = False) -> list[int]:
     indices = frame_indices(source)
     if not indices:
         raise FrameError(f"{source}: no beauty_<i>.exr frames")
+    check_export_finished(source, indices)
     gap = missing_between(indices)
     if gap:
         more = f" (and {gap[1] - 1} more frames)" if gap[1] > 1 else ""

@@ -81,6 +81,23 @@ def read_record(path: Path) -> dict | None:
     return data if isinstance(data, dict) else None
 
 
+def check_export_finished(folder: Path, indices: list[int]) -> None:
+    """Refuses, in one line, an export's frame folder (by its record) whose frames
+    ``indices`` lack some that its spec names: an export still running, or
+    stopped, whose frames so far would be taken for the whole sequence."""
+    record = read_record(Path(folder) / SEQUENCE_RECORD) or {}
+    spec = record.get("spec")
+    frames = whole_number(spec.get("frames")) if isinstance(spec, dict) else None
+    if frames is None:
+        return
+    have = set(indices)
+    missing = [i for i in range(frames) if i not in have]
+    if missing:
+        raise UsageError(f"{folder}: {len(missing)} of the {frames} frames its export names are missing (frame "
+                         f"{missing[0]} first): the export is still running or was stopped; python -m export "
+                         f"resumes it")
+
+
 def whole_number(value) -> int | None:
     return value if isinstance(value, int) and not isinstance(value, bool) else None
 

@@ -539,6 +539,24 @@ def test_demodulation_without_albedo_is_refused_however_asked(variant_llvm_ad_rg
     assert not (tmp_path / "out").exists()
 
 
+def test_an_unfinished_export_is_refused_not_taken_for_the_sequence(variant_llvm_ad_rgb, tmp_path, capsys):
+    """Frames 0-2 of an export whose record names 4 (still running, or stopped):
+    5 of 8 frames were denoised and scored, exit 0, without a word."""
+    import json
+
+    from denoise.__main__ import main
+
+    folder = tmp_path / "frames"
+    _small_folder(folder, count=3)
+    (folder / "sequence.json").write_text(json.dumps({"format": 2, "spec": {"frames": 4}}))
+    assert main([str(folder), str(tmp_path / "out"), "--method", "bilateral", "--radius", "1"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"{folder}: 1 of the 4 frames its export names are missing (frame 3 first)" \
+        in err, err
+    (folder / "sequence.json").write_text(json.dumps({"format": 2, "spec": {"frames": 3}}))
+    assert main([str(folder), str(tmp_path / "out"), "--method", "bilateral", "--radius", "1"]) == 0
+
+
 def _small_folder_one(folder, index, size):
     from export.frames import FrameData, write_frame
 
