@@ -402,7 +402,8 @@ def run(prog: str, body: Callable[[], int | None], interrupted: str = INTERRUPTE
             print(f"{prog}: error: {one_line(error)}", file=sys.stderr)
             return 2
         if isinstance(error, MemoryError):
-            print(f"{prog}: error: out of memory; try a smaller size or fewer samples", file=sys.stderr)
+            # no remedy by name: not every command has a size or a sample count
+            print(f"{prog}: error: out of memory: this work needs more than the memory available", file=sys.stderr)
             return 2
         if isinstance(error, BrokenPipeError) and not error.filename:
             # stdout's reader went away (``| head``): the interpreter's last flush must not fail again

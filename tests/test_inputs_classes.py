@@ -570,3 +570,15 @@ def test_the_ground_truth_is_named_after_the_folder_a_target_means(tmp_path, mon
 
     monkeypatch.chdir(tmp_path)
     assert reference_folder(Path(target)) == Path(expected.replace("{cwd}", str(tmp_path)))
+
+
+def test_out_of_memory_names_no_flag_a_command_may_lack(capsys):
+    """A MemoryError said 'try a smaller size or fewer samples' in python -m denoise, which has neither."""
+    from core.entry import run
+
+    def body():
+        raise MemoryError
+
+    assert run("python -m denoise", body) == 2
+    assert capsys.readouterr().err == "python -m denoise: error: out of memory: this work needs more than the memory " \
+                                      "available\n"
