@@ -146,7 +146,12 @@ class Spec:
         given = {k: v for k, v in overrides.items() if v is not None}
         for key, value in given.items():
             check_override(key, value)
-        spec = Spec.from_dict({**data, **given}, str(path))
+        try:
+            spec = Spec.from_dict({**data, **given}, str(path))
+        except SpecError as error:  # sound as written: the flags made it so, and the line says which
+            flags = " ".join(f"{OVERRIDES[k][0]} {' '.join(map(str, v)) if k == 'size' else v}"
+                             for k, v in given.items())
+            raise SpecError(f"{error} (with {flags})") from None
         object.__setattr__(spec, "source", str(path))  # frozen; not a field
         return spec
 

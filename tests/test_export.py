@@ -308,3 +308,14 @@ def test_thread_check_fails_without_single_threaded_passes(uninterrupted, monkey
         assert passes_on(1, 1, 3) != passes_on(2, 1, 3)
     finally:
         dr.set_thread_count(threads)
+
+
+def test_a_spec_made_unsound_by_a_flag_names_the_flags(tmp_path):
+    """light_switch.json is sound as written; with --frames 3 its switch at frame 5
+    is out of range: the line said only the spec's key, as if the file were wrong."""
+    from export import Spec
+
+    spec = Path(__file__).resolve().parent.parent / "scenes" / "sequences" / "light_switch.json"
+    Spec.load(spec)
+    with pytest.raises(SpecError, match=r"lights\.0\.frames\[0\]: expected 0\.\.2, found 5 \(with --frames 3\)$"):
+        Spec.load(spec, frames=3)
