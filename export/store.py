@@ -106,8 +106,17 @@ def _differences(old: dict, new: dict, prefix: str = "") -> list[str]:
         if isinstance(a, dict) and isinstance(b, dict):
             found += _differences(a, b, f"{prefix}{key}.")
         elif a != b:
-            found.append(f"{prefix}{key} {json.dumps(a)} -> {json.dumps(b)}")
+            found.append(f"{prefix}{key} {shortened(json.dumps(a))} -> {shortened(json.dumps(b))}")
     return found
+
+
+#: the most characters of a value in a message (a list of a million batches is 3 MB of text)
+VALUE_CHARS = 60
+
+
+def shortened(text: str) -> str:
+    """``text`` cut to :data:`VALUE_CHARS` characters, the cut said."""
+    return text if len(text) <= VALUE_CHARS else f"{text[:VALUE_CHARS - 25]}... ({len(text)} characters)"
 
 
 def _comparable(settings: dict, other: dict) -> dict:

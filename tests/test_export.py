@@ -319,3 +319,20 @@ def test_a_spec_made_unsound_by_a_flag_names_the_flags(tmp_path):
     Spec.load(spec)
     with pytest.raises(SpecError, match=r"lights\.0\.frames\[0\]: expected 0\.\.2, found 5 \(with --frames 3\)$"):
         Spec.load(spec, frames=3)
+
+
+def test_a_folder_of_other_settings_is_refused_in_a_short_line(tmp_path, capsys):
+    """A folder made with a million 1-spp batches was refused in one line of 3.2 MB
+    (the whole batch list); each changed value is now cut to a few dozen characters."""
+    from export import main
+    from export.ground_truth import SEQUENCE_RECORD
+
+    spec = tmp_path / "spec.json"
+    spec.write_text(json.dumps(TINY))
+    target = tmp_path / "seq"
+    target.mkdir()
+    (target / SEQUENCE_RECORD).write_text(json.dumps({"batches": [1] * 100_000, "format": 2}))
+    assert main([str(spec), str(target), "--local"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "made with other settings" in err and "(300000 characters)" in err, err[:300]
+    assert len(err) < 1000, len(err)
