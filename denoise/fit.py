@@ -54,7 +54,7 @@ from core.inputs import check_outside
 from core.numbers import ascii_float, ascii_int
 from export import Spec, reference_folder
 from export.frames import frame_indices, read_frame, same_size
-from export.ground_truth import check_ground_truth, check_work_folder
+from export.ground_truth import GROUND_TRUTH_RECORD, check_ground_truth, check_work_folder
 from imaging.image_io import atomic_path, check_writable, read_exr_rgb
 from imaging.metrics import relmse
 from renderer.checks import check_memory
@@ -294,6 +294,10 @@ def _main(argv: list[str] | None) -> int:
     if args.out.suffix.lower() != ".json":
         raise UsageError(f"--out {args.out}: the parameter file is JSON; give a name ending in .json")
     if args.evaluate is not None:
+        if (args.evaluate / GROUND_TRUTH_RECORD).is_file():  # its beauty_i.exr are the truth, not frames
+            frames = args.evaluate.parent / args.evaluate.name.removesuffix("_reference")
+            raise UsageError(f"--evaluate {args.evaluate}: an export's ground truth ({GROUND_TRUTH_RECORD}), not its "
+                             f"frames" + (f"; give {frames}" if frames != args.evaluate and frames.is_dir() else ""))
         if not (args.evaluate / "beauty_0.exr").is_file():
             raise UsageError(f"{args.evaluate}: not an exported frame folder (no beauty_0.exr)")
         indices = frame_indices(args.evaluate)

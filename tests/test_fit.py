@@ -117,6 +117,21 @@ def test_frames_too_many_to_hold_are_refused_before_any_render(tmp_path, capsys)
     assert not (tmp_path / "work").exists() and not (tmp_path / "p.json").exists()
 
 
+def test_evaluate_on_a_ground_truth_names_its_frames(tmp_path, capsys):
+    """--evaluate SEQ_reference looked for SEQ_reference_reference/beauty_0.exr."""
+    from denoise.fit import main
+
+    (tmp_path / "seq").mkdir()
+    truth = tmp_path / "seq_reference"
+    truth.mkdir()
+    (truth / "ground_truth.json").write_text("{}")
+    (truth / "beauty_0.exr").write_bytes(b"")
+    assert main(["--evaluate", str(truth)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"--evaluate {truth}: an export's ground truth (ground_truth.json), not its " \
+        f"frames; give {tmp_path / 'seq'}" in err, err
+
+
 def test_diverging_step_is_refused(variant_vectorised_rgb):
     from core.errors import UsageError
     from denoise.fit import Fit
