@@ -12,11 +12,10 @@
   ``atomic_path`` on the way out removes its temporary file. The first
   signal also starts a watchdog, at once (:class:`SignalWakeup`: even while a
   long native call defers the handler): where the process has not ended
-  :data:`GRACE_S` after the signal (user code that swallows the interruption
-  in a loop, a thread that never ends, a frame's render or an EXR write that
-  takes long), the watchdog removes the temporary files of the
-  writes in progress (:data:`TEMPORARY`), prints the line unless it was
-  printed, and ends the process with the same code. An error whose
+  :data:`GRACE_S` after the signal (user code that swallows the interruption,
+  a thread that never ends, a long render or EXR write), the watchdog removes
+  the temporary files of the writes in progress (:data:`TEMPORARY`), prints
+  the line unless it was printed, and ends the process with the same code. An error whose
   chain (``__cause__`` / ``__context__``) holds such an interruption counts
   as one: native extensions (Dr.Jit's start-up) wrap it in an ImportError or
   SystemError. So does any error after a stop signal came: some native code
@@ -25,10 +24,9 @@
 - :func:`native_start_up` keeps a native library's own start-up notices
   (Dr.Jit's "could not use ~/.drjit as the kernel cache directory" where
   HOME is unusable) off stderr, unless the start-up fails;
-- before ``run`` starts (the imports of a script), :func:`core.start_up.exit_on_signals`
-  makes both signals print the same line and exit at once (nothing is
-  written yet); :func:`hold_signals` defers them past code that must not be
-  interrupted (a native library's initialisation).
+- before ``run`` starts (a script's imports), :func:`core.start_up.exit_on_signals` makes both
+  signals print the same line and exit at once (nothing is written yet); :func:`hold_signals`
+  defers them past code that must not be interrupted (a native library's initialisation).
 
 Anything else is a bug and keeps its traceback.
 """
@@ -119,7 +117,7 @@ class SignalRecord:
 
     def __init__(self, line: str = ""):
         self.received: list[int] = []
-        self.finished = False  # the body has ended: record, do not raise (see restore_handlers)
+        self.finished, self.late = False, []  # the body has ended: record (in late), do not raise
         self.line = line  # the interrupted line, printed once: by run or by the watchdog
         self.lock = threading.Lock()
         self.said = False
@@ -131,6 +129,7 @@ class SignalRecord:
     def handler(self, signum, frame):
         self.received.append(signum)
         if self.finished:
+            self.late.append(signum)
             return
         self.arrived(signum)
         if signum == signal.SIGINT:
@@ -172,13 +171,11 @@ class SignalRecord:
 
 
 class SignalWakeup:
-    """Starts a :class:`SignalRecord`'s watchdog the moment a stop signal reaches the
-    process. Python runs a signal's handler only between the main thread's bytecodes, so
-    during a long native call (a frame's render, an EXR write) the handler, and with it
-    the watchdog, would wait for the call to end; Python's C-level handler writes the
-    signal's number to the wakeup fd at once, and a thread reading it starts the
-    watchdog (the calls that take long release the GIL: Mitsuba's render, OpenEXR's
-    write). Off the main thread (no wakeup fd can be set there) it does nothing."""
+    """Starts a :class:`SignalRecord`'s watchdog the moment a stop signal reaches the process:
+    Python runs a handler only between the main thread's bytecodes, which a long native call
+    (a render, an EXR write) defers; its C-level handler writes the signal's number to the
+    wakeup fd at once, and a thread reading it starts the watchdog (those calls release the
+    GIL). Off the main thread (no wakeup fd can be set there) it does nothing."""
 
     def __init__(self, record: SignalRecord):
         self.record = record
@@ -333,18 +330,15 @@ def interruption(error: BaseException) -> int | None:
 class ArgumentParser(argparse.ArgumentParser):
     """argparse whose errors are :class:`core.errors.UsageError` (one line, exit 2
     under :func:`run`), not a usage block; every user-facing command parses with it.
-    An empty value of a path argument (``type=Path``) is refused: ``Path("")`` is
-    the current folder, where an output landed in silence (``""`` from an unset
-    shell variable); ``.`` says so when meant."""
+    A path argument may not be empty: ``Path("")`` is the current folder."""
 
     def error(self, message: str):
         raise UsageError(" ".join(message.split()))
 
     def _get_value(self, action, arg_string):  # argparse's one conversion point, groups' arguments included
         if action.type is Path and arg_string == "":
-            name = "/".join(action.option_strings) or action.metavar or action.dest
-            raise UsageError(f"{name if isinstance(name, str) else action.dest}: an empty path (give . for the "
-                             f"current folder)")
+            self.error(f"{'/'.join(action.option_strings) or action.metavar}: an empty path (give . for the current "
+                       "folder)")
         return super()._get_value(action, arg_string)
 
 
@@ -418,28 +412,26 @@ def run(prog: str, body: Callable[[], int | None], interrupted: str = INTERRUPTE
             return 2
         raise
     finally:
-        arrived = len(record.received)
-        record.finished = True  # a stop signal from here on is recorded, not raised out of this block
+        # first, before any call: a call lets a pending handler run, which would raise out of this block
+        record.finished = True  # a stop signal from here on is recorded (record.late), not raised
         sys.unraisablehook = unraisable
         record.end()
         ACTIVE.remove(record)
         try:
-            restore_handlers(record, previous, arrived)
+            restore_handlers(record, previous)
         finally:
             wakeup.close()
 
 
-def restore_handlers(record: SignalRecord, previous: dict, arrived: int) -> None:
-    """Puts back the handlers :func:`run` replaced. A stop signal that came
-    after the first ``arrived`` (another thread's C handler may have caught it,
-    and ``signal.signal`` runs the pending Python handler) was recorded, not
-    raised out of here as a traceback, and is given to the handler put back."""
+def restore_handlers(record: SignalRecord, previous: dict) -> None:
+    """Puts back the handlers :func:`run` replaced; a stop signal recorded once the body had
+    ended (not raised out of here as a traceback) is given to the handler put back."""
+    record.finished = True
     if not previous:
         return
-    record.finished = True
     for signum, handler in previous.items():
         signal.signal(signum, handler)
-    deliver(record.received[arrived:], previous)
+    deliver(record.late, previous)
 
 
 def finish(code: int) -> NoReturn:
