@@ -20,7 +20,8 @@ from .spec import Spec
 
 
 def _parser() -> argparse.ArgumentParser:
-    parser = ArgumentParser(prog="python -m export", description=PACKAGE_DOC.split("\n\n")[0])
+    parser = ArgumentParser(prog="python -m export", description=PACKAGE_DOC.split("\n\n")[0],
+                            usage="%(prog)s SPEC.json [SPEC.json ...] OUT [options]")
     parser.add_argument("paths", type=Path, nargs="+", metavar="SPEC.json... OUT",
                         help="one or more specs, then the output folder")
     parser.add_argument("--frames", type=ascii_int)

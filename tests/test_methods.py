@@ -315,3 +315,21 @@ def test_help_names_the_methods_each_option_applies_to():
                 assert action.help.endswith(f"; {', '.join(readers)} only"), (action.option_strings, action.help)
                 checked += 1
     assert checked >= 2  # --sigma-color and --sigma-normal at least
+
+
+@pytest.mark.parametrize("name, message", [
+    ("svgf+temporal", "svgf is temporal by nature; drop +temporal"),
+    ("asvgf+temporal", "asvgf is temporal by nature; drop +temporal"),
+    ("oidn-guided+temporal", "oidn-guided is temporal by nature; drop +temporal"),
+])
+def test_temporal_on_a_method_that_cannot_take_it_is_refused(name, message):
+    """svgf+temporal ran as svgf, the same bytes: a name that changes nothing is refused, not ignored."""
+    import re
+
+    from core.errors import UsageError
+    from denoise.methods import accumulates, method_names, resolve
+
+    with pytest.raises(UsageError, match=re.escape(message)):
+        resolve(name)
+    assert all(resolve(n) for n in method_names())  # every name a command offers still resolves
+    assert resolve("atrous+temporal")[1]["temporal"] and not accumulates(resolve("svgf")[0])

@@ -125,6 +125,9 @@ def resolve(name: str) -> tuple[type[DenoisingMethod], dict]:
         raise UsageError(f"unknown method {name!r}; known: {', '.join(names)} (also with demod+ or outliers+ "
                          "before and +temporal after, e.g. demod+atrous+temporal)")
     cls, props = names[found[0]]
+    if "temporal" in parts and not accumulates(cls):  # it would change nothing: the same bytes as without
+        raise UsageError(f"method {name!r}: {found[0]} " + ("is temporal by nature; drop +temporal"
+                                                            if cls.temporal_by_nature else "has no temporal step"))
     return cls, dict(props, temporal="temporal" in parts or cls.temporal_by_nature, demodulate="demod" in parts,
                      outliers=OutlierParams().k if "outliers" in parts else None)
 
@@ -135,6 +138,12 @@ def from_name(name: str, **props) -> DenoisingMethod:
     return cls(**{**named, **props})
 
 
+def accumulates(cls: type[DenoisingMethod]) -> bool:
+    """Whether ``NAME+temporal`` adds the clamped temporal accumulation to ``cls``:
+    it has one (options of it) and is not temporal by nature."""
+    return not cls.temporal_by_nature and any(o.temporal for o in cls.options)
+
+
 def method_names() -> tuple[str, ...]:
     """Every name a command takes (``python -m denoise --method``, the
     benchmark's ``--methods``, ``denoise.score --compare``, the live page), one
@@ -143,8 +152,7 @@ def method_names() -> tuple[str, ...]:
     with the clamped temporal accumulation where the method has one and is not."""
     names = []
     for cls in METHODS.values():
-        accumulates = not cls.temporal_by_nature and any(o.temporal for o in cls.options)
-        names += [cls.name] + ([f"{cls.name}+temporal"] if accumulates else [])
+        names += [cls.name] + ([f"{cls.name}+temporal"] if accumulates(cls) else [])
         names += [f"{cls.name}-{preset}" for preset in cls.presets]
     return tuple(names)
 
