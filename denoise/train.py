@@ -159,7 +159,8 @@ def _main(argv: list[str] | None) -> int:
     plot_curve(plot, curve, f"{printable(args.out.name)}: {settings.hidden} hidden units, "
                                      f"{len(settings.features)} inputs")
     if not args.quiet:
-        print(f"final loss {curve[-1][1]:.6f} (held out {curve[-1][2]}); weights written to {printable(args.out)}, "
+        held = "no sequence held out" if curve[-1][2] is None else f"held out {curve[-1][2]:.6f}"
+        print(f"final loss {curve[-1][1]:.6f} ({held}); weights written to {printable(args.out)}, "
               f"curves to {printable(plot)}", file=sys.stderr)
     return 0
 
