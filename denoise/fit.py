@@ -57,12 +57,12 @@ from export.frames import frame_indices, read_frame, same_size
 from export.ground_truth import GROUND_TRUTH_RECORD, check_ground_truth, check_work_folder
 from imaging.image_io import atomic_path, check_writable, read_exr_rgb
 from imaging.metrics import relmse
-from renderer.checks import check_memory
 from renderer.variants import set_variant
 
 from .filters import FrameArrays, demodulate, remodulate, reproject
 from .methods import data_files, from_name, make
 from .methods.asvgf import FITTED_OPTIONS, PARAMETER_FILE, FilterValues, asvgf, fitted, hand_set
+from .pipeline import check_sequences_fit
 from .temporal_metrics import QUALITY_FROM
 from .validate import render
 from .worker_process import ignore_group_signals, run_in_worker
@@ -338,15 +338,11 @@ FIT_BYTES_PER_PIXEL, FIT_BASE_BYTES = 1400, 512 * 2 ** 20
 
 
 def check_frames_fit(loaded: list[tuple[Path, Spec]], memory: int | None = None) -> None:
-    """Every frame of ``loaded`` held at once within the memory available
-    (``memory``: bytes; measured if None), else a :class:`LimitError` before
-    anything is rendered."""
-    frames = sum(spec.frames for _, spec in loaded)
+    """Every frame of ``loaded`` held at once within the memory available (``memory``:
+    bytes; measured if None), else a :class:`LimitError` before anything is rendered."""
     pixels = sum(spec.frames * spec.size[0] * spec.size[1] for _, spec in loaded)
-    path, spec = max(loaded, key=lambda item: item[1].size[0] * item[1].size[1])
-    check_memory(FIT_BASE_BYTES + FIT_BYTES_PER_PIXEL * pixels,
-                 f"fitting on {frames} frames held at once (the largest {spec.size[0]}x{spec.size[1]}, {path})",
-                 "fit on smaller frames or fewer of them", memory=memory)
+    check_sequences_fit("fitting", loaded, FIT_BASE_BYTES + FIT_BYTES_PER_PIXEL * pixels,
+                        "fit on smaller frames or fewer of them", memory)
 
 
 def fit_steps(targets: list[Path], switch_frame: int, steps: int, rate: float, quiet: bool):

@@ -11,6 +11,7 @@ from tqdm import tqdm
 
 from core.entry import check_stopped
 from core.errors import FrameError, OutputError
+from export import Spec
 from export.frames import frame_indices, missing_between, missing_files, read_frame
 from export.ground_truth import check_export_finished
 from imaging.image_io import exr_size, write_exr
@@ -64,6 +65,17 @@ def check_frames_fit(first: Path, memory: int | None = None) -> None:
     if size is not None:
         check_memory(BASE_BYTES + BYTES_PER_PIXEL * size[0] * size[1],
                      f"{first}: denoising {size[0]}x{size[1]} frames", "denoise smaller frames", memory=memory)
+
+
+def check_sequences_fit(doing: str, loaded: list[tuple[Path, Spec]], needed: int, remedy: str,
+                        memory: int | None = None) -> None:
+    """``needed`` bytes for a command that holds every frame of the sequences
+    ``loaded`` at once (``doing``: "training", "fitting") within the memory
+    available, else a :class:`LimitError` naming the largest, before anything is rendered."""
+    frames = sum(spec.frames for _, spec in loaded)
+    path, spec = max(loaded, key=lambda item: item[1].size[0] * item[1].size[1])
+    check_memory(needed, f"{doing} on {frames} frames held at once (the largest {spec.size[0]}x{spec.size[1]}, "
+                 f"{path})", remedy, memory=memory)
 
 
 @dataclass

@@ -47,13 +47,13 @@ from export.frames import frame_indices, read_frame, same_size
 from export.ground_truth import check_work_folder
 from export.store import check_folder
 from imaging.image_io import atomic_path, check_writable, read_exr_rgb
-from renderer.checks import check_memory
 from renderer.variants import set_variant
 
 from . import training
 from .methods import data_files
 from .methods.base import RADIANCE_LIMIT
 from .methods.learned_asvgf import ABLATIONS, WEIGHT_LIMIT, WEIGHTS_FILE
+from .pipeline import check_sequences_fit
 from .training import BENCHMARK, HELD_OUT, ROOT, TRAINING, Settings
 from .validate import cache_remedies, render
 from .worker_process import ignore_group_signals, run_in_worker
@@ -215,15 +215,12 @@ def check_specs(paths: list[Path]) -> list[tuple[Path, Spec]]:
 
 
 def check_frames_fit(loaded: list[tuple[Path, Spec]], memory: int | None = None) -> None:
-    """Every frame of ``loaded`` held at once within the memory available
-    (``memory``: bytes; measured if None; :func:`denoise.training.training_memory`),
-    else a :class:`LimitError` before anything is rendered."""
-    frames = sum(spec.frames for _, spec in loaded)
-    path, spec = max(loaded, key=lambda item: item[1].size[0] * item[1].size[1])
-    check_memory(training.training_memory([(p.stem, s) for p, s in loaded]),
-                 f"training on {frames} frames held at once (the largest {spec.size[0]}x{spec.size[1]}, {path})",
-                 f"train on smaller frames or fewer of them (a step reads {training.CROP[0]}x"
-                 f"{training.CROP[1]} crops)", memory=memory)
+    """Every frame of ``loaded`` held at once within the memory available (``memory``:
+    bytes; measured if None; :func:`denoise.training.training_memory`), else a
+    :class:`LimitError` before anything is rendered."""
+    check_sequences_fit("training", loaded, training.training_memory([(p.stem, s) for p, s in loaded]),
+                        f"train on smaller frames or fewer of them (a step reads {training.CROP[0]}x"
+                        f"{training.CROP[1]} crops)", memory)
 
 
 def check_work(loaded: list[tuple[Path, Spec]], work: Path) -> None:
