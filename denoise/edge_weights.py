@@ -5,9 +5,11 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import lru_cache
 
 import drjit as dr
 import mitsuba as mi
+import numpy as np
 
 from .fastmath import EXP2_FLOOR, LOG2E
 
@@ -37,9 +39,40 @@ def edge_log_weight(coefficients: tuple[float, float, float], color_i, normal_i,
     plane distance of 0, not 0/0."""
     k_color, k_normal, k_plane = coefficients
     d_color = dr.squared_norm(color_i - color_j)
-    d_normal = normal_angle_sq(dr.dot(normal_i, normal_j), facing_apart_floored(k_normal))
     plane = plane_distance_sq(normal_i, position_i, position_j)
-    return dr.fma(d_color, k_color, dr.fma(d_normal, k_normal, dr.fma(plane, k_plane, offset)))
+    return dr.fma(d_color, k_color, normal_log_term(normal_i, normal_j, k_normal, dr.fma(plane, k_plane, offset)))
+
+
+def normal_log_term(normal_i: mi.Vector3f, normal_j: mi.Vector3f, k_normal: float, rest: mi.Float) -> mi.Float:
+    """``rest + k_normal arccos(n_i · n_j)²``. Where :func:`angle_series_fits`,
+    ``arccos(1 - t)²`` is its Taylor series in ``t = 1 - n_i · n_j`` to the
+    third power (six fused operations in all); else :func:`normal_angle_sq`."""
+    if not angle_series_fits(k_normal):
+        x = dr.dot(normal_i, normal_j)
+        return dr.fma(normal_angle_sq(x, facing_apart_floored(k_normal)), k_normal, rest)
+    t = dr.fma(-normal_i.x, normal_j.x, dr.fma(-normal_i.y, normal_j.y, dr.fma(-normal_i.z, normal_j.z, 1.0)))
+    c1, c2, c3 = (k_normal * c for c in ANGLE_SERIES)
+    return dr.fma(t, dr.fma(dr.fma(t, c3, c2), t, c1), rest)
+
+
+#: ``arccos(1 - t)² = 2 t + t²/3 + 4 t³/45 + ...``: the coefficients of t, t², t³
+ANGLE_SERIES = (2.0, 1.0 / 3.0, 4.0 / 45.0)
+#: the most a weight (at most 1) may move where :func:`normal_log_term` takes the series
+ANGLE_SERIES_TOLERANCE = 1e-6
+
+
+@lru_cache(maxsize=64)
+def angle_series_fits(k_normal: float) -> bool:
+    """Whether the normal term's weight ``2^(k' arccos(x)²)`` (``k_normal``:
+    1/(2σ²), or that times -log2(e)) moves by at most
+    :data:`ANGLE_SERIES_TOLERANCE` anywhere on x in [-1, 1] when the series
+    stands for ``arccos(x)²``: true for small sigmas (0.15 and below), whose
+    weights vanish before the series departs from the angle."""
+    log2_units = -abs(k_normal) * (1.0 if k_normal < 0 else LOG2E)
+    t = np.linspace(0.0, 2.0, 8001)
+    series = t * (ANGLE_SERIES[0] + t * (ANGLE_SERIES[1] + t * ANGLE_SERIES[2]))
+    error = np.abs(np.exp2(log2_units * series) - np.exp2(log2_units * np.arccos(1.0 - t) ** 2))
+    return bool(error.max() <= ANGLE_SERIES_TOLERANCE)
 
 
 def plane_distance_sq(normal_i: mi.Vector3f, position_i: mi.Vector3f, position_j: mi.Vector3f) -> mi.Float:

@@ -66,3 +66,41 @@ def test_normal_angle_weight_without_the_square_root_is_the_same_weight(variant_
         assert (shortcut[apart] == 2.0 ** EXP2_FLOOR).all() and (through_acos[apart] == 2.0 ** EXP2_FLOOR).all()
     else:
         assert np.abs(shortcut[apart] / through_acos[apart] - 1).max() > 0.1
+
+
+@pytest.mark.parametrize("sigma_normal", [0.05, 0.1, 0.15, 0.2, 0.5, 2.0])
+@pytest.mark.parametrize("sign", [-1.0, 1.0])
+def test_normal_log_term_is_the_angles_weight(variant_vectorised_rgb, sigma_normal, sign):
+    """:func:`normal_log_term` between float32 unit normals at angles over [0, π]:
+    the weight (``2^`` of the term with the -log2(e) factor, ``exp(-term)``
+    without) within 4e-5 (:func:`fast_acos`'s error) of the exact
+    ``exp(-arccos(x)² / (2σ²))`` of their dot ``x`` in float64; where it takes
+    the series (sigmas up to 0.15), no further from it than the arccos is."""
+    import drjit as dr
+    import mitsuba as mi
+
+    from denoise import edge_weights as ew
+    from denoise.fastmath import LOG2E
+
+    angle = np.linspace(0.0, np.pi, 20001)
+    rng = np.random.default_rng(5)  # n_i in every direction, n_j at the angle from it
+    a = rng.normal(size=(angle.size, 3))
+    a /= np.linalg.norm(a, axis=1, keepdims=True)
+    u = np.cross(a, rng.normal(size=(angle.size, 3)))
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    b = np.cos(angle)[:, None] * a + np.sin(angle)[:, None] * u
+    n_i, n_j = (dr.normalize(mi.Vector3f(*(mi.Float(c) for c in v.T.astype(np.float32)))) for v in (a, b))
+    x = np.clip((np.array(n_i, np.float64) * np.array(n_j, np.float64)).sum(axis=0), -1.0, 1.0)
+    exact = np.exp(-np.arccos(x) ** 2 * ew.inv_two_sigma_sq(sigma_normal))
+    k = sign * ew.inv_two_sigma_sq(sigma_normal) * (LOG2E if sign < 0 else 1.0)
+
+    def weight(term):
+        term = np.array(term, np.float64)
+        return np.exp2(term) if sign < 0 else np.exp(-term)
+
+    error = np.abs(weight(ew.normal_log_term(n_i, n_j, k, mi.Float(0.0))) - exact).max()
+    through_acos = weight(ew.normal_angle_sq(dr.dot(n_i, n_j), ew.facing_apart_floored(k)) * k)
+    assert ew.angle_series_fits(k) == (sigma_normal <= 0.15)
+    assert error < 4e-5
+    if ew.angle_series_fits(k):
+        assert error <= np.abs(through_acos - exact).max()
