@@ -198,10 +198,11 @@ def run_timing(folder: Path, methods=TIMED) -> dict:
     for method in methods:
         timing["ms"][method] = 1000 * float(np.median(times[method]))
         timing.setdefault("cpu_ms", {})[method] = 1000 * float(np.median(cpu_times[method]))
-    timing["baseline"] = BASELINE
-    timing["ratio_to_oidn"] = {m: ms / timing["ms"][BASELINE] for m, ms in timing["ms"].items()}
-    # this process's CPU time (all its threads): what other jobs on the machine inflate least
-    timing["cpu_ratio_to_oidn"] = {m: ms / timing["cpu_ms"][BASELINE] for m, ms in timing["cpu_ms"].items()}
+    if BASELINE in timing["ms"]:  # --methods may leave it out: then the bars' own bases alone
+        timing["baseline"] = BASELINE
+        timing["ratio_to_oidn"] = {m: ms / timing["ms"][BASELINE] for m, ms in timing["ms"].items()}
+        # this process's CPU time (all its threads): what other jobs on the machine inflate least
+        timing["cpu_ratio_to_oidn"] = {m: ms / timing["cpu_ms"][BASELINE] for m, ms in timing["cpu_ms"].items()}
     timing["bars"] = {f"{m} / {base}": {"ratio": timing["ms"][m] / timing["ms"][base], "bar": bar,
                                         "met": timing["ms"][m] / timing["ms"][base] <= bar}
                       for m, base, bar in SPEED_BARS if m in timing["ms"] and base in timing["ms"]}

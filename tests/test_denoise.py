@@ -604,3 +604,18 @@ def test_an_option_the_method_does_not_read_is_refused(tmp_path, capsys, flags, 
     assert main([str(tmp_path / "none"), str(tmp_path / "out")] + flags) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and err.startswith("python -m denoise: error: ") and message in err, err
+
+
+@pytest.mark.parametrize("methods", [["oidn-fast", "atrous+temporal"], ["oidn-high", "atrous"]])
+def test_the_speed_run_times_any_methods_given(variant_llvm_ad_rgb, exported, methods):
+    """benchmarks.denoise's speed run with --methods that leave out its baseline
+    (oidn-high): the times and the bars whose two methods ran, no ratio to the
+    baseline (which once failed with a KeyError traceback)."""
+    from benchmarks.denoise import BASELINE, run_timing
+
+    timing = run_timing(exported, methods)
+    assert set(timing["ms"]) == set(methods) and all(ms > 0 for ms in timing["ms"].values())
+    assert ("ratio_to_oidn" in timing) == (BASELINE in methods)
+    assert all(set(key.split(" / ")) <= set(methods) for key in timing["bars"])
+    if BASELINE in methods:
+        assert timing["ratio_to_oidn"][BASELINE] == 1.0
