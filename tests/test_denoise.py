@@ -612,10 +612,13 @@ def test_the_speed_run_times_any_methods_given(variant_llvm_ad_rgb, exported, me
     (oidn-high): the times and the bars whose two methods ran, no ratio to the
     baseline (which once failed with a KeyError traceback)."""
     from benchmarks.denoise import BASELINE, run_timing
+    from benchmarks.denoise_report import speed_lines
 
     timing = run_timing(exported, methods)
     assert set(timing["ms"]) == set(methods) and all(ms > 0 for ms in timing["ms"].values())
     assert ("ratio_to_oidn" in timing) == (BASELINE in methods)
     assert all(set(key.split(" / ")) <= set(methods) for key in timing["bars"])
+    line, = speed_lines({"timing": timing})  # printed with --methods too
+    assert line.startswith("speed at 32x18 (") and all(key in line for key in timing["bars"])
     if BASELINE in methods:
         assert timing["ratio_to_oidn"][BASELINE] == 1.0
