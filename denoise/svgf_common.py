@@ -79,34 +79,15 @@ def plane_log_weight(k_plane: float, normal_p: mi.Vector3f, position_p: mi.Vecto
 def estimate_variance(frame: FrameArrays, moments: mi.Vector2f, length: mi.Float, p: SVGFParams) -> mi.Float:
     """Variance from the temporal moments, or from 7x7 spatial moments while
     the history is short. The spatial estimate runs only on the pixels that
-    need it (compressed to a list: after the first frames, disocclusions)."""
+    need it (compressed to a list: after the first frames, disocclusions).
+    Its inputs carry no gradient (the callers detach the moments)."""
     temporal = dr.maximum(moments.y - moments.x * moments.x, 0.0)
     packed = dr.ravel(moments)
-    dr.eval(packed, length, temporal)
+    dr.eval(packed, length, temporal, frame.guides)  # gathered inside the symbolic loop: evaluated before it
     short = dr.compress(length < p.variance_frames)
     if dr.width(short) == 0:
         return temporal
-    cx, cy = dr.gather(mi.Int32, frame.x, short), dr.gather(mi.Int32, frame.y, short)
-    normal = dr.gather(mi.Vector3f, frame.normal, short)
-    position = dr.gather(mi.Vector3f, frame.position, short)
-    k_plane = inv_two_sigma_sq(p.sigma_plane)
-    total, weights = mi.Vector2f(0.0), mi.Float(0.0)
-    r = p.spatial_radius
-    for dy in range(-r, r + 1):
-        for dx in range(-r, r + 1):
-            x, y = cx + dx, cy + dy
-            inside = (x >= 0) & (x < frame.width) & (y >= 0) & (y < frame.height)
-            j = mi.UInt32(dr.clip(y, 0, frame.height - 1) * frame.width + dr.clip(x, 0, frame.width - 1))
-            m = dr.gather(mi.Vector2f, packed, j)  # clamped, unmasked: outside taps weigh 0
-            if dx == 0 and dy == 0:
-                w = mi.Float(1.0)
-            else:
-                n_q, x_q = frame.gather_guides(x, y)
-                w = normal_power(dr.dot(normal, n_q), p.normal_exponent) * neg_exp(
-                    plane_log_weight(k_plane, normal, position, x_q))
-                w = dr.select(inside, w, 0.0)
-            total += w * m
-            weights += w
+    total, weights = spatial_moment_sums(frame, packed, short, p)
     spatial_moments = total / weights
     spatial = dr.maximum(spatial_moments.y - spatial_moments.x * spatial_moments.x, 0.0) * (
         p.variance_frames / dr.gather(mi.Float, length, short))
@@ -114,6 +95,40 @@ def estimate_variance(frame: FrameArrays, moments: mi.Vector2f, length: mi.Float
     dr.scatter(spread, spatial, short)
     dr.eval(spread)
     return dr.select(length < p.variance_frames, spread, temporal)
+
+
+@dr.syntax
+def spatial_moment_sums(frame: FrameArrays, packed: mi.Float, short: mi.UInt32, p: SVGFParams
+                        ) -> tuple[mi.Vector2f, mi.Float]:
+    """``(Σ w m, Σ w)`` over the (2r+1)² window of each pixel listed in
+    ``short``, ``m`` the moments ``packed`` two floats a pixel, ``w`` the normal
+    and plane weights (1 at the centre, 0 outside the image). A symbolic loop
+    over the window's rows, each row's taps unrolled: Python traces one row's
+    taps a frame, not the whole window's (the same sums)."""
+    cx, cy = dr.gather(mi.Int32, frame.x, short), dr.gather(mi.Int32, frame.y, short)
+    normal = dr.gather(mi.Vector3f, frame.normal, short)
+    position = dr.gather(mi.Vector3f, frame.position, short)
+    # plain numbers, not loop state (the loop would treat p, a dataclass, as its state)
+    k_plane, exponent, r = inv_two_sigma_sq(p.sigma_plane), p.normal_exponent, p.spatial_radius
+    width, height = frame.width, frame.height
+    total, weights = mi.Vector2f(0.0), mi.Float(0.0)
+    dy = mi.Int32(-r)
+    while dy <= r:
+        y = cy + dy
+        inside_row = (y >= 0) & (y < height)
+        for dx in range(-r, r + 1):
+            x = cx + dx
+            j = mi.UInt32(dr.clip(y, 0, height - 1) * width + dr.clip(x, 0, width - 1))
+            m = dr.gather(mi.Vector2f, packed, j)  # clamped, unmasked: outside taps weigh 0
+            n_q, x_q = frame.gather_guides(x, y)
+            w = normal_power(dr.dot(normal, n_q), exponent) * neg_exp(plane_log_weight(k_plane, normal, position, x_q))
+            if dx == 0:
+                w = dr.select(dy == 0, 1.0, w)  # the centre: weight 1
+            w = dr.select(inside_row & (x >= 0) & (x < width), w, 0.0)
+            total += w * m
+            weights += w
+        dy += 1
+    return total, weights
 
 
 def power_of_two(exponent) -> bool:
