@@ -212,6 +212,9 @@ def _main(argv: list[str] | None) -> int:
         write_video(args.video, [side_by_side(row) for row in panels], fps=args.fps)
     extra = (" with PNG previews" if args.png else "") + (f", video {printable(args.video)}" if args.video else "")
     print(f"{len(report.written)} frames -> {printable(args.target)}{extra}")
+    if report.removed:
+        print(f"{PROG}: note: {report.removed} result files of an earlier run in {printable(args.target)} were "
+              "removed first", file=sys.stderr)
     if report.replaced_values:
         print(f"{PROG}: note: {report.replaced_values} beauty values in {report.frames_with_replaced} "
               f"frames were NaN, infinite or beyond +-{RADIANCE_LIMIT:g}: filtered as 0 or +-{RADIANCE_LIMIT:g}",

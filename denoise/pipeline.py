@@ -3,6 +3,7 @@ folder checked first, then frame by frame, each result written as it comes.
 """
 from __future__ import annotations
 
+import re
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -86,6 +87,28 @@ class FolderReport:
     written: list[Path] = field(default_factory=list)
     replaced_values: int = 0
     frames_with_replaced: int = 0
+    removed: int = 0  # results of an earlier run in the target, removed before the first frame
+
+
+#: what python -m denoise writes into its OUT_DIR: result_i.exr, and with --png result_i.png
+RESULT_NAME = re.compile(r"result_\d+\.(exr|png)")
+
+
+def remove_earlier_results(target: Path) -> int:
+    """Removes the results of an earlier run from ``target`` (files named as
+    :data:`RESULT_NAME`), so that none is taken for this run's: a run over
+    fewer frames, or one that stops early, would leave some beside its own.
+    Returns how many were removed."""
+    if not target.is_dir():
+        return 0
+    earlier = [path for path in target.iterdir() if RESULT_NAME.fullmatch(path.name) and path.is_file()]
+    for path in earlier:
+        try:
+            path.unlink()
+        except OSError as error:
+            raise OutputError(f"{path}: a result of an earlier run cannot be removed ({error.strerror or error})"
+                              ) from None
+    return len(earlier)
 
 
 #: seconds before the progress bar shows (a short run shows none)
@@ -97,12 +120,13 @@ def denoise_folder(source: Path, target: Path, method: DenoisingMethod, on_frame
     """Denoises every frame of ``source`` with ``method`` (a fresh one: it keeps
     its history) into ``target/result_i.exr``; ``on_frame(index, frame,
     result)`` is called after each (previews). The folder's files are checked
-    before the first frame; a frame that turns out damaged later stops the
+    before the first frame, and the results of an earlier run in ``target``
+    removed (:func:`remove_earlier_results`); a frame that turns out damaged later stops the
     run with the results before it kept, as the error says. The progress bar
     is shown only when stderr is a terminal."""
     indices = check_folder(source, require_albedo)
     check_frames_fit(source / f"beauty_{indices[0]}.exr")
-    report = FolderReport()
+    report = FolderReport(removed=remove_earlier_results(target))
     size = None
     for index in tqdm(indices, desc="denoising", unit="frame", delay=PROGRESS_DELAY_S, leave=False,
                       file=sys.stderr, disable=not sys.stderr.isatty()):

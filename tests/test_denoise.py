@@ -622,3 +622,32 @@ def test_the_speed_run_times_any_methods_given(variant_llvm_ad_rgb, exported, me
     assert line.startswith("speed at 32x18 (") and all(key in line for key in timing["bars"])
     if BASELINE in methods:
         assert timing["ratio_to_oidn"][BASELINE] == 1.0
+
+
+@pytest.mark.parametrize("second", ["fewer frames", "stops early"])
+def test_results_of_an_earlier_run_are_not_left_beside_this_runs(variant_llvm_ad_rgb, tmp_path, capsys, second):
+    """python -m denoise into an OUT_DIR holding an earlier run's results: they are
+    removed first (one note), so that a run over fewer frames, or one that stops at a
+    damaged frame, leaves its own results alone; other files stay."""
+    from denoise.__main__ import main as denoise
+    from export import Spec, export
+
+    spec = Spec.load(ROOT / "scenes" / "sequences" / "glossy_shadow.json", size=(16, 9), frames=4, reference_spp=2)
+    export(spec, tmp_path / "four")
+    out = tmp_path / "out"
+    assert denoise([str(tmp_path / "four"), str(out), "--png"]) == 0
+    (out / "notes.txt").write_text("mine")
+    if second == "fewer frames":
+        export(Spec.load(ROOT / "scenes" / "sequences" / "glossy_shadow.json", size=(16, 9), frames=2,
+                         reference_spp=2), tmp_path / "two")
+        assert denoise([str(tmp_path / "two"), str(out)]) == 0
+        kept = {"result_0.exr", "result_1.exr"}
+    else:
+        (tmp_path / "four" / "beauty_2.exr").write_bytes(b"not an EXR")
+        assert denoise([str(tmp_path / "four"), str(out)]) == 2
+        kept = {"result_0.exr", "result_1.exr"}
+    err = capsys.readouterr().err
+    assert {p.name for p in out.iterdir()} == kept | {"notes.txt"}
+    if second == "fewer frames":
+        assert err == ("python -m denoise: note: 8 result files of an earlier run in "
+                       f"{out} were removed first\n"), err
