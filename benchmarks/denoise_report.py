@@ -105,9 +105,9 @@ def speed_lines(results: dict) -> list[str]:
 
         def cpu_text(key: str) -> str:  # this process's CPU time, all threads: what other jobs inflate least
             method, base = key.split(" / ")
-            return f"; CPU time {cpu[method] / cpu[base]:.2f}x" if method in cpu and cpu.get(base) else ""
+            return f"; CPU time {cpu[method] / cpu[base]:.3f}x" if method in cpu and cpu.get(base) else ""
 
-        parts = [f"{key} = {b['ratio']:.2f}x (bar {b['bar']}x: {'met' if b['met'] else 'not met'}{cpu_text(key)})"
+        parts = [f"{key} = {b['ratio']:.3f}x (bar {b['bar']}x: {'met' if b['met'] else 'not met'}{cpu_text(key)})"
                  for key, b in timing["bars"].items()]
         times = ", ".join(f"{m} {ms:.0f} ms" for m, ms in timing["ms"].items())
         lines.append(f"speed at {size} ({times})" + (": " + "; ".join(parts) if parts else ""))
