@@ -213,8 +213,8 @@ def _main(argv: list[str] | None) -> int:
     extra = (" with PNG previews" if args.png else "") + (f", video {printable(args.video)}" if args.video else "")
     print(f"{len(report.written)} frames -> {printable(args.target)}{extra}")
     if report.removed:
-        print(f"{PROG}: note: {report.removed} result files of an earlier run in {printable(args.target)} were "
-              "removed first", file=sys.stderr)
+        print(f"{PROG}: note: {report.removed} result files of an earlier run in {printable(args.target)}, which "
+              "this run did not replace, were removed", file=sys.stderr)
     if report.replaced_values:
         print(f"{PROG}: note: {report.replaced_values} beauty values in {report.frames_with_replaced} "
               f"frames were NaN, infinite or beyond +-{RADIANCE_LIMIT:g}: filtered as 0 or +-{RADIANCE_LIMIT:g}",

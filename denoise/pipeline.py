@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import re
 import sys
+from contextlib import suppress
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -87,32 +88,48 @@ class FolderReport:
     written: list[Path] = field(default_factory=list)
     replaced_values: int = 0
     frames_with_replaced: int = 0
-    removed: int = 0  # results of an earlier run in the target, removed before the first frame
+    removed: int = 0  # results of an earlier run in the target that this run did not replace, removed
 
 
 #: what python -m denoise writes into its OUT_DIR: result_i.exr, and with --png result_i.png
 RESULT_NAME = re.compile(r"result_\d+\.(exr|png)")
 
 
-def remove_earlier_results(target: Path) -> int:
-    """Removes the results of an earlier run from ``target`` (files named as
-    :data:`RESULT_NAME`), so that none is taken for this run's: a run over
-    fewer frames, or one that stops early, would leave some beside its own.
-    Returns how many were removed."""
+#: seconds before the progress bar shows (a short run shows none)
+PROGRESS_DELAY_S = 1.0
+
+
+def earlier_results(target: Path) -> dict[Path, tuple[int, int]]:
+    """The result files (named as :data:`RESULT_NAME`) in ``target`` now, each
+    with its inode and modification time: a file that a later write replaced
+    (written whole, then renamed over it) has others."""
     if not target.is_dir():
-        return 0
-    earlier = [path for path in target.iterdir() if RESULT_NAME.fullmatch(path.name) and path.is_file()]
-    for path in earlier:
+        return {}
+    found = {}
+    for path in target.iterdir():
+        if RESULT_NAME.fullmatch(path.name) and path.is_file():
+            status = path.stat()
+            found[path] = (status.st_ino, status.st_mtime_ns)
+    return found
+
+
+def remove_unreplaced(earlier: dict[Path, tuple[int, int]]) -> int:
+    """Removes the files of ``earlier`` (:func:`earlier_results`) that are still
+    the same files: results of an earlier run that this run did not replace,
+    which would be taken for its own. Returns how many were removed."""
+    removed = 0
+    for path, identity in earlier.items():
         try:
-            path.unlink()
+            status = path.stat()
+            if (status.st_ino, status.st_mtime_ns) == identity:
+                path.unlink()
+                removed += 1
+        except FileNotFoundError:
+            continue
         except OSError as error:
             raise OutputError(f"{path}: a result of an earlier run cannot be removed ({error.strerror or error})"
                               ) from None
-    return len(earlier)
-
-
-#: seconds before the progress bar shows (a short run shows none)
-PROGRESS_DELAY_S = 1.0
+    return removed
 
 
 def denoise_folder(source: Path, target: Path, method: DenoisingMethod, on_frame=None,
@@ -120,13 +137,29 @@ def denoise_folder(source: Path, target: Path, method: DenoisingMethod, on_frame
     """Denoises every frame of ``source`` with ``method`` (a fresh one: it keeps
     its history) into ``target/result_i.exr``; ``on_frame(index, frame,
     result)`` is called after each (previews). The folder's files are checked
-    before the first frame, and the results of an earlier run in ``target``
-    removed (:func:`remove_earlier_results`); a frame that turns out damaged later stops the
-    run with the results before it kept, as the error says. The progress bar
-    is shown only when stderr is a terminal."""
+    before the first frame; a frame that turns out damaged later stops the
+    run with the results before it kept, as the error says. Once a result is
+    written, the results of an earlier run in ``target`` that this run did
+    not replace are removed (:func:`remove_unreplaced`), however the run
+    ends: the folder never holds two runs' results. The progress bar is
+    shown only when stderr is a terminal."""
     indices = check_folder(source, require_albedo)
     check_frames_fit(source / f"beauty_{indices[0]}.exr")
-    report = FolderReport(removed=remove_earlier_results(target))
+    report, earlier = FolderReport(), earlier_results(target)
+    try:
+        run_frames(source, target, method, indices, report, on_frame)
+    except BaseException:
+        if report.written:  # the error is what the user needs to read: a failed removal is not
+            with suppress(OutputError):
+                remove_unreplaced(earlier)
+        raise
+    report.removed = remove_unreplaced(earlier)
+    return report
+
+
+def run_frames(source: Path, target: Path, method: DenoisingMethod, indices: list[int], report: FolderReport,
+               on_frame) -> None:
+    """:func:`denoise_folder`'s loop over the frames ``indices``, recording what it writes in ``report``."""
     size = None
     for index in tqdm(indices, desc="denoising", unit="frame", delay=PROGRESS_DELAY_S, leave=False,
                       file=sys.stderr, disable=not sys.stderr.isatty()):
@@ -153,4 +186,3 @@ def denoise_folder(source: Path, target: Path, method: DenoisingMethod, on_frame
         if on_frame is not None:
             check_stopped()
             on_frame(index, frame, result)
-    return report

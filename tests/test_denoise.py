@@ -618,9 +618,9 @@ def test_an_option_the_method_does_not_read_is_refused(tmp_path, capsys, flags, 
 
 @pytest.mark.parametrize("second", ["fewer frames", "stops early"])
 def test_results_of_an_earlier_run_are_not_left_beside_this_runs(variant_llvm_ad_rgb, tmp_path, capsys, second):
-    """python -m denoise into an OUT_DIR holding an earlier run's results: they are
-    removed first (one note), so that a run over fewer frames, or one that stops at a
-    damaged frame, leaves its own results alone; other files stay."""
+    """python -m denoise into an OUT_DIR holding an earlier run's results: those it
+    does not replace are removed (one note), so that a run over fewer frames, or one
+    that stops at a damaged frame, leaves its own results alone; other files stay."""
     from denoise.__main__ import main as denoise
     from export import Spec, export
 
@@ -641,5 +641,5 @@ def test_results_of_an_earlier_run_are_not_left_beside_this_runs(variant_llvm_ad
     err = capsys.readouterr().err
     assert {p.name for p in out.iterdir()} == kept | {"notes.txt"}
     if second == "fewer frames":
-        assert err == ("python -m denoise: note: 8 result files of an earlier run in "
-                       f"{out} were removed first\n"), err
+        assert err == ("python -m denoise: note: 6 result files of an earlier run in "
+                       f"{out}, which this run did not replace, were removed\n"), err
