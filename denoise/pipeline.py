@@ -3,7 +3,9 @@ folder checked first, then frame by frame, each result written as it comes.
 """
 from __future__ import annotations
 
+import json
 import re
+import stat
 import sys
 from contextlib import suppress
 from dataclasses import dataclass, field
@@ -14,8 +16,10 @@ from tqdm import tqdm
 from core.entry import check_stopped
 from core.errors import FrameError, OutputError
 from export import Spec
+from export.files import locked
 from export.frames import frame_indices, missing_between, missing_files, read_frame
 from export.ground_truth import check_export_finished
+from export.store import write_record
 from imaging.image_io import exr_size, write_exr
 from renderer.checks import check_memory
 
@@ -88,47 +92,66 @@ class FolderReport:
     written: list[Path] = field(default_factory=list)
     replaced_values: int = 0
     frames_with_replaced: int = 0
-    removed: int = 0  # results of an earlier run in the target that this run did not replace, removed
+    removed: int = 0  # results the last run into the target left, which this run did not replace
 
 
 #: what python -m denoise writes into its OUT_DIR: result_i.exr, and with --png result_i.png
-RESULT_NAME = re.compile(r"result_\d+\.(exr|png)")
-
+RESULT_NAME = re.compile(r"result_(0|[1-9][0-9]*)\.(exr|png)", re.ASCII)
+#: the record, in OUT_DIR, of the results a run wrote there: all that the next run may remove
+RESULTS_RECORD = "denoise_results.json"
 
 #: seconds before the progress bar shows (a short run shows none)
 PROGRESS_DELAY_S = 1.0
 
 
-def earlier_results(target: Path) -> dict[Path, tuple[int, int]]:
-    """The result files (named as :data:`RESULT_NAME`) in ``target`` now, each
-    with its inode and modification time: a file that a later write replaced
-    (written whole, then renamed over it) has others."""
-    if not target.is_dir():
-        return {}
+def identity(path: Path) -> tuple[int, int] | None:
+    """``path``'s inode and modification time where it is a plain file (not a link), else None:
+    a file that a later write replaced (written whole, then renamed over it) has others."""
+    try:
+        status = path.lstat()
+    except OSError:
+        return None
+    return (status.st_ino, status.st_mtime_ns) if stat.S_ISREG(status.st_mode) else None
+
+
+def result_files(target: Path) -> dict[Path, tuple[int, int]]:
+    """The plain files named as :data:`RESULT_NAME` in ``target``, with their :func:`identity`."""
     found = {}
-    for path in target.iterdir():
-        if RESULT_NAME.fullmatch(path.name) and path.is_file():
-            status = path.stat()
-            found[path] = (status.st_ino, status.st_mtime_ns)
+    if target.is_dir():
+        for path in target.iterdir():
+            if RESULT_NAME.fullmatch(path.name) and (mark := identity(path)) is not None:
+                found[path] = mark
     return found
 
 
-def remove_unreplaced(earlier: dict[Path, tuple[int, int]]) -> int:
-    """Removes the files of ``earlier`` (:func:`earlier_results`) that are still
-    the same files: results of an earlier run that this run did not replace,
-    which would be taken for its own. Returns how many were removed."""
+def last_run_results(target: Path) -> dict[Path, tuple[int, int]]:
+    """The results that the last run into ``target`` recorded (:data:`RESULTS_RECORD`)
+    and that are still the files it wrote; none where there is no readable record."""
+    try:
+        files = json.loads((target / RESULTS_RECORD).read_text())["files"]
+        recorded = {target / name: tuple(mark) for name, mark in files.items() if RESULT_NAME.fullmatch(name)}
+    except (OSError, ValueError, TypeError, KeyError, AttributeError):
+        return {}
+    return {path: mark for path, mark in recorded.items() if identity(path) == mark}
+
+
+def finish_results(target: Path, source: Path, method: DenoisingMethod, last: dict, before: dict) -> int:
+    """After a run that wrote results into ``target``: removes the last run's
+    results (``last``, :func:`last_run_results`) that this one did not replace,
+    and records this run's (the result files that are not as they were
+    ``before`` it). Returns how many were removed."""
     removed = 0
-    for path, identity in earlier.items():
-        try:
-            status = path.stat()
-            if (status.st_ino, status.st_mtime_ns) == identity:
+    for path, mark in last.items():
+        if identity(path) == mark:
+            try:
                 path.unlink()
-                removed += 1
-        except FileNotFoundError:
-            continue
-        except OSError as error:
-            raise OutputError(f"{path}: a result of an earlier run cannot be removed ({error.strerror or error})"
-                              ) from None
+            except OSError as error:
+                raise OutputError(f"{path}: a result of the last run cannot be removed ({error.strerror or error})"
+                                  ) from None
+            removed += 1
+    written = {path.name: list(mark) for path, mark in result_files(target).items() if before.get(path) != mark}
+    write_record(target / RESULTS_RECORD, {"source": str(source.absolute()), "method": method.name,
+                                           "files": written})
     return removed
 
 
@@ -139,21 +162,25 @@ def denoise_folder(source: Path, target: Path, method: DenoisingMethod, on_frame
     result)`` is called after each (previews). The folder's files are checked
     before the first frame; a frame that turns out damaged later stops the
     run with the results before it kept, as the error says. Once a result is
-    written, the results of an earlier run in ``target`` that this run did
-    not replace are removed (:func:`remove_unreplaced`), however the run
-    ends: the folder never holds two runs' results. The progress bar is
+    written, however the run ends, the results the last run recorded in
+    ``target`` (:data:`RESULTS_RECORD`) that this run did not replace are
+    removed, and this run's recorded: the folder never holds two runs'
+    results, and no file the runs did not write is removed. ``target`` is
+    locked meanwhile (a second run into it is refused). The progress bar is
     shown only when stderr is a terminal."""
     indices = check_folder(source, require_albedo)
     check_frames_fit(source / f"beauty_{indices[0]}.exr")
-    report, earlier = FolderReport(), earlier_results(target)
-    try:
-        run_frames(source, target, method, indices, report, on_frame)
-    except BaseException:
-        if report.written:  # the error is what the user needs to read: a failed removal is not
-            with suppress(OutputError):
-                remove_unreplaced(earlier)
-        raise
-    report.removed = remove_unreplaced(earlier)
+    report = FolderReport()
+    with locked([target], doing="denoise"):
+        last, before = last_run_results(target), result_files(target)
+        try:
+            run_frames(source, target, method, indices, report, on_frame)
+        except BaseException:
+            if report.written:  # the error is what the user needs to read: a failed clean-up is not
+                with suppress(OutputError):
+                    finish_results(target, source, method, last, before)
+            raise
+        report.removed = finish_results(target, source, method, last, before)
     return report
 
 

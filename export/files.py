@@ -78,8 +78,9 @@ class FolderBusy(OutputError):
     """Another export holds a folder's lock."""
 
 
-def _lock(folder: Path) -> int:
-    """The descriptor of ``folder``'s lock file, locked; raises :class:`FolderBusy`."""
+def _lock(folder: Path, doing: str) -> int:
+    """The descriptor of ``folder``'s lock file, locked; raises :class:`FolderBusy`
+    (``doing``: what holds it, "export" or "denoise", for the message)."""
     path = folder / LOCK_NAME
     while True:
         try:
@@ -91,8 +92,8 @@ def _lock(folder: Path) -> int:
             fcntl.flock(descriptor, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
             os.close(descriptor)
-            raise FolderBusy(f"{folder}: another export is writing into this folder; wait for it to "
-                             f"finish, or export into another folder") from None
+            raise FolderBusy(f"{folder}: another {doing} is writing into this folder; wait for it to "
+                             f"finish, or {doing} into another folder") from None
         try:
             if os.stat(path).st_ino == os.fstat(descriptor).st_ino:
                 return descriptor
@@ -111,14 +112,15 @@ def _unlock(folder: Path, descriptor: int) -> None:
 
 
 @contextmanager
-def locked(folders: list[Path]) -> Iterator[None]:
-    """Holds the export's lock (``flock`` on :data:`LOCK_NAME`) in every folder
+def locked(folders: list[Path], doing: str = "export") -> Iterator[None]:
+    """Holds the writer's lock (``flock`` on :data:`LOCK_NAME`) in every folder
     of ``folders`` (made where missing); raises :class:`FolderBusy` naming the
-    first folder another process holds. The lock file goes when the export
-    ends; the lock itself goes with its process, however it ends (a lock file
-    a killed export left behind locks nothing)."""
+    first folder another process holds (``doing``: the command that writes,
+    for its message). The lock file goes when the writer ends; the lock itself
+    goes with its process, however it ends (a lock file a killed export left
+    behind locks nothing)."""
     with ExitStack() as stack:
         for folder in sorted({Path(f).absolute() for f in folders}):
-            descriptor = _lock(folder)
+            descriptor = _lock(folder, doing)
             stack.callback(_unlock, folder, descriptor)
         yield

@@ -451,7 +451,10 @@ def test_denoise_benchmarks_refuse_bad_arguments_first(module, argv, message):
 
 @pytest.mark.parametrize("flags, message", [
     (["--levels", "31"], "--levels must be a whole number from 1 to 12"),
-    (["--radius", "-5"], "--radius must be a whole number from 0 to 64"),
+    (["--method", "bilateral", "--radius", "-5"], "bilateral: --radius must be a whole number from 0 to 64"),
+    # an option the method does not take: that first, whatever its value (not the value checked as another's)
+    (["--radius", "-5"], "--radius is an option of bilateral, not of atrous"),
+    (["--method", "svgf", "--sigma-normal", "-1"], "--sigma-normal is an option of bilateral, atrous, not of svgf"),
     (["--alpha", "2"], "--alpha must be a number in (0, 1]"),
     (["--alpha", "0"], "--alpha"),
     (["--k", "-1"], "--k must be a finite number >= 0"),
@@ -618,26 +621,51 @@ def test_an_option_the_method_does_not_read_is_refused(tmp_path, capsys, flags, 
 
 @pytest.mark.parametrize("second", ["fewer frames", "stops early"])
 def test_results_of_an_earlier_run_are_not_left_beside_this_runs(variant_llvm_ad_rgb, tmp_path, capsys, second):
-    """python -m denoise into an OUT_DIR holding an earlier run's results: those it
-    does not replace are removed (one note), so that a run over fewer frames, or one
-    that stops at a damaged frame, leaves its own results alone; other files stay."""
+    """python -m denoise into an OUT_DIR holding the last run's results: those it does
+    not replace are removed (one note), so that a run over fewer frames, or one that
+    stops at a damaged frame, leaves its own results alone. Only files the last run
+    recorded as its own go: a user's files, even named like results, stay."""
+    import json
+
     from denoise.__main__ import main as denoise
     from export import Spec, export
 
-    spec = Spec.load(ROOT / "scenes" / "sequences" / "glossy_shadow.json", size=(16, 9), frames=4, reference_spp=2)
-    export(spec, tmp_path / "four")
+    sequence = ROOT / "scenes" / "sequences" / "glossy_shadow.json"
+    export(Spec.load(sequence, size=(16, 9), frames=4, reference_spp=2), tmp_path / "four")
     out = tmp_path / "out"
+    out.mkdir()
+    mine = {"notes.txt", "result_07.exr", "result_9.png", "result_\u0663.exr", "result_8.EXR"}
+    for name in mine:  # made before any run: not results of one, whatever their names
+        (out / name).write_text("mine")
     assert denoise([str(tmp_path / "four"), str(out), "--png"]) == 0
-    (out / "notes.txt").write_text("mine")
+    assert capsys.readouterr().err == ""  # no run was recorded there: nothing removed
+    record = json.loads((out / "denoise_results.json").read_text())
+    assert sorted(record["files"]) == sorted(f"result_{i}.{e}" for i in range(4) for e in ("exr", "png"))
+    (out / "result_3.png").write_text("mine now")  # a result the user replaced is theirs
     if second == "fewer frames":
-        export(Spec.load(ROOT / "scenes" / "sequences" / "glossy_shadow.json", size=(16, 9), frames=2,
-                         reference_spp=2), tmp_path / "two")
+        export(Spec.load(sequence, size=(16, 9), frames=2, reference_spp=2), tmp_path / "two")
         assert denoise([str(tmp_path / "two"), str(out)]) == 0
     else:
         (tmp_path / "four" / "beauty_2.exr").write_bytes(b"not an EXR")
         assert denoise([str(tmp_path / "four"), str(out)]) == 2
     err = capsys.readouterr().err
-    assert {p.name for p in out.iterdir()} == {"result_0.exr", "result_1.exr", "notes.txt"}
+    assert {p.name for p in out.iterdir()} == {"result_0.exr", "result_1.exr", "result_3.png",
+                                               "denoise_results.json"} | mine
+    assert sorted(json.loads((out / "denoise_results.json").read_text())["files"]) == ["result_0.exr", "result_1.exr"]
     if second == "fewer frames":
-        assert err == ("python -m denoise: note: 6 result files of an earlier run in "
-                       f"{out}, which this run did not replace, were removed\n"), err
+        assert err == ("python -m denoise: note: 5 result files of the last run into "
+                       f"{out}, which this run did not replace, removed\n"), err
+
+
+def test_a_second_run_into_a_busy_out_dir_is_refused(variant_llvm_ad_rgb, exported, tmp_path, capsys):
+    """Two runs of python -m denoise into one OUT_DIR at once: the second is refused in
+    one line (each would take the other's results for a last run's)."""
+    from denoise.__main__ import main as denoise
+    from export.files import locked
+
+    out = tmp_path / "out"
+    with locked([out], doing="denoise"):  # as a run in progress holds it
+        assert denoise([str(exported), str(out)]) == 2
+    assert capsys.readouterr().err == (f"python -m denoise: error: {out}: another denoise is writing into this "
+                                       "folder; wait for it to finish, or denoise into another folder\n")
+    assert not list(out.glob("result_*"))
