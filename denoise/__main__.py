@@ -66,10 +66,9 @@ def check_options_apply(name: str, given: dict) -> None:
     method = cls.name
     own = {option.key for option in cls.all_options()}
     for flag, (option, users) in declared_options().items():
-        if option.key in given:  # a value out of range is that first, whichever method declares it
-            declaration, owner = next(((o, n) for n, o in users if n == method),
-                                      (users or [(method, option)])[0][::-1])
-            declaration.check(given[option.key], owner)
+        if option.key in given and option.key in own:  # checked against the method's own declaration
+            declaration = next((o for n, o in users if n == method), option)
+            declaration.check(given[option.key], method)
         if option.key in given and option.key not in own:
             suggested = next((n for n in method_names() if resolve(n)[0].name == users[0][0]
                               and (resolve(n)[1]["temporal"] or not option.temporal)), users[0][0])
@@ -139,7 +138,9 @@ def _parser() -> tuple[argparse.ArgumentParser, set[str]]:
     parser = ArgumentParser(prog=PROG, description=__doc__.split("\n", 1)[0].split(": ", 1)[1],
                             formatter_class=argparse.RawDescriptionHelpFormatter, epilog=methods_help())
     parser.add_argument("source", type=Path, metavar="IN_DIR", help="the frame folder")
-    parser.add_argument("target", type=Path, metavar="OUT_DIR", help="where result_i.exr are written")
+    parser.add_argument("target", type=Path, metavar="OUT_DIR",
+                        help="where result_i.exr are written (the last run's results there that this run "
+                        "does not replace are removed)")
     parser.add_argument("--method", type=method_name, default="atrous+temporal", metavar="NAME",
                         help="the filter: any name of the list below, with demod+ or outliers+ before it "
                              "(default: atrous+temporal)")
@@ -211,10 +212,12 @@ def _main(argv: list[str] | None) -> int:
     if args.video is not None:
         write_video(args.video, [side_by_side(row) for row in panels], fps=args.fps)
     extra = (" with PNG previews" if args.png else "") + (f", video {printable(args.video)}" if args.video else "")
-    print(f"{len(report.written)} frames -> {printable(args.target)}{extra}")
+    count = len(report.written)
+    print(f"{count} frame{'' if count == 1 else 's'} -> {printable(args.target)}{extra}")
     if report.removed:
-        print(f"{PROG}: note: {report.removed} result files of an earlier run in {printable(args.target)}, which "
-              "this run did not replace, were removed", file=sys.stderr)
+        files = "file" if report.removed == 1 else "files"
+        print(f"{PROG}: note: {report.removed} result {files} of the last run into {printable(args.target)}, which "
+              "this run did not replace, removed", file=sys.stderr)
     if report.replaced_values:
         print(f"{PROG}: note: {report.replaced_values} beauty values in {report.frames_with_replaced} "
               f"frames were NaN, infinite or beyond +-{RADIANCE_LIMIT:g}: filtered as 0 or +-{RADIANCE_LIMIT:g}",
