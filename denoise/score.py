@@ -267,8 +267,9 @@ def tables(report: dict) -> list[str]:
                          + ("" if temporal[k] is None else f"{temporal[k]:.5f}") + " |")
     lines += ["", "| method | mean relMSE | mean FLIP | temporal stability |", "|---|---|---|---|"]
     for s in scores:
+        missing = "n/a (no --frames)" if s.temporal is None else "n/a (one frame: no pair to compare)"
         lines.append(f"| {s.name} | {np.mean(s.relmse):.5f} | {np.mean(s.flip):.4f} | "
-                     + ("n/a (no --frames)" if s.stability is None else f"{s.stability:.2f}") + " |")
+                     + (missing if s.stability is None else f"{s.stability:.2f}") + " |")
     return lines
 
 

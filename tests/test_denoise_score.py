@@ -130,6 +130,16 @@ def test_temporal_figures_match_numpy(variant_vectorised_rgb, sequence, tmp_path
     assert f"| results | 2 | {ours['relmse'][2]:.5f} |" in out
 
 
+def test_one_frame_has_no_temporal_figure_and_says_why(variant_vectorised_rgb, sequence, tmp_path, capsys):
+    """One frame given with --frames: no pair to compare, said as such (not "no --frames")."""
+    frames, reference, results, _, _ = sequence
+    for folder, name in ((frames, "*_[12].*"), (reference, "beauty_[12].exr"), (results, "result_[12].exr")):
+        for path in folder.glob(name):
+            path.unlink()
+    status, out, _ = score(capsys, results, "--reference", reference, "--frames", frames)
+    assert status == 0 and "n/a (one frame: no pair to compare)" in out and "no --frames" not in out, out
+
+
 def test_without_frames_there_is_no_temporal_figure(sequence, tmp_path, capsys):
     _, reference, results, _, _ = sequence
     status, out, _ = score(capsys, results, "--reference", reference, "--json", tmp_path / "s.json")
