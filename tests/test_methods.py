@@ -321,6 +321,10 @@ def test_help_names_the_methods_each_option_applies_to():
     ("svgf+temporal", "svgf is temporal by nature; drop +temporal"),
     ("asvgf+temporal", "asvgf is temporal by nature; drop +temporal"),
     ("oidn-guided+temporal", "oidn-guided is temporal by nature; drop +temporal"),
+    # a part twice, or out of order, ran as the name written once: two names for one method
+    *((name, f"method '{name}': write it [demod+][outliers+]atrous[+temporal], each part once and in that order")
+      for name in ("atrous+temporal+temporal", "demod+demod+atrous", "outliers+outliers+atrous",
+                   "outliers+demod+atrous", "temporal+atrous", "atrous+demod")),
 ])
 def test_temporal_on_a_method_that_cannot_take_it_is_refused(name, message):
     """svgf+temporal ran as svgf, the same bytes: a name that changes nothing is refused, not ignored."""
