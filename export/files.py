@@ -16,6 +16,7 @@ from collections.abc import Callable, Iterator
 from contextlib import ExitStack, contextmanager
 from pathlib import Path
 
+from core.entry import TEMPORARY
 from core.errors import OutputError, write_failure
 
 #: ends the name of a file being written (``.beauty_0.exr.partial``)
@@ -96,6 +97,7 @@ def _lock(folder: Path, doing: str) -> int:
                              f"finish, or {doing} into another folder") from None
         try:
             if os.stat(path).st_ino == os.fstat(descriptor).st_ino:
+                TEMPORARY.add(str(path))  # a watchdog that ends the process removes it too
                 return descriptor
         except FileNotFoundError:
             pass
@@ -108,6 +110,7 @@ def _unlock(folder: Path, descriptor: int) -> None:
     try:
         (folder / LOCK_NAME).unlink(missing_ok=True)
     finally:
+        TEMPORARY.discard(str(folder / LOCK_NAME))
         os.close(descriptor)
 
 
