@@ -110,6 +110,7 @@ def speed_lines(results: dict) -> list[str]:
         parts = [f"{key} = {b['ratio']:.3f}x (bar {b['bar']}x: {'met' if b['met'] else 'not met'}{cpu_text(key)})"
                  for key, b in timing["bars"].items()]
         times = ", ".join(f"{m} {ms:.0f} ms" for m, ms in timing["ms"].items())
+        parts += [f"{key}: not checked" for key in timing.get("bars_not_checked", [])]
         lines.append(f"speed at {size} ({times})" + (": " + "; ".join(parts) if parts else ""))
     return lines
 

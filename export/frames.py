@@ -108,7 +108,10 @@ def read_matrices(path: Path) -> tuple[list[np.ndarray], np.ndarray, np.ndarray]
         raise FrameError(f"{path}: expected an int32 object count, found {len(data)} bytes")
     count = int(np.frombuffer(data[:4], "<i4")[0])
     expected = 4 + (count + 2) * 64
-    if count < 0 or len(data) != expected:
+    if count < 0 or expected > MAX_MATRIX_BYTES:  # not a count at all: text, or another file
+        raise FrameError(f"{path}: not a matrix file (its first 4 bytes give {count} objects; "
+                         f"a frame's matrix file holds an int32 count, then 4x4 float matrices)")
+    if len(data) != expected:
         raise FrameError(f"{path}: expected {expected} bytes for {count} objects, found {len(data)}")
     matrices = np.frombuffer(data[4:], "<f4").reshape(count + 2, 4, 4).astype(np.float64)
     if not np.all(np.isfinite(matrices)):

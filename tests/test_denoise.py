@@ -213,6 +213,10 @@ def test_frame_folder_round_trip(tmp_path):
     (tmp_path / "matrix_0.mat").write_bytes(b"\x02\x00\x00\x00")
     with pytest.raises(FrameError, match="expected 260 bytes for 2 objects"):
         read_frame(tmp_path, 0)
+    for damaged in (b"garbage!", b"\xff\xff\xff\xff" + bytes(64)):  # text; a count of -1
+        (tmp_path / "matrix_0.mat").write_bytes(damaged)
+        with pytest.raises(FrameError, match=r"matrix_0.mat: not a matrix file \(its first 4 bytes give -?\d+ objects"):
+            read_frame(tmp_path, 0)
 
 
 GAMES202_BOX = ROOT.parent / "shared" / "games202" / "box"
@@ -369,6 +373,10 @@ def test_denoise_command_and_benchmark_quick(variant_llvm_ad_rgb, tmp_path):
     assert set(timing["ms"]) == {"oidn-fast", "atrous+temporal"} and "ratio_to_oidn" not in timing
     speed = [line for line in finished.stdout.splitlines() if line.startswith("speed at 160x90 (")]
     assert len(speed) == 1 and "atrous+temporal / oidn-fast = " in speed[0], finished.stdout
+    # a bar whose base did not run is said to be unchecked, not passed over
+    finished = subprocess.run(command + ["--methods", "oidn-high", "svgf"], cwd=ROOT, capture_output=True,
+                              text=True, timeout=1800)
+    assert "svgf / oidn-fast (no oidn-fast in this run): not checked" in finished.stdout, finished.stdout
     front = subprocess.run([sys.executable, "-m", "benchmarks.denoise_front", "--json", str(out), "--out",
                             str(tmp_path / "front.png")], cwd=ROOT, capture_output=True, text=True, timeout=300)
     # four frames a sequence: no mean over frames >= 4, so no front (one line; the front's own test draws one)
