@@ -159,7 +159,7 @@ def damaged_pixels(path: Path, whole: bool, value: float = np.nan) -> None:
 
 @pytest.mark.parametrize("case, file, words", [
     ("truncated beauty", "tiny_showcase/beauty_1.exr", "not a readable EXR"),
-    ("garbage matrix", "tiny_showcase/matrix_2.mat", "expected"),
+    ("garbage matrix", "tiny_showcase/matrix_2.mat", "not a matrix file"),
     ("all-NaN truth", "tiny_showcase_reference/beauty_1.exr", "not finite"),
     ("NaN patch in the truth", "tiny_showcase_reference/beauty_2.exr", "100 pixels"),
     ("NaN patch in the beauty", "tiny_showcase/beauty_0.exr", "not finite"),
