@@ -125,21 +125,21 @@ def result_files(target: Path) -> dict[Path, tuple[int, int]]:
 
 
 def last_run_results(target: Path) -> dict[Path, tuple[int, int]]:
-    """The results that the last run into ``target`` recorded (:data:`RESULTS_RECORD`)
-    and that are still the files it wrote; none where there is no readable record."""
+    """The results that the last run into ``target`` recorded (:data:`RESULTS_RECORD`),
+    each with the :func:`identity` it had then; none where there is no readable record."""
     try:
         files = json.loads((target / RESULTS_RECORD).read_text())["files"]
-        recorded = {target / name: tuple(mark) for name, mark in files.items() if RESULT_NAME.fullmatch(name)}
+        return {target / name: tuple(mark) for name, mark in files.items() if RESULT_NAME.fullmatch(name)}
     except (OSError, ValueError, TypeError, KeyError, AttributeError):
         return {}
-    return {path: mark for path, mark in recorded.items() if identity(path) == mark}
 
 
 def finish_results(target: Path, source: Path, method: DenoisingMethod, last: dict, before: dict) -> int:
     """After a run that wrote results into ``target``: removes the last run's
-    results (``last``, :func:`last_run_results`) that this one did not replace,
-    and records this run's (the result files that are not as they were
-    ``before`` it). Returns how many were removed."""
+    results (``last``, :func:`last_run_results`) that are still the files it
+    wrote (neither replaced by this run nor by anyone since), and records
+    this run's (the result files that are not as they were ``before`` it).
+    Returns how many were removed."""
     removed = 0
     for path, mark in last.items():
         if identity(path) == mark:
