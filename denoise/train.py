@@ -7,7 +7,8 @@ The training sequences (default ``scenes/sequences/training/network/*.json``)
 are exported into ``--work`` once (a rerun renders nothing); a benchmark
 sequence or scene, or a sequence without ground truth, is refused in one
 line before any work. Each step prints the training loss and the held-out
-sequences' loss on stderr, and writes a checkpoint
+sequences' loss on stderr (each sequence's relMSE over asvgf's: 1 is asvgf,
+below 1 better), and writes a checkpoint
 (``WORK/OUT-NAME.checkpoint.npz``): Ctrl-C stops at once (exit 130) with
 the last step's checkpoint kept, and a rerun with the same settings resumes
 from it (``--restart`` starts over). After the last step the weights file
@@ -337,8 +338,9 @@ def plot_curve(path: Path, curve: list, title: str) -> None:
         kernel = np.ones(10) / 10
         axes.plot(steps[9:], np.convolve(loss, kernel, "valid"), lw=1.5, label="training, mean of 10 steps")
     axes.plot(steps, held, lw=1.5, label="held-out sequences (whole frames)")
+    axes.axhline(1.0, color="0.5", lw=0.8, ls="--", label="asvgf as fitted")
     axes.set_xlabel("step")
-    axes.set_ylabel("relMSE")
+    axes.set_ylabel("relMSE / asvgf's")
     axes.set_title(title, fontsize=9)
     axes.legend(fontsize=8)
     figure.tight_layout()

@@ -1,21 +1,23 @@
 """Training ``learned-asvgf``'s network end to end through asvgf's temporal and spatial pipeline.
 
 The data: sequences the project renders itself (``python -m export``), by
-default ``scenes/sequences/training/network/*.json`` (15 sequences of 320×180,
+default ``scenes/sequences/training/network/*.json`` (18 sequences of 320×180,
 the benchmark's size, on the showcase and mirrors scenes and the course's
-bunny, which no benchmark sequence uses), each with an independently seeded
+arch and bunny, which no benchmark sequence uses), each with an independently seeded
 ground truth of 128 samples per pixel: an unbiased (Noise2Noise) target, its
 noise averaging out over pixels and steps.
 :func:`denoise.train.check_specs` refuses a sequence without ground truth and any benchmark
 sequence or scene (``scenes/sequences/*.json``). :data:`HELD_OUT` sequences
-are not trained on: their loss is reported at each step.
+are not trained on: their loss is reported at each step. The bunny's one
+sequence is among them, so one scene is one the network never sees.
 
 A step: :data:`BATCH` training sequences drawn at random, each cropped to
 :data:`CROP` at a random place, flipped at random in x and y and scaled by a
 random exposure; :func:`denoise.methods.learned_asvgf.learned_asvgf` runs over
 all of its frames in ``llvm_ad_rgb`` with the network's weights as Dr.Jit
 Floats with gradients, the history carried from frame to frame, and
-``dr.backward`` of the mean relMSE (every frame from :data:`LOSS_FROM` on, against its target) gives
+``dr.backward`` of the mean relMSE (every frame from :data:`LOSS_FROM` on, against its target), each
+sequence's divided by asvgf's on the same crop (:func:`base_loss`), gives
 the gradient through the filter of every frame and the slow histories fed
 back to the frames after. Adam (NumPy, :class:`Adam`) updates the weights.
 The draws come from ``numpy.random.default_rng((seed, step))``: a resumed run
@@ -49,7 +51,7 @@ TRAINING = sorted((ROOT / "scenes" / "sequences" / "training" / "network").glob(
 #: the benchmark's sequences: neither they nor their scenes may be trained on
 BENCHMARK = sorted((ROOT / "scenes" / "sequences").glob("*.json"))
 #: sequences whose loss is reported and never trained on
-HELD_OUT = ("mirrors_switch", "showcase_disocclusion")
+HELD_OUT = ("mirrors_switch", "showcase_disocclusion", "bunny_dolly")
 #: training sequences per step, and the size each is cropped to (one size: one set of kernels)
 BATCH, CROP = 4, (160, 90)
 #: the loss counts the frames from this one on: a first frame (no history anywhere) has errors
@@ -124,7 +126,6 @@ class Prepared:
     index: object
     valid: object
     albedo: object  # mi.TensorXf or None
-    albedo_luminance: object  # mi.Float or None
     target: mi.TensorXf
     levels: int  # the À-Trous levels of the whole frame's width, which a crop keeps
 
@@ -157,11 +158,8 @@ def augmented(frames: list[Frame], crop: tuple[int, int] | None, x0: int, y0: in
             mapped = where[np.maximum(previous, 0)]
             ok = (previous >= 0) & (mapped >= 0)
             index, valid = upload(np.where(ok, mapped, 0).astype(np.uint32), mi.UInt32), upload(ok, mi.Bool)
-        albedo = None if f.albedo is None else cut(f.albedo)
-        lum = None if albedo is None else upload(
-            (np.clip(albedo, 0.0, 1.0) @ np.array([0.2126, 0.7152, 0.0722], np.float32)).ravel(), mi.Float)
         out.append(Prepared(FrameArrays(tensor(f.color * exposure), tensor(f.normal), tensor(f.position)), index,
-                            valid, None if albedo is None else upload(albedo), lum, tensor(f.target * exposure),
+                            valid, None if f.albedo is None else tensor(f.albedo), tensor(f.target * exposure),
                             levels_for(width)))
     return out
 
@@ -248,7 +246,7 @@ def sequence_loss(frames: list[Prepared], network) -> object:
     history, total = None, 0.0
     for number, f in enumerate(frames):
         result, history = learned_asvgf(f.buffers, params, network, history if f.index is not None else None,
-                                        f.index, f.valid, f.albedo_luminance)
+                                        f.index, f.valid)
         if f.albedo is not None:
             result = remodulate(result, f.albedo)
         if number >= LOSS_FROM or len(frames) <= LOSS_FROM:
@@ -383,9 +381,11 @@ def train_step(adam: Adam, settings: Settings, train: list[list[Frame]], step: i
     rng = np.random.default_rng((settings.seed, step))
     chosen = rng.choice(len(train), size=min(BATCH, len(train)), replace=False)
     network = Recorder(adam.theta, settings.features, settings.hidden, gradients=True)
+    base = Recorder(asvgf_theta(adam.theta, settings), settings.features, settings.hidden, gradients=False)
     total = 0.0
     for i in chosen:
-        total = total + sequence_loss(augmented(train[i], **draw(rng, train[i])), network)
+        crop = augmented(train[i], **draw(rng, train[i]))
+        total = total + sequence_loss(crop, network) / base_loss(crop, base)
     loss = total / len(chosen)
     value = float(loss[0])
     if not math.isfinite(value):
@@ -399,12 +399,31 @@ def train_step(adam: Adam, settings: Settings, train: list[list[Frame]], step: i
     return value
 
 
+def asvgf_theta(theta: np.ndarray, settings: Settings) -> np.ndarray:
+    """``theta`` with the output layer at its start: the network that is asvgf as fitted."""
+    network = network_of(theta, settings.features, settings.hidden)
+    return flatten(replace(network, w2=np.zeros_like(network.w2), b2=np.array(START_BIAS, np.float32)))
+
+
+def base_loss(frames: list[Prepared], base: Recorder) -> float:
+    """asvgf's loss on ``frames`` (``base``: :func:`asvgf_theta`'s network), the denominator of the
+    training's loss: each sequence counts by how far it moves from asvgf, not by its own noise
+    (a scene whose loss is several times the others' would drive every step it is in)."""
+    value = float(sequence_loss(frames, base)[0])
+    if not math.isfinite(value) or value <= 0.0:
+        raise UsageError(f"asvgf's loss on a training crop is {value}: a target or frame that is not usable")
+    return value
+
+
 def held_out_loss(theta: np.ndarray, settings: Settings, held: list[list[Frame]]) -> float | None:
-    """Mean loss over the held-out sequences (None: none), whole frames, no augmentation, no gradients."""
+    """Mean over the held-out sequences (None: none) of the loss divided by asvgf's: whole frames,
+    no augmentation, no gradients; 1 is asvgf, below 1 better."""
     if not held:
         return None
     network = Recorder(theta, settings.features, settings.hidden, gradients=False)
-    losses = [float(sequence_loss(augmented(frames, None, 0, 0, False, False, 1.0), network)[0]) for frames in held]
+    base = Recorder(asvgf_theta(theta, settings), settings.features, settings.hidden, gradients=False)
+    whole = [augmented(frames, None, 0, 0, False, False, 1.0) for frames in held]
+    losses = [float(sequence_loss(frames, network)[0]) / base_loss(frames, base) for frames in whole]
     return sum(losses) / len(losses)
 
 

@@ -324,3 +324,19 @@ def test_the_loss_leaves_out_the_first_frame(variant_llvm_ad_rgb):
 
     assert loss(0) == loss()
     assert loss(1) > 1.5 * loss()
+
+
+def test_the_loss_is_relative_to_asvgf(variant_llvm_ad_rgb):
+    """The training and held-out losses are each sequence's loss over asvgf's: a network
+    whose output layer is 0 (asvgf as fitted) scores 1 on both, whatever its first layer;
+    moving the output layer moves them."""
+    from denoise.methods.learned_asvgf import FEATURES
+    from denoise.training import Adam, Settings, held_out_loss, initial, train_step
+
+    settings = Settings(FEATURES, 4, 0, 0.01, 1)
+    sequences = [synthetic_frames(3, 8, 16), synthetic_frames(3, 8, 24)]
+    theta = initial(FEATURES, 4, seed=5)
+    assert train_step(Adam(theta.copy(), 0.01), settings, sequences, 0) == pytest.approx(1.0, abs=1e-6)
+    assert held_out_loss(theta, settings, sequences) == pytest.approx(1.0, abs=1e-6)
+    theta[-3:] = 1.0  # the output biases: wider luminance σ, more of the wide level
+    assert abs(held_out_loss(theta, settings, sequences) - 1.0) > 1e-3

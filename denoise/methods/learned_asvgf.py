@@ -5,7 +5,7 @@ unchanged, with its fitted parameters). Then, per pixel, a small multilayer
 perceptron reads what that step knows (:data:`FEATURES`: the history length,
 the temporal gradient λ, whether the history was lost, how far the current
 frame and the fast history lie from the slow one, how much the slow history
-was clipped, the relative noise, the albedo) and gives three numbers
+was clipped, the relative noise) and gives three numbers
 (:data:`OUTPUTS`):
 
 - ``sigma_first``, ``sigma_coarse``: the luminance weight's σ of the first
@@ -53,11 +53,10 @@ from ..svgf_common import atrous_level, levels_for
 from .asvgf import PARAMETER_FILE, ASVGFHistory, ASVGFParams, FilterValues, fitted, temporal_accumulation, variance
 from .base import DenoisingMethod, Option
 
-#: the network's inputs, in order: a weights file names the ones it was trained on
 #: the largest magnitude of a weight a weights file (or a training's checkpoint) may hold
 WEIGHT_LIMIT = 1e6
-FEATURES = ("inverse_length", "gradient", "disoccluded", "current_change", "fast_slow", "slow_clip", "noise",
-            "albedo")
+#: the network's inputs, in order: a weights file names the ones it was trained on
+FEATURES = ("inverse_length", "gradient", "disoccluded", "current_change", "fast_slow", "slow_clip", "noise")
 #: the inputs that come from the history (the "no temporal inputs" ablation drops them)
 TEMPORAL_FEATURES = ("inverse_length", "gradient", "disoccluded", "current_change", "fast_slow", "slow_clip")
 #: the network's outputs, in order
@@ -190,7 +189,7 @@ def mlp(inputs: list, w1, b1, w2, b2) -> list:
 
 
 def features(frame: FrameArrays, statistics: dict, fast: mi.Vector3f, slow: mi.Vector3f, length: mi.Float,
-             var: mi.Float, albedo: mi.Float | None) -> dict[str, mi.Float]:
+             var: mi.Float) -> dict[str, mi.Float]:
     """Every input of :data:`FEATURES` per pixel (detached), from asvgf's temporal step."""
     def ratio(a, b):
         return dr.abs(a - b) / (dr.abs(a) + dr.abs(b) + FLOOR)
@@ -208,8 +207,7 @@ def features(frame: FrameArrays, statistics: dict, fast: mi.Vector3f, slow: mi.V
         gradient, clip, lost = dr.full(mi.Float, 1.0, dr.width(n)), dr.zeros(mi.Float, dr.width(n)), 1.0
     values = {"inverse_length": 1.0 / n, "gradient": gradient, "disoccluded": lost + dr.zeros(mi.Float, dr.width(n)),
               "current_change": ratio(y_c, y_s), "fast_slow": ratio(y_f, y_s), "slow_clip": clip,
-              "noise": log1p(dr.sqrt(dr.maximum(dr.detach(var), 0.0)) / (dr.abs(y_s) + FLOOR)),
-              "albedo": dr.full(mi.Float, 1.0, dr.width(n)) if albedo is None else albedo}
+              "noise": log1p(dr.sqrt(dr.maximum(dr.detach(var), 0.0)) / (dr.abs(y_s) + FLOOR))}
     return {k: dr.detach(v) for k, v in values.items()}
 
 
@@ -241,13 +239,13 @@ def constant_network(network: Network) -> Callable[[dict], list]:
 
 
 def learned_asvgf(frame: FrameArrays, p: ASVGFParams, network: Callable[[dict], list],
-                  history: ASVGFHistory | None = None, index: mi.UInt32 | None = None, valid: mi.Bool | None = None,
-                  albedo: mi.Float | None = None) -> tuple[mi.TensorXf, ASVGFHistory]:
+                  history: ASVGFHistory | None = None, index: mi.UInt32 | None = None,
+                  valid: mi.Bool | None = None) -> tuple[mi.TensorXf, ASVGFHistory]:
     """One frame (see the module): asvgf's temporal step, the network on its
     statistics, the À-Trous levels it steers. ``network`` maps the features
     (:func:`features`, by name) to the outputs (:data:`OUTPUTS`, per-pixel
     Floats): :func:`constant_network` when denoising, the trainer's own when
-    training; ``albedo`` is the albedo's luminance per pixel (None: 1).
+    training.
     Returns (the filtered colour, the history for the next frame)."""
     v = FilterValues.of(p)
     statistics = {}
@@ -255,7 +253,7 @@ def learned_asvgf(frame: FrameArrays, p: ASVGFParams, network: Callable[[dict], 
     dr.eval(fast, slow, moments, length)
     var = variance(frame, moments, length, p, v)
     dr.eval(var)
-    inputs = features(frame, statistics, fast, slow, length, var, albedo)
+    inputs = features(frame, statistics, fast, slow, length, var)
     o = network(inputs)
     sigma_first, sigma_coarse = p.sigma_luminance * scale(o[0]), p.sigma_luminance * scale(o[1])
     base = dr.clip((dr.detach(length) - 1.0) / p.wide_frames, BLEND_MARGIN, 1.0 - BLEND_MARGIN)
@@ -277,14 +275,6 @@ def learned_asvgf(frame: FrameArrays, p: ASVGFParams, network: Callable[[dict], 
     return frame.tensor(color), ASVGFHistory(fast, feedback, moments, length)
 
 
-def albedo_luminance(albedo: np.ndarray | None) -> mi.Float | None:
-    """The albedo's luminance per pixel, clipped to [0, 1], or None."""
-    if albedo is None:
-        return None
-    a = np.clip(np.asarray(albedo, np.float32).reshape(-1, 3), 0.0, 1.0)
-    return mi.Float(np.ascontiguousarray(0.2126 * a[:, 0] + 0.7152 * a[:, 1] + 0.0722 * a[:, 2]))
-
-
 def weights_option(default: Path) -> Option:
     return Option("network", str(default), "the weights file (JSON, written by python -m denoise.train)", kind=str,
                   group="learned-asvgf", default_text="denoise/learned_asvgf.json", metavar="FILE")
@@ -296,8 +286,8 @@ class LearnedASVGF(DenoisingMethod):
     that sets, from asvgf's temporal statistics, the luminance weight of the
     first and of the coarser À-Trous levels and the wide level's blend. asvgf's other
     parameters are its fitted ones. The presets are the benchmark's
-    ablations: ``no-temporal-inputs`` (the network trained on the noise and
-    albedo inputs alone) and ``half-hidden`` (half the hidden units).
+    ablations: ``no-temporal-inputs`` (the network trained on the noise
+    input alone) and ``half-hidden`` (half the hidden units).
     Temporal by nature; it always demodulates by the albedo when the frames have one.
     """
     name = "learned-asvgf"
@@ -315,7 +305,6 @@ class LearnedASVGF(DenoisingMethod):
         self.params = fitted()
 
     def filter(self, arrays, frame, index, valid):
-        albedo = albedo_luminance(frame.albedo) if self.demodulate else None
         result, self.history = learned_asvgf(arrays, self.params, constant_network(self.network),
-                                             self.history if index is not None else None, index, valid, albedo)
+                                             self.history if index is not None else None, index, valid)
         return result
