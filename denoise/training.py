@@ -61,6 +61,8 @@ LOSS_FROM = 1
 EXPOSURE = (0.5, 2.0)
 #: the output layer's biases at the start: asvgf as fitted
 START_BIAS = (0.0, 0.0, 0.0)
+#: the least denominator of the loss: a crop that asvgf gets exactly right (all black) counts 0, not NaN
+BASE_LOSS_FLOOR = 1e-12
 
 
 @dataclass
@@ -410,9 +412,9 @@ def base_loss(frames: list[Prepared], base: Recorder) -> float:
     training's loss: each sequence counts by how far it moves from asvgf, not by its own noise
     (a scene whose loss is several times the others' would drive every step it is in)."""
     value = float(sequence_loss(frames, base)[0])
-    if not math.isfinite(value) or value <= 0.0:
+    if not math.isfinite(value):
         raise UsageError(f"asvgf's loss on a training crop is {value}: a target or frame that is not usable")
-    return value
+    return max(value, BASE_LOSS_FLOOR)
 
 
 def held_out_loss(theta: np.ndarray, settings: Settings, held: list[list[Frame]]) -> float | None:

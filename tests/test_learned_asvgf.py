@@ -340,3 +340,18 @@ def test_the_loss_is_relative_to_asvgf(variant_llvm_ad_rgb):
     assert held_out_loss(theta, settings, sequences) == pytest.approx(1.0, abs=1e-6)
     theta[-3:] = 1.0  # the output biases: wider luminance σ, more of the wide level
     assert abs(held_out_loss(theta, settings, sequences) - 1.0) > 1e-3
+
+
+def test_a_black_sequence_trains(variant_llvm_ad_rgb):
+    """A crop that asvgf gets exactly right (black frames, black target) adds 0 to the
+    loss: its denominator is floored, the step is not stopped as diverging."""
+    from denoise.methods.learned_asvgf import FEATURES
+    from denoise.training import Adam, Settings, initial, train_step
+
+    black = synthetic_frames(3, 8, 16)
+    for frame in black:
+        frame.color[:] = 0.0
+        frame.target[:] = 0.0
+    adam = Adam(initial(FEATURES, 4, seed=0), 0.01)
+    assert train_step(adam, Settings(FEATURES, 4, 0, 0.01, 1), [black], 0) == 0.0
+    assert adam.t == 1
