@@ -55,7 +55,8 @@ from .methods import data_files
 from .methods.base import RADIANCE_LIMIT
 from .methods.learned_asvgf import ABLATIONS, WEIGHT_LIMIT, WEIGHTS_FILE
 from .pipeline import check_sequences_fit
-from .training import BENCHMARK, HELD_OUT, ROOT, TRAINING, Settings
+from .training import BENCHMARK, HELD_OUT, ROOT, TRAINING
+from .training_state import Settings, feature_set, load_checkpoint
 from .validate import cache_remedies, render
 from .worker_process import ignore_group_signals, run_in_worker
 
@@ -123,11 +124,11 @@ def _main(argv: list[str] | None) -> int:
     check_outside({"--out": args.out}, data_files(keep=(WEIGHTS_FILE, *ABLATIONS.values())))  # weights, no parameters
     check_writable("--out", args.out)
     check_writable("--plot", plot)
-    settings = Settings(training.feature_set(args.temporal_inputs), args.hidden, args.seed, args.rate, args.steps)
+    settings = Settings(feature_set(args.temporal_inputs), args.hidden, args.seed, args.rate, args.steps)
     checkpoint = args.work / f"{args.out.stem}.checkpoint.npz"
     if args.restart and checkpoint.is_file():
         checkpoint.unlink()
-    training.load_checkpoint(checkpoint, settings, names)  # a mismatched one is refused before rendering
+    load_checkpoint(checkpoint, settings, names, any(n in HELD_OUT for n in names))  # refused before rendering
 
     set_variant("llvm_ad_rgb", jit=True)
     check_work(loaded, args.work)

@@ -25,7 +25,6 @@ draws what an uninterrupted one would.
 """
 from __future__ import annotations
 
-import json
 import math
 import time
 from dataclasses import dataclass, replace
@@ -38,13 +37,14 @@ import numpy as np
 from core.errors import UsageError
 from export import reference_folder
 from export.frames import frame_indices, read_frame, same_size
-from imaging.image_io import atomic_path, read_exr_rgb
+from imaging.image_io import read_exr_rgb
 
 from .filters import FrameArrays, demodulate, remodulate, reproject
 from .methods import make
 from .methods.asvgf import fitted
-from .methods.learned_asvgf import FEATURES, OUTPUTS, TEMPORAL_FEATURES, WEIGHT_LIMIT, Network, learned_asvgf
+from .methods.learned_asvgf import OUTPUTS, Network, learned_asvgf
 from .svgf_common import levels_for
+from .training_state import Adam, Settings, load_checkpoint, save_checkpoint
 
 ROOT = Path(__file__).resolve().parent.parent
 TRAINING = sorted((ROOT / "scenes" / "sequences" / "training" / "network").glob("*.json"))
@@ -256,119 +256,6 @@ def sequence_loss(frames: list[Prepared], network) -> object:
     return total / max(len(frames) - LOSS_FROM, 1)
 
 
-class Adam:
-    """Adam on a NumPy parameter vector (its state is three arrays and a count: a checkpoint)."""
-
-    def __init__(self, theta: np.ndarray, rate: float, m=None, v=None, t: int = 0):
-        self.theta, self.rate, self.t = np.asarray(theta, np.float64), rate, t
-        self.m = np.zeros_like(self.theta) if m is None else np.asarray(m, np.float64)
-        self.v = np.zeros_like(self.theta) if v is None else np.asarray(v, np.float64)
-
-    def step(self, gradient: np.ndarray, beta1: float = 0.9, beta2: float = 0.999, epsilon: float = 1e-8) -> None:
-        self.t += 1
-        self.m = beta1 * self.m + (1 - beta1) * gradient
-        self.v = beta2 * self.v + (1 - beta2) * gradient * gradient
-        step = self.rate * (self.m / (1 - beta1 ** self.t)) / (np.sqrt(self.v / (1 - beta2 ** self.t)) + epsilon)
-        self.theta = self.theta - step
-
-
-@dataclass
-class Settings:
-    """What a run trains: its features, hidden units, seed, rate, steps (a checkpoint must match all but steps)."""
-    features: tuple[str, ...]
-    hidden: int
-    seed: int
-    rate: float
-    steps: int
-
-    def key(self) -> str:
-        return json.dumps({"features": list(self.features), "hidden": self.hidden, "seed": self.seed,
-                           "rate": self.rate})
-
-
-def feature_set(temporal_inputs: bool) -> tuple[str, ...]:
-    return FEATURES if temporal_inputs else tuple(f for f in FEATURES if f not in TEMPORAL_FEATURES)
-
-
-#: what a checkpoint holds (:func:`save_checkpoint`)
-CHECKPOINT_KEYS = ("settings", "sequences", "theta", "m", "v", "t", "curve", "seconds")
-
-
-def load_checkpoint(path: Path, settings: Settings, names: list[str]) -> dict | None:
-    """The checkpoint's state, or None where there is none; one that cannot
-    be read, holds values no run writes, or was made with other settings or
-    sequences is a one-line refusal naming it (``--restart`` starts over)."""
-    if not path.exists() and not path.is_symlink():
-        return None
-    if not path.is_file():
-        raise UsageError(f"{path}: not a file, where the training keeps its checkpoint; remove it, or give "
-                         f"--out another name (the checkpoint is named after it)")
-    try:
-        with open(path, "rb") as file:  # np.load leaves a file it opened open when it is no archive
-            data = np.load(file, allow_pickle=False)
-            if not hasattr(data, "files"):
-                raise ValueError("one array, not an archive of arrays")
-            state = {k: data[k] for k in data.files}
-    except Exception as error:  # noqa: BLE001  zero bytes (EOFError), a cut file (BadZipFile), not a .npz
-        reason = " ".join(str(error).split()) or type(error).__name__
-        raise UsageError(f"{path}: not a training checkpoint ({reason}); --restart starts over") from None
-    problem = checkpoint_problem(state, settings, names)
-    if problem is not None:
-        raise UsageError(f"{path}: {problem}; --restart starts over")
-    return state
-
-
-def checkpoint_problem(state: dict, settings: Settings, names: list[str]) -> str | None:
-    """What is wrong with a checkpoint's ``state`` (None: nothing): every key, type and
-    shape :func:`save_checkpoint` writes, finite values, a step count that is its curve's."""
-    missing = [k for k in CHECKPOINT_KEYS if k not in state]
-    if missing:
-        return f"not a training checkpoint (no {', '.join(missing)})"
-    if any(state[k].shape != () or state[k].dtype.kind != "U" for k in ("settings", "sequences")):
-        return "not a training checkpoint (its settings or sequences are not a text)"
-    try:
-        sequences = json.loads(str(state["sequences"]))
-    except ValueError:
-        sequences = None
-    if str(state["settings"]) != settings.key() or sequences != names:
-        return "a checkpoint of other settings or sequences"
-    f, h, o = len(settings.features), settings.hidden, len(OUTPUTS)
-    count = h * f + h + o * h + o
-    for k in ("theta", "m", "v"):
-        if state[k].dtype.kind != "f" or state[k].shape != (count,):
-            return f"{k} holds {state[k].dtype} of shape {state[k].shape}, not the {count} parameters' values"
-        if not np.isfinite(state[k]).all():
-            return f"{k} holds values that are not finite"
-    if (np.abs(state["theta"]) > WEIGHT_LIMIT).any():
-        return f"theta holds weights beyond {WEIGHT_LIMIT:g}, which no weights file may hold"
-    if (state["v"] < 0).any():
-        return "v (Adam's mean squared gradient) holds negative values"
-    t, curve, seconds = state["t"], state["curve"], state["seconds"]
-    if t.shape != () or t.dtype.kind not in "iu":
-        return f"t is {t.dtype} of shape {t.shape}, not a step count"
-    if curve.dtype.kind != "f" or curve.ndim != 2 or curve.shape[1] != 3:
-        return f"curve is {curve.dtype} of shape {curve.shape}, not rows of (step, loss, held-out loss)"
-    if int(t) != len(curve):
-        return f"t is {int(t)}, but its curve holds {len(curve)} steps"
-    if not np.array_equal(curve[:, 0], np.arange(len(curve))):
-        return f"its curve's steps are not 0 to {len(curve) - 1} in order"
-    losses = curve[:, 1:] if any(n in HELD_OUT for n in names) else curve[:, 1:2]  # else held out: NaN
-    if not (np.isfinite(losses).all() and (losses >= 0).all()):
-        return "its curve holds a loss that is not finite or is negative"
-    if seconds.shape != () or seconds.dtype.kind != "f" or not 0 <= float(seconds) < math.inf:
-        return f"seconds is {seconds!r}, not a finite time"
-    return None
-
-
-def save_checkpoint(path: Path, settings: Settings, names: list[str], adam: Adam, curve: list, seconds: float) -> None:
-    # a step without held-out sequences is stored with a NaN held-out loss
-    rows = np.array([(s, a, np.nan if b is None else b) for s, a, b in curve], np.float64).reshape(-1, 3)
-    with atomic_path(path, ".npz") as temporary:
-        with open(temporary, "wb") as file:
-            np.savez(file, settings=settings.key(), sequences=json.dumps(names), theta=adam.theta, m=adam.m,
-                     v=adam.v, t=adam.t, curve=rows, seconds=seconds)
-
-
 def draw(rng: np.random.Generator, frames: list[Frame]) -> dict:
     height, width = frames[0].color.shape[:2]
     w, h = min(CROP[0], width), min(CROP[1], height)
@@ -439,7 +326,7 @@ def train(folders: list[Path], settings: Settings, checkpoint: Path, report) -> 
     data = {f.name: load_sequence(f) for f in folders}
     train_set = [data[n] for n in names if n not in HELD_OUT]
     held = [data[n] for n in names if n in HELD_OUT]
-    state = load_checkpoint(checkpoint, settings, names)
+    state = load_checkpoint(checkpoint, settings, names, any(n in HELD_OUT for n in names))
     if state is None:
         adam, curve, seconds = Adam(initial(settings.features, settings.hidden, settings.seed), settings.rate), [], 0.0
     else:

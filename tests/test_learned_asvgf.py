@@ -210,7 +210,8 @@ def test_a_checkpoint_with_nan_weights_is_refused_and_writes_nothing(tiny, tmp_p
     work) is refused before the worker starts: one line, exit 2, the weights
     file as it was."""
     from denoise.train import main
-    from denoise.training import Adam, Settings, feature_set, initial, save_checkpoint
+    from denoise.training import initial
+    from denoise.training_state import Adam, Settings, feature_set, save_checkpoint
 
     spec, work = tiny
     out = tmp_path / "w.json"

@@ -66,7 +66,8 @@ def refused(capfd, argv: list[str], *words: str) -> str:
 
 
 def checkpoint_of(work: Path) -> Path:
-    from denoise.training import Adam, Settings, feature_set, initial, save_checkpoint
+    from denoise.training import initial
+    from denoise.training_state import Adam, Settings, feature_set, save_checkpoint
 
     settings = Settings(feature_set(True), 4, 0, 0.01, 2)
     adam = Adam(initial(settings.features, 4, 0), 0.01)
@@ -257,7 +258,7 @@ def test_an_error_in_the_worker_is_sent_as_one_line(setup):
     import signal
 
     from denoise.train import train_worker
-    from denoise.training import Settings, feature_set
+    from denoise.training_state import Settings, feature_set
 
     spec, work, out = setup
     beauty = work / NAME / "beauty_1.exr"
