@@ -208,7 +208,8 @@ def _main(argv: list[str] | None) -> int:
             panels.append(row)
 
     report = denoise_folder(args.source, args.target, method, on_frame,  # demodulation asked by flag or demod+
-                            require_albedo=bool(method.props["demodulate"]))
+                            require_albedo=bool(method.props["demodulate"]),
+                            suffixes=(".exr", ".png") if args.png else (".exr",))
     if args.video is not None:
         write_video(args.video, [side_by_side(row) for row in panels], fps=args.fps)
     extra = (" with PNG previews" if args.png else "") + (f", video {printable(args.video)}" if args.video else "")

@@ -20,7 +20,7 @@ from export.files import locked
 from export.frames import frame_indices, missing_between, missing_files, read_frame
 from export.ground_truth import check_export_finished
 from export.store import write_record
-from imaging.image_io import exr_size, write_exr
+from imaging.image_io import check_writable, exr_size, write_exr
 from renderer.checks import check_memory
 
 from .methods.base import DenoisingMethod
@@ -155,8 +155,16 @@ def finish_results(target: Path, source: Path, method: DenoisingMethod, last: di
     return removed
 
 
+def check_results_writable(target: Path, indices: list[int], suffixes: tuple[str, ...]) -> None:
+    """Every result ``target/result_i<suffix>`` of the frames ``indices`` can be written: a folder
+    or a read-only file in the place of one is refused before the first frame, not at its own."""
+    for index in indices:
+        for suffix in suffixes:
+            check_writable("OUT_DIR", target / f"result_{index}{suffix}")
+
+
 def denoise_folder(source: Path, target: Path, method: DenoisingMethod, on_frame=None,
-                   require_albedo: bool = False) -> FolderReport:
+                   require_albedo: bool = False, suffixes: tuple[str, ...] = (".exr",)) -> FolderReport:
     """Denoises every frame of ``source`` with ``method`` (a fresh one: it keeps
     its history) into ``target/result_i.exr``; ``on_frame(index, frame,
     result)`` is called after each (previews). The folder's files are checked
@@ -167,20 +175,29 @@ def denoise_folder(source: Path, target: Path, method: DenoisingMethod, on_frame
     removed, and this run's recorded: the folder never holds two runs'
     results, and no file the runs did not write is removed. ``target`` is
     locked meanwhile (a second run into it is refused). The progress bar is
-    shown only when stderr is a terminal."""
+    shown only when stderr is a terminal. ``suffixes``: the results written
+    for each frame (``on_frame`` writes those besides ``.exr``), checked
+    writable before the first frame."""
     indices = check_folder(source, require_albedo)
     check_frames_fit(source / f"beauty_{indices[0]}.exr")
+    check_results_writable(target, indices, suffixes)
     report = FolderReport()
-    with locked([target], doing="denoise"):
-        last, before = last_run_results(target), result_files(target)
-        try:
-            run_frames(source, target, method, indices, report, on_frame)
-        except BaseException:
-            if report.written:  # the error is what the user needs to read: a failed clean-up is not
-                with suppress(OutputError):
-                    finish_results(target, source, method, last, before)
-            raise
-        report.removed = finish_results(target, source, method, last, before)
+    made = not target.exists() and not target.is_symlink()
+    try:
+        with locked([target], doing="denoise"):
+            last, before = last_run_results(target), result_files(target)
+            try:
+                run_frames(source, target, method, indices, report, on_frame)
+            except BaseException:
+                if report.written:  # the error is what the user needs to read: a failed clean-up is not
+                    with suppress(OutputError):
+                        finish_results(target, source, method, last, before)
+                raise
+            report.removed = finish_results(target, source, method, last, before)
+    finally:
+        if made and not report.written:  # a run stopped before its first result leaves no empty OUT_DIR
+            with suppress(OSError):
+                target.rmdir()  # only an empty folder goes
     return report
 
 

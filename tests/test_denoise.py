@@ -677,3 +677,41 @@ def test_a_second_run_into_a_busy_out_dir_is_refused(variant_llvm_ad_rgb, export
     assert capsys.readouterr().err == (f"python -m denoise: error: {out}: another denoise is writing into this "
                                        "folder; wait for it to finish, or denoise into another folder\n")
     assert not list(out.glob("result_*"))
+
+
+@pytest.mark.parametrize("place", ["folder as the last frame's EXR", "folder as the last frame's PNG",
+                                   "read-only last EXR"])
+def test_a_result_that_cannot_be_written_is_found_before_the_first_frame(variant_llvm_ad_rgb, exported,
+                                                                         tmp_path, capsys, place):
+    """A folder (or a read-only file) where the last frame's result goes is one line
+    before any frame is denoised, not an error after all the frames before it."""
+    from denoise.__main__ import main as denoise
+    from export.frames import frame_indices
+
+    out, last = tmp_path / "out", frame_indices(exported)[-1]
+    out.mkdir()
+    blocked = out / f"result_{last}.{'png' if 'PNG' in place else 'exr'}"
+    if place.startswith("folder"):
+        blocked.mkdir()
+    else:
+        blocked.write_text("mine")
+        blocked.chmod(0o444)
+    assert denoise([str(exported), str(out), "--png"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"OUT_DIR {blocked}: " in err, err
+    assert not [p for p in out.iterdir() if p != blocked]
+
+
+def test_a_run_stopped_before_its_first_result_leaves_no_out_dir(variant_llvm_ad_rgb, exported, tmp_path, capsys):
+    """An OUT_DIR the run made goes again when the run ends before its first result
+    (here the first frame turns out damaged); one that was there stays."""
+    from denoise.__main__ import main as denoise
+
+    (exported / "beauty_0.exr").write_bytes(b"not an EXR")
+    out = tmp_path / "new" / "out"
+    assert denoise([str(exported), str(out)]) == 2
+    assert capsys.readouterr().err.count("\n") == 1
+    assert not out.exists()
+    out.mkdir()
+    assert denoise([str(exported), str(out)]) == 2
+    assert out.is_dir() and not list(out.iterdir())

@@ -144,6 +144,8 @@ def test_a_signal_during_a_commands_start_up_stops_it(tmp_path, long_denoise_inp
     assert result.seconds <= STOP_SECONDS
     assert len(result.stderr.strip().splitlines()) <= 1 and "Traceback" not in result.stderr, result.stderr
     assert result.left == []
+    out = tmp_path / "out"  # python -m denoise leaves its results, or no OUT_DIR, never an empty one
+    assert not out.exists() or any(out.glob("result_*.exr")), sorted(out.iterdir())
 
 
 #: commands that print, then end: a signal right after their output lands in the interpreter's teardown
