@@ -182,7 +182,7 @@ def denoise_folder(source: Path, target: Path, method: DenoisingMethod, on_frame
     check_frames_fit(source / f"beauty_{indices[0]}.exr")
     check_results_writable(target, indices, suffixes)
     report = FolderReport()
-    made = not target.exists() and not target.is_symlink()
+    made = missing_folders(target)
     try:
         with locked([target], doing="denoise"):
             last, before = last_run_results(target), result_files(target)
@@ -195,10 +195,20 @@ def denoise_folder(source: Path, target: Path, method: DenoisingMethod, on_frame
                 raise
             report.removed = finish_results(target, source, method, last, before)
     finally:
-        if made and not report.written:  # a run stopped before its first result leaves no empty OUT_DIR
-            with suppress(OSError):
-                target.rmdir()  # only an empty folder goes
+        if not report.written:  # a run stopped before its first result leaves no empty OUT_DIR
+            for folder in made:
+                with suppress(OSError):
+                    folder.rmdir()  # only an empty folder goes
     return report
+
+
+def missing_folders(target: Path) -> list[Path]:
+    """``target`` and those of its parents that do not exist yet (a run makes them), deepest first."""
+    missing, folder = [], Path(target).absolute()
+    while not folder.exists() and not folder.is_symlink() and folder != folder.parent:
+        missing.append(folder)
+        folder = folder.parent
+    return missing
 
 
 def run_frames(source: Path, target: Path, method: DenoisingMethod, indices: list[int], report: FolderReport,

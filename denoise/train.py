@@ -56,7 +56,7 @@ from .methods.base import RADIANCE_LIMIT
 from .methods.learned_asvgf import ABLATIONS, WEIGHT_LIMIT, WEIGHTS_FILE
 from .pipeline import check_sequences_fit
 from .training import BENCHMARK, HELD_OUT, ROOT, TRAINING
-from .training_state import Settings, feature_set, load_checkpoint
+from .training_state import Settings, check_checkpoint_place, feature_set, load_checkpoint
 from .validate import cache_remedies, render
 from .worker_process import ignore_group_signals, run_in_worker
 
@@ -75,10 +75,11 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--rate", type=ascii_float, default=RATE, help=f"Adam's learning rate ({RATE})")
     parser.add_argument("--hidden", type=ascii_int, default=12, help="hidden units (12)")
     parser.add_argument("--no-temporal-inputs", dest="temporal_inputs", action="store_false",
-                        help="the ablation: the network reads the noise and albedo alone")
+                        help="the ablation: the network reads the noise alone")
     parser.add_argument("--seed", type=ascii_int, default=0, help="the first layer's draw and every step's (0)")
     parser.add_argument("--out", type=Path, default=WEIGHTS_FILE, help="the weights file (denoise/learned_asvgf.json)")
-    parser.add_argument("--plot", type=Path, help="the loss curves' PNG (default: docs/OUT-NAME_loss.png)")
+    parser.add_argument("--plot", type=Path, help="the loss curves' PNG (default: docs/OUT-NAME_loss.png for "
+                        "the committed weights files, else OUT-NAME_loss.png beside --out)")
     parser.add_argument("--restart", action="store_true", help="start over instead of resuming the checkpoint")
     parser.add_argument("--quiet", action="store_true", help="print nothing but errors")
     return parser
@@ -86,6 +87,17 @@ def _parser() -> argparse.ArgumentParser:
 
 #: the largest --seed (a 32-bit word: every generator and record takes it)
 SEED_MAX = 2 ** 32 - 1
+#: what a damaged frame's message advises (--restart starts the steps over, it renders nothing)
+RERENDER = "remove that file and run again: the training renders it anew"
+
+
+def default_plot(out: Path) -> Path:
+    """The loss curves' PNG without --plot: docs/OUT-NAME_loss.png for a committed weights
+    file (its page shows it), else OUT-NAME_loss.png beside ``out`` (a scratch run writes
+    nothing into the repository)."""
+    committed = {p.resolve() for p in (WEIGHTS_FILE, *ABLATIONS.values())}
+    folder = DOCS if out.resolve() in committed else out.parent
+    return folder / f"{out.stem}_loss.png"
 
 
 def _main(argv: list[str] | None) -> int:
@@ -102,7 +114,7 @@ def _main(argv: list[str] | None) -> int:
         raise UsageError(f"--plot writes PNG: name it .png, got {printable(args.plot)}")
     if args.out.suffix.lower() != ".json":
         raise UsageError(f"--out {args.out}: the weights file is JSON; give a name ending in .json")
-    plot = args.plot if args.plot is not None else DOCS / f"{args.out.stem}_loss.png"
+    plot = args.plot if args.plot is not None else default_plot(args.out)
     specs = args.specs or TRAINING
     if not specs:
         raise UsageError("no training sequences (scenes/sequences/training/network/*.json is empty)")
@@ -113,7 +125,9 @@ def _main(argv: list[str] | None) -> int:
     check_frames_fit(loaded)
     names = [path.stem for path, _ in loaded]
     if len(set(names)) != len(names):
-        raise UsageError("two training sequences of one name: they would share a folder in --work")
+        twice = sorted({str(p) for p, _ in loaded if names.count(p.stem) > 1})
+        raise UsageError(f"two training sequences of one name ({', '.join(twice)}): they would share a "
+                         f"folder in --work")
     if not [n for n in names if n not in HELD_OUT]:
         raise UsageError(f"every sequence given is held out ({', '.join(HELD_OUT)}): nothing to train on")
     for path, _ in loaded:  # nor into a sequence's frames or its ground truth
@@ -126,9 +140,12 @@ def _main(argv: list[str] | None) -> int:
     check_writable("--plot", plot)
     settings = Settings(feature_set(args.temporal_inputs), args.hidden, args.seed, args.rate, args.steps)
     checkpoint = args.work / f"{args.out.stem}.checkpoint.npz"
-    if args.restart and checkpoint.is_file():
-        checkpoint.unlink()
-    load_checkpoint(checkpoint, settings, names, any(n in HELD_OUT for n in names))  # refused before rendering
+    check_checkpoint_place(checkpoint)
+    if not args.restart:  # a mismatched one is refused before rendering; --restart overwrites it at the first step
+        state = load_checkpoint(checkpoint, settings, names, any(n in HELD_OUT for n in names))
+        if state is not None and int(state["t"]) > args.steps:
+            raise UsageError(f"{checkpoint}: the checkpoint holds {int(state['t'])} steps, more than --steps "
+                             f"{args.steps}; give --steps {int(state['t'])} or more, or --restart")
 
     set_variant("llvm_ad_rgb", jit=True)
     check_work(loaded, args.work)
@@ -140,7 +157,7 @@ def _main(argv: list[str] | None) -> int:
     for (_, spec), folder in zip(loaded, folders):
         render(spec, folder)
         check_frames(folder, [i for i in frame_indices(folder) if i not in checked[folder]])
-    theta, curve, seconds = train_interruptibly(folders, settings, checkpoint, args.quiet)
+    theta, curve, seconds = train_interruptibly(folders, settings, checkpoint, args.quiet, args.restart)
     given = argv if argv is not None else sys.argv[1:]
     command = "python -m denoise.train " + " ".join(shlex.quote(a) for a in given)
     record = {"command": command.strip(), "training": [display_path(p) for p, _ in loaded
@@ -212,6 +229,10 @@ def check_specs(paths: list[Path]) -> list[tuple[Path, Spec]]:
         if spec.reference_spp < 2:
             raise UsageError(f"{path}: no ground truth (reference_spp {spec.reference_spp}); training needs "
                              f"a target per frame")
+        if spec.frames <= training.LOSS_FROM:
+            raise UsageError(f"{path}: {spec.frames} frame(s); the loss counts frames {training.LOSS_FROM} on "
+                             f"(the first has no history), so a training sequence needs {training.LOSS_FROM + 1} "
+                             f"or more")
         loaded.append((Path(path), spec))
     return loaded
 
@@ -240,7 +261,10 @@ def check_frames(folder: Path, indices: list[int]) -> None:
     size or a value that is not finite is one line naming the file."""
     shape = None
     for i in indices:
-        frame = read_frame(folder, i)
+        try:
+            frame = read_frame(folder, i)
+        except FrameError as error:
+            raise FrameError(f"{error}; {RERENDER}") from None
         truth_path = reference_folder(folder) / f"beauty_{i}.exr"
         if truth_path.exists() and not truth_path.is_file():
             raise FrameError(f"{truth_path}: not a regular file, where frame {i}'s ground truth belongs")
@@ -249,7 +273,8 @@ def check_frames(folder: Path, indices: list[int]) -> None:
         try:
             truth = read_exr_rgb(truth_path)
         except (OSError, RuntimeError, ValueError, KeyError) as error:
-            raise FrameError(f"{truth_path}: not a readable EXR ({' '.join(str(error).split())})") from None
+            raise FrameError(f"{truth_path}: not a readable EXR ({' '.join(str(error).split())}); "
+                             f"{RERENDER}") from None
         same_size(folder / f"beauty_{i}.exr", frame.beauty.shape, truth_path, truth.shape)
         shape = shape or (folder / f"beauty_{i}.exr", frame.beauty.shape)
         same_size(folder / f"beauty_{i}.exr", frame.beauty.shape, *shape)
@@ -266,7 +291,7 @@ def check_frames(folder: Path, indices: list[int]) -> None:
                                  f"radiance or one beyond {RADIANCE_LIMIT:g}; not a render's")
 
 
-def train_worker(connection, folders: list[Path], settings: Settings, checkpoint: Path) -> None:
+def train_worker(connection, folders: list[Path], settings: Settings, checkpoint: Path, restart: bool) -> None:
     """The steps in a worker process, started with GROUP_SIGNALS blocked and
     then ignoring them: the parent alone answers a terminal's signals and
     ends this process. Sends ("step", step, loss, held-out loss, seconds) per
@@ -275,7 +300,7 @@ def train_worker(connection, folders: list[Path], settings: Settings, checkpoint
     set_variant("llvm_ad_rgb", quiet=True)
     try:
         connection.send(("done", *training.train(folders, settings, checkpoint,
-                                                 lambda *report: connection.send(("step", *report)))))
+                                                 lambda *report: connection.send(("step", *report)), restart)))
     except Exception as error:  # noqa: BLE001  one line in the parent, never the worker's traceback
         connection.send(("error", worker_error(error)))
 
@@ -292,7 +317,7 @@ def worker_error(error: Exception) -> str:
     return f"the training's worker process failed ({type(error).__name__}: {one_line(error)})"
 
 
-def train_interruptibly(folders: list[Path], settings: Settings, checkpoint: Path, quiet: bool):
+def train_interruptibly(folders: list[Path], settings: Settings, checkpoint: Path, quiet: bool, restart: bool):
     """:func:`denoise.training.train` in a worker this process waits for
     (:func:`denoise.worker_process.run_in_worker`), printing its steps."""
     started = time.monotonic()
@@ -304,7 +329,7 @@ def train_interruptibly(folders: list[Path], settings: Settings, checkpoint: Pat
             print(f"step {step + 1}/{settings.steps}: loss {loss:.6f}  held-out {held}  "
                   f"({seconds:.1f} s in all, {time.monotonic() - started:.0f} s this run)", file=sys.stderr, flush=True)
 
-    return run_in_worker(train_worker, (folders, settings, checkpoint), "the training", report)
+    return run_in_worker(train_worker, (folders, settings, checkpoint, restart), "the training", report)
 
 
 def machine() -> str:

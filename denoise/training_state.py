@@ -59,16 +59,21 @@ def feature_set(temporal_inputs: bool) -> tuple[str, ...]:
 CHECKPOINT_KEYS = ("settings", "sequences", "theta", "m", "v", "t", "curve", "seconds")
 
 
+def check_checkpoint_place(path: Path) -> None:
+    """Where the checkpoint goes holds no checkpoint, or a file (a folder there is refused in one line)."""
+    if (path.exists() or path.is_symlink()) and not path.is_file():
+        raise UsageError(f"{path}: not a file, where the training keeps its checkpoint; remove it, or give "
+                         f"--out another name (the checkpoint is named after it)")
+
+
 def load_checkpoint(path: Path, settings: Settings, names: list[str], held_out: bool) -> dict | None:
     """The checkpoint's state, or None where there is none; one that cannot
     be read, holds values no run writes, or was made with other settings or
     sequences is a one-line refusal naming it (``--restart`` starts over).
     ``held_out``: whether some of ``names`` are held out (else the curve's held-out losses are NaN)."""
+    check_checkpoint_place(path)
     if not path.exists() and not path.is_symlink():
         return None
-    if not path.is_file():
-        raise UsageError(f"{path}: not a file, where the training keeps its checkpoint; remove it, or give "
-                         f"--out another name (the checkpoint is named after it)")
     try:
         with open(path, "rb") as file:  # np.load leaves a file it opened open when it is no archive
             data = np.load(file, allow_pickle=False)
@@ -77,6 +82,8 @@ def load_checkpoint(path: Path, settings: Settings, names: list[str], held_out: 
             state = {k: data[k] for k in data.files}
     except Exception as error:  # noqa: BLE001  zero bytes (EOFError), a cut file (BadZipFile), not a .npz
         reason = " ".join(str(error).split()) or type(error).__name__
+        if "pickle" in reason:  # NumPy's own advice is to load it unsafely: a checkpoint never holds objects
+            reason = "it holds Python objects, where a checkpoint holds arrays"
         raise UsageError(f"{path}: not a training checkpoint ({reason}); --restart starts over") from None
     problem = checkpoint_problem(state, settings, names, held_out)
     if problem is not None:

@@ -190,7 +190,8 @@ def _main(argv: list[str] | None) -> int:
     for spec in specs:
         folder = args.work / spec.stem
         render(loaded[spec], folder)
-        print(f"{printable(spec.stem)}: judging {len(runners)} methods", file=sys.stderr, flush=True)
+        print(f"{printable(spec.stem)}: judging {len(runners)} method{'' if len(runners) == 1 else 's'}",
+              file=sys.stderr, flush=True)
         results[spec.stem] = judge(folder, runners)
     print(f"mean relMSE over frames >= {QUALITY_FROM} against a {args.reference_spp}-spp truth (ratio to asvgf's):")
     print("\n".join(table(results)))

@@ -711,7 +711,7 @@ def test_a_run_stopped_before_its_first_result_leaves_no_out_dir(variant_llvm_ad
     out = tmp_path / "new" / "out"
     assert denoise([str(exported), str(out)]) == 2
     assert capsys.readouterr().err.count("\n") == 1
-    assert not out.exists()
-    out.mkdir()
+    assert not out.exists() and not out.parent.exists()  # nor the parent the run made for it
+    out.mkdir(parents=True)
     assert denoise([str(exported), str(out)]) == 2
     assert out.is_dir() and not list(out.iterdir())

@@ -270,8 +270,8 @@ def test_an_error_in_the_worker_is_sent_as_one_line(setup):
 
     handlers = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)}
     try:
-        train_worker(Connection(), [work / NAME], Settings(feature_set(True), 4, 0, 0.01, 2), work / "w.npz")
-        train_worker(Connection(), [], None, work / "w.npz")  # a bug: no settings
+        train_worker(Connection(), [work / NAME], Settings(feature_set(True), 4, 0, 0.01, 2), work / "w.npz", False)
+        train_worker(Connection(), [], None, work / "w.npz", False)  # a bug: no settings
     finally:
         for signum, handler in handlers.items():
             signal.signal(signum, handler)
@@ -292,3 +292,61 @@ def test_frames_too_many_to_hold_are_refused_before_any_render(tmp_path, capfd):
             f"16384x16384, {spec}) needs about", "GiB is available; train on smaller frames")
     assert not (tmp_path / "work").exists()
     check_frames_fit(check_specs(TRAINING), memory=4 << 30)
+
+
+def test_restart_leaves_the_checkpoint_while_the_run_is_refused(setup, capfd):
+    """--restart replaces the checkpoint at the first step, not before: a run refused
+    before it (a damaged frame) leaves it as it was, and says how to render the frame anew."""
+    spec, work, out = setup
+    path = checkpoint_of(work)
+    before = path.read_bytes()
+    beauty = work / NAME / "beauty_1.exr"
+    beauty.write_bytes(beauty.read_bytes()[:200])
+    refused(capfd, train(spec, work, out, "--restart"), str(beauty), "not a readable EXR", "renders it anew")
+    assert path.read_bytes() == before and out.read_text() == "before\n"
+
+
+def test_a_checkpoint_beyond_the_steps_asked_is_refused(setup, capfd):
+    """A checkpoint of more steps than --steps is one line naming it: its weights are not what was asked."""
+    spec, work, out = setup
+    path = checkpoint_of(work)
+    with np.load(path) as data:
+        state = {k: data[k] for k in data.files}
+    state.update(t=np.array(2), curve=np.array([[0, 0.02, np.nan], [1, 0.019, np.nan]]))
+    with open(path, "wb") as file:
+        np.savez(file, **state)
+    argv = [str(spec), "--work", str(work), "--out", str(out), "--plot", str(out.with_suffix(".png")),
+            "--hidden", "4", "--rate", "0.01", "--steps", "1"]
+    refused(capfd, argv, str(path), "holds 2 steps, more than --steps 1", "--restart")
+    assert out.read_text() == "before\n"
+
+
+def test_a_pickled_checkpoint_is_refused_without_numpys_advice(setup, capfd):
+    """A checkpoint that holds Python objects: one line, never NumPy's advice to load it unsafely."""
+    spec, work, out = setup
+    path = work / "w.checkpoint.npz"
+    np.save(path.with_suffix(".tmp.npy"), np.array([{"a": 1}], dtype=object), allow_pickle=True)
+    path.with_suffix(".tmp.npy").rename(path)
+    err = refused(capfd, train(spec, work, out), str(path), "Python objects", "--restart")
+    assert "allow_pickle" not in err
+
+
+def test_a_one_frame_training_sequence_is_refused(tmp_path, capfd):
+    """The loss leaves frame 0 out: a sequence of one frame has nothing to train on."""
+    spec = tmp_path / "one.json"
+    spec.write_text(json.dumps({**TINY, "frames": 1}))
+    refused(capfd, [str(spec), "--work", str(tmp_path / "work"), "--out", str(tmp_path / "w.json")],
+            str(spec), "1 frame(s)", "2 or more")
+    assert not (tmp_path / "work").exists() and not (tmp_path / "w_loss.png").exists()
+
+
+@pytest.mark.parametrize("out, plot", [("scratch/w.json", "scratch/w_loss.png"),
+                                       ("denoise/learned_asvgf.json", "docs/learned_asvgf_loss.png"),
+                                       ("denoise/learned_asvgf_half_hidden.json",
+                                        "docs/learned_asvgf_half_hidden_loss.png")])
+def test_the_plot_goes_to_docs_only_for_a_committed_weights_file(tmp_path, out, plot):
+    """Without --plot, a scratch run's curves go beside its --out, never into the repository."""
+    from denoise.train import ROOT, default_plot
+
+    base = ROOT if out.startswith("denoise/") else tmp_path
+    assert default_plot(base / out) == (ROOT if plot.startswith("docs/") else tmp_path) / plot

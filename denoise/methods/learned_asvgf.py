@@ -161,7 +161,7 @@ def load_network(path: Path) -> Network:
             array = None
         if array is None or array.shape != shape:
             found = "missing" if data.get(key) is None else (
-                "not a numeric array" if array is None else f"shape {array.shape}")
+                "not a numeric array" if array is None else f"it has shape {array.shape}")
             raise bad_weights(path, f"{key} must have shape {shape} for {len(features)} features and {hidden} hidden "
                               f"units, {found}")
         if not np.all(np.isfinite(array)) or np.any(np.abs(array) > WEIGHT_LIMIT):
