@@ -87,8 +87,6 @@ def _parser() -> argparse.ArgumentParser:
 
 #: the largest --seed (a 32-bit word: every generator and record takes it)
 SEED_MAX = 2 ** 32 - 1
-#: what a damaged frame's message advises (--restart starts the steps over, it renders nothing)
-RERENDER = "remove that file and run again: the training renders it anew"
 
 
 def default_plot(out: Path) -> Path:
@@ -255,6 +253,11 @@ def check_work(loaded: list[tuple[Path, Spec]], work: Path) -> None:
                 check_folder(sequence)
 
 
+def rerender(folder: Path) -> str:
+    """What a damaged frame's message advises (--restart starts the steps over, it renders nothing)."""
+    return f"remove {folder} and {reference_folder(folder)} and run again: the training renders the sequence anew"
+
+
 def check_frames(folder: Path, indices: list[int]) -> None:
     """Frames ``indices`` of an exported ``folder`` and their ground truth, read
     as the training reads them: a damaged file, a missing target, another
@@ -264,7 +267,7 @@ def check_frames(folder: Path, indices: list[int]) -> None:
         try:
             frame = read_frame(folder, i)
         except FrameError as error:
-            raise FrameError(f"{error}; {RERENDER}") from None
+            raise FrameError(f"{error}; {rerender(folder)}") from None
         truth_path = reference_folder(folder) / f"beauty_{i}.exr"
         if truth_path.exists() and not truth_path.is_file():
             raise FrameError(f"{truth_path}: not a regular file, where frame {i}'s ground truth belongs")
@@ -274,7 +277,7 @@ def check_frames(folder: Path, indices: list[int]) -> None:
             truth = read_exr_rgb(truth_path)
         except (OSError, RuntimeError, ValueError, KeyError) as error:
             raise FrameError(f"{truth_path}: not a readable EXR ({' '.join(str(error).split())}); "
-                             f"{RERENDER}") from None
+                             f"{rerender(folder)}") from None
         same_size(folder / f"beauty_{i}.exr", frame.beauty.shape, truth_path, truth.shape)
         shape = shape or (folder / f"beauty_{i}.exr", frame.beauty.shape)
         same_size(folder / f"beauty_{i}.exr", frame.beauty.shape, *shape)

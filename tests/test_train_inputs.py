@@ -302,7 +302,8 @@ def test_restart_leaves_the_checkpoint_while_the_run_is_refused(setup, capfd):
     before = path.read_bytes()
     beauty = work / NAME / "beauty_1.exr"
     beauty.write_bytes(beauty.read_bytes()[:200])
-    refused(capfd, train(spec, work, out, "--restart"), str(beauty), "not a readable EXR", "renders it anew")
+    refused(capfd, train(spec, work, out, "--restart"), str(beauty), "not a readable EXR",
+            f"remove {work / NAME} and {work / NAME}_reference and run again")
     assert path.read_bytes() == before and out.read_text() == "before\n"
 
 
