@@ -138,8 +138,9 @@ def _main(argv: list[str] | None) -> int:
     check_writable("--plot", plot)
     settings = Settings(feature_set(args.temporal_inputs), args.hidden, args.seed, args.rate, args.steps)
     checkpoint = args.work / f"{args.out.stem}.checkpoint.npz"
-    check_checkpoint_place(checkpoint)
-    if not args.restart:  # a mismatched one is refused before rendering; --restart overwrites it at the first step
+    if args.restart:  # the checkpoint is overwritten at the first step, not before: a refused run leaves it
+        check_checkpoint_place(checkpoint)
+    else:  # a mismatched one is refused before rendering
         state = load_checkpoint(checkpoint, settings, names, any(n in HELD_OUT for n in names))
         if state is not None and int(state["t"]) > args.steps:
             raise UsageError(f"{checkpoint}: the checkpoint holds {int(state['t'])} steps, more than --steps "

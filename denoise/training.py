@@ -270,7 +270,7 @@ def train_step(adam: Adam, settings: Settings, train: list[list[Frame]], step: i
     rng = np.random.default_rng((settings.seed, step))
     chosen = rng.choice(len(train), size=min(BATCH, len(train)), replace=False)
     network = Recorder(adam.theta, settings.features, settings.hidden, gradients=True)
-    base = Recorder(asvgf_theta(adam.theta, settings), settings.features, settings.hidden, gradients=False)
+    base = asvgf_network(settings)
     total = 0.0
     for i in chosen:
         crop = augmented(train[i], **draw(rng, train[i]))
@@ -288,14 +288,14 @@ def train_step(adam: Adam, settings: Settings, train: list[list[Frame]], step: i
     return value
 
 
-def asvgf_theta(theta: np.ndarray, settings: Settings) -> np.ndarray:
-    """``theta`` with the output layer at its start: the network that is asvgf as fitted."""
-    network = network_of(theta, settings.features, settings.hidden)
-    return flatten(replace(network, w2=np.zeros_like(network.w2), b2=np.array(START_BIAS, np.float32)))
+def asvgf_network(settings: Settings) -> Recorder:
+    """The network that is asvgf as fitted (:func:`initial`: the output layer at its start), without gradients."""
+    return Recorder(initial(settings.features, settings.hidden, settings.seed), settings.features, settings.hidden,
+                    gradients=False)
 
 
 def base_loss(frames: list[Prepared], base: Recorder) -> float:
-    """asvgf's loss on ``frames`` (``base``: :func:`asvgf_theta`'s network), the denominator of the
+    """asvgf's loss on ``frames`` (``base``: :func:`asvgf_network`), the denominator of the
     training's loss: each sequence counts by how far it moves from asvgf, not by its own noise
     (a scene whose loss is several times the others' would drive every step it is in)."""
     value = float(sequence_loss(frames, base)[0])
@@ -304,15 +304,24 @@ def base_loss(frames: list[Prepared], base: Recorder) -> float:
     return max(value, BASE_LOSS_FLOOR)
 
 
-def held_out_loss(theta: np.ndarray, settings: Settings, held: list[list[Frame]]) -> float | None:
-    """Mean over the held-out sequences (None: none) of the loss divided by asvgf's: whole frames,
-    no augmentation, no gradients; 1 is asvgf, below 1 better."""
+def held_out_bases(settings: Settings, held: list[list[Frame]]) -> list[float]:
+    """asvgf's loss on each held-out sequence (whole frames): the denominators of
+    :func:`held_out_loss`, the same at every step, so computed once a run."""
+    base = asvgf_network(settings)
+    return [base_loss(augmented(frames, None, 0, 0, False, False, 1.0), base) for frames in held]
+
+
+def held_out_loss(theta: np.ndarray, settings: Settings, held: list[list[Frame]],
+                  bases: list[float] | None = None) -> float | None:
+    """Mean over the held-out sequences (None: none) of the loss divided by asvgf's (``bases``:
+    :func:`held_out_bases`, computed here if not given): whole frames, no augmentation, no
+    gradients; 1 is asvgf, below 1 better."""
     if not held:
         return None
+    bases = held_out_bases(settings, held) if bases is None else bases
     network = Recorder(theta, settings.features, settings.hidden, gradients=False)
-    base = Recorder(asvgf_theta(theta, settings), settings.features, settings.hidden, gradients=False)
-    whole = [augmented(frames, None, 0, 0, False, False, 1.0) for frames in held]
-    losses = [float(sequence_loss(frames, network)[0]) / base_loss(frames, base) for frames in whole]
+    losses = [float(sequence_loss(augmented(frames, None, 0, 0, False, False, 1.0), network)[0]) / base
+              for frames, base in zip(held, bases)]
     return sum(losses) / len(losses)
 
 
@@ -335,9 +344,10 @@ def train(folders: list[Path], settings: Settings, checkpoint: Path, report,
         adam = Adam(state["theta"], settings.rate, state["m"], state["v"], int(state["t"]))
         curve = [(int(s), a, None if math.isnan(b) else b) for s, a, b in state["curve"].tolist()]
         seconds = float(state["seconds"])
+    bases = held_out_bases(settings, held)
     for step in range(adam.t, settings.steps):
         start = time.perf_counter()
-        held_loss = held_out_loss(adam.theta, settings, held)
+        held_loss = held_out_loss(adam.theta, settings, held, bases)
         if held_loss is not None and not math.isfinite(held_loss):
             raise UsageError(f"the held-out loss is {held_loss} at step {step}; the weights file was not written")
         loss = train_step(adam, settings, train_set, step)
