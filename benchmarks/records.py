@@ -4,12 +4,11 @@ from __future__ import annotations
 
 import datetime as dt
 import json
-import os
-import platform
 from pathlib import Path
 
 from core.errors import OutputError
 from core.inputs import check_outside
+from core.machine import machine
 from denoise.methods import data_files
 from imaging.image_io import atomic_path, check_writable
 
@@ -18,20 +17,6 @@ def write_json(path: Path, data) -> None:
     """Writes ``data`` as indented JSON, atomically (temporary name, then rename)."""
     with atomic_path(path, ".json") as tmp:
         tmp.write_text(json.dumps(data, indent=2) + "\n")
-
-
-def machine() -> str:
-    """CPU model, cores, OS and Python, for the record of a measurement."""
-    model = platform.processor() or platform.machine()
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                model = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    return (f"{model}, {os.cpu_count()} cores, {platform.system()} {platform.release()}, "
-            f"Python {platform.python_version()}")
 
 
 def stamp(command: list[str]) -> dict:

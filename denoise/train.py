@@ -29,7 +29,6 @@ import datetime
 import hashlib
 import json
 import os
-import platform
 import re
 import shlex
 import sys
@@ -41,6 +40,7 @@ import numpy as np
 from core.entry import ArgumentParser, finish, one_line, printable, run
 from core.errors import FrameError, SpecError, ToolkitError, UsageError
 from core.inputs import check_outside
+from core.machine import machine
 from core.numbers import ascii_float, ascii_int
 from course import data_dir, resolve_scene
 from export import Spec, reference_folder, sequences_for
@@ -334,19 +334,6 @@ def train_interruptibly(folders: list[Path], settings: Settings, checkpoint: Pat
                   f"({seconds:.1f} s in all, {time.monotonic() - started:.0f} s this run)", file=sys.stderr, flush=True)
 
     return run_in_worker(train_worker, (folders, settings, checkpoint, restart), "the training", report)
-
-
-def machine() -> str:
-    """The CPU's model name (Linux's /proc/cpuinfo, else the architecture), cores, system, Python."""
-    model = platform.processor() or platform.machine()
-    try:
-        names = [line.split(":", 1)[1].strip() for line in Path("/proc/cpuinfo").read_text().splitlines()
-                 if line.startswith("model name")]
-        model = names[0] if names else model
-    except OSError:
-        pass
-    return f"{model}, {os.cpu_count()} cores, {platform.system()} {platform.release()}, " \
-           f"Python {platform.python_version()}"
 
 
 def display_path(path: Path) -> str:
