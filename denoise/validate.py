@@ -43,13 +43,15 @@ from imaging.metrics import relmse
 from renderer.checks import check_memory
 from renderer.variants import set_variant
 
-from .methods import data_files, from_name, method_names
+from .methods import data_files, from_name, resolve
 from .pipeline import BASE_BYTES as FRAME_BASE_BYTES, BYTES_PER_PIXEL as FRAME_BYTES_PER_PIXEL
 from .temporal_metrics import QUALITY_FROM
 from .training import HELD_OUT, LOADED_BYTES, ROOT, TRAINING
 
 #: the methods judged when --methods is not given
 METHODS = ("asvgf", "learned-asvgf", "learned-asvgf-no-temporal-inputs", "learned-asvgf-half-hidden")
+#: the training sequences a network learned from (the held-out ones it never did)
+TRAINED_ON = frozenset(p.stem for p in TRAINING) - frozenset(HELD_OUT)
 #: the ground truth's samples per pixel when --reference-spp is not given
 REFERENCE_SPP = 512
 
@@ -151,9 +153,13 @@ def _main(argv: list[str] | None) -> int:
     args = _parser().parse_args(argv)
     if not 2 <= args.reference_spp <= 1 << 16 or args.reference_spp % 2:
         raise UsageError(f"--reference-spp must be even, from 2 to 65536, got {args.reference_spp}")
-    unknown = [m for m in args.methods if m not in method_names()]
-    if unknown:
-        raise UsageError(f"--methods: unknown {', '.join(unknown)} (known: {', '.join(method_names())})")
+    for name in args.methods:  # every name python -m denoise --method takes, demod+ and outliers+ ones too
+        try:
+            resolve(name)
+        except UsageError as error:
+            raise UsageError(f"--methods: {error}") from None
+    if len(set(args.methods)) != len(args.methods):
+        raise UsageError("--methods: a name is given twice")
     named = {}
     for path in args.network:
         if path.stem in named or path.stem in args.methods:
@@ -186,6 +192,11 @@ def _main(argv: list[str] | None) -> int:
     runners.update({name: (lambda p=p: from_name("learned-asvgf", network=str(p))) for name, p in named.items()})
     for name in list(runners):  # a bad weights file is one line before any rendering
         runners[name]()
+    trained_on = [p.stem for p in specs if p.stem in TRAINED_ON]
+    if trained_on:  # judged all the same: a user may want a training sequence's numbers, but not as held-out ones
+        print(f"note: the networks were trained on {', '.join(map(printable, trained_on))}: "
+              f"{'its' if len(trained_on) == 1 else 'their'} numbers are not held-out ones",
+              file=sys.stderr, flush=True)
     results = {}
     for spec in specs:
         folder = args.work / spec.stem
@@ -193,7 +204,8 @@ def _main(argv: list[str] | None) -> int:
         print(f"{printable(spec.stem)}: judging {len(runners)} method{'' if len(runners) == 1 else 's'}",
               file=sys.stderr, flush=True)
         results[spec.stem] = judge(folder, runners)
-    print(f"mean relMSE over frames >= {QUALITY_FROM} against a {args.reference_spp}-spp truth (ratio to asvgf's):")
+    print(f"mean relMSE over frames >= {QUALITY_FROM} against a {args.reference_spp}-spp truth"
+          + (" (ratio to asvgf's):" if "asvgf" in runners else ":"))
     print("\n".join(table(results)))
     if args.json is not None:
         with atomic_path(args.json, ".json") as temporary:

@@ -21,7 +21,8 @@ def test_judge_scores_each_method_per_frame_and_the_table_gives_ratios(exported)
 
 @pytest.mark.parametrize("argv, words", [
     (["--reference-spp", "3"], "--reference-spp must be even"),
-    (["--methods", "nonsense"], "--methods: unknown nonsense"),
+    (["--methods", "nonsense"], "--methods: unknown method 'nonsense'"),
+    (["--methods", "asvgf", "asvgf"], "--methods: a name is given twice"),
     (["--network", "nowhere.json"], "nowhere.json: no such weights file"),
     (["nowhere_spec.json"], "nowhere_spec.json"),
     (["scenes/sequences/training/network/mirrors_switch.json", "--json",
@@ -69,6 +70,21 @@ def test_outputs_into_inputs_and_misnamed_files_are_one_line_before_any_work(arg
     err = capsys.readouterr().err
     assert words in err and err.count("\n") == 1, err
     assert not (tmp_path / "work").exists()
+
+
+def test_a_training_sequence_is_judged_with_a_note_and_any_method_name_is_taken(tmp_path, capsys):
+    """validate took only the names of method_names() (not demod+atrous+temporal, which python -m
+    denoise takes), printed "ratio to asvgf's" without an asvgf column, and judged a sequence the
+    networks were trained on as if it were held out, without a word."""
+    from denoise.validate import main
+
+    spec = tiny_spec(tmp_path, 5).rename(tmp_path / "showcase_orbit.json")  # a training sequence's name
+    assert main([str(spec), "--work", str(tmp_path / "work"), "--reference-spp", "2",
+                 "--methods", "demod+atrous+temporal", "bilateral"]) == 0
+    captured = capsys.readouterr()
+    assert "note: the networks were trained on showcase_orbit: its numbers are not held-out ones" in captured.err
+    assert "ratio to asvgf" not in captured.out
+    assert "| sequence | demod+atrous+temporal | bilateral |" in captured.out
 
 
 @pytest.mark.parametrize("frames", [1, 3, 4])
