@@ -24,7 +24,7 @@ from core.errors import UsageError
 from .edge_weights import inv_two_sigma_sq, plane_distance_sq
 from .fastmath import EXP2_FLOOR, LOG2E, exp2_weight, log2_unit, neg_exp
 from .filters import B3, FrameArrays, check_positive, check_whole, luminance
-from .neighbours import usable
+from .neighbours import ShiftedPlanes, usable
 
 GAUSS3 = (0.25, 0.5, 0.25)
 EPSILON = 1e-10
@@ -157,17 +157,31 @@ def plane_factor(sigma_plane) -> object:
     return 1.0 / dr.maximum(2.0 * sigma_plane * sigma_plane, 1e-30)
 
 
-def blurred_variance(frame: FrameArrays, variance: mi.Float) -> mi.Float:
-    """The 3x3 Gaussian of the variance at each pixel (edges clamped)."""
-    blurred = GAUSS3[1] * GAUSS3[1] * variance  # the centre's own (no gather)
+def blurred_variance(frame: FrameArrays, variance: mi.Float, planes: ShiftedPlanes | None = None) -> mi.Float:
+    """The 3x3 Gaussian of the variance at each pixel, edges clamped (a tap past
+    the image reads the nearest pixel inside it): each of the three rows'
+    sums, then the column's. The taps read ``planes`` (its channel 3 the
+    variance, as :func:`atrous_level` makes them) where given, else gather; a
+    tap past the image is replaced by its row's (or column's) centre with a
+    select, so both read the same values and sum them in the same order (bit
+    for bit the same result) and no gather is left where planes are: a
+    gather is a scalar load per lane where the CPU has no fast gather (AVX2)."""
+    width, height = frame.width, frame.height
+
+    def tap(dx: int, dy: int) -> mi.Float:
+        if planes is not None:
+            return planes.at(3, dy * width + dx)
+        x, y = dr.clip(frame.x + dx, 0, width - 1), dr.clip(frame.y + dy, 0, height - 1)
+        return dr.gather(mi.Float, variance, mi.UInt32(y * width + x))
+
+    left, right = frame.x >= 1, frame.x < width - 1
+    rows = {}
     for dy in (-1, 0, 1):
-        for dx in (-1, 0, 1):
-            if dx == 0 and dy == 0:
-                continue
-            x = dr.clip(frame.x + dx, 0, frame.width - 1)
-            y = dr.clip(frame.y + dy, 0, frame.height - 1)
-            blurred += GAUSS3[dx + 1] * GAUSS3[dy + 1] * dr.gather(mi.Float, variance, mi.UInt32(y * frame.width + x))
-    return blurred
+        centre = variance if dy == 0 else tap(0, dy)
+        sides = dr.select(left, tap(-1, dy), centre) + dr.select(right, tap(1, dy), centre)
+        rows[dy] = dr.fma(sides, GAUSS3[0], centre * GAUSS3[1])
+    sides = dr.select(frame.y >= 1, rows[-1], rows[0]) + dr.select(frame.y < height - 1, rows[1], rows[0])
+    return dr.fma(sides, GAUSS3[0], rows[0] * GAUSS3[1])
 
 
 #: from this exponent on, ``max(0, c)^e`` is ``exp(e ln c)`` with ``ln c`` its degree-3 Taylor
@@ -234,7 +248,8 @@ def atrous_level(frame: FrameArrays, color: mi.Vector3f, variance: mi.Float, ste
         dr.eval(packed, variance)  # the 3x3 blur gathers the variance alone
     squaring = power_of_two(p.normal_exponent) and p.normal_exponent < SERIES_EXPONENT
     k_plane = plane_factor(p.sigma_plane) * -LOG2E
-    scale = -LOG2E / (p.sigma_luminance * dr.sqrt(dr.maximum(blurred_variance(frame, variance), 0.0)) + EPSILON)
+    blurred = blurred_variance(frame, variance, planes if shifted else None)
+    scale = -LOG2E / (p.sigma_luminance * dr.sqrt(dr.maximum(blurred, 0.0)) + EPSILON)
     lum_p = luminance(color)
     x_ok, y_ok = edge_masks(frame, step)
     total, weights, total_var = mi.Vector3f(0.0), mi.Float(0.0), mi.Float(0.0)

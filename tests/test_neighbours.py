@@ -129,6 +129,33 @@ def test_clamp_box_is_the_same_with_shifted_planes(variant_vectorised_rgb, buffe
     assert all(np.isfinite(a).all() and np.array_equal(a, b) for a, b in zip(shifted, gathered))
 
 
+@pytest.mark.parametrize("size", [(6, 7), (1, 5), (4, 1)])
+def test_the_variance_blur_reads_planes_as_the_gathers_at_every_edge(variant_vectorised_rgb, size):
+    """SVGF's 3x3 Gaussian of the variance reads the level's planes (no gather; past the image
+    its row's or column's centre): the same values at every edge and corner as the gathers'
+    clamped taps, and as NumPy's blur of the edge-padded image. (The showcase buffers of the
+    tests above have sky along their top row, where no weight depends on the variance.)"""
+    import drjit as dr
+
+    from denoise.filters import FrameArrays
+    from denoise.svgf_common import GAUSS3, blurred_variance
+
+    height, width = size
+    rng = np.random.default_rng(5)
+    c = rng.uniform(0.1, 2.0, (height, width, 3))
+    frame = FrameArrays(*tensors(c, np.dstack([np.zeros((height, width, 2)), np.ones((height, width))]), c))
+    variance = frame.color.x * 1.0
+    dr.eval(variance)
+    planes = frame.planes_of((frame.color.x, frame.color.y, frame.color.z, variance), 2)
+    from_planes = np.array(blurred_variance(frame, variance, planes))
+    gathered = np.array(blurred_variance(frame, variance))
+    padded = np.pad(c[..., 0].astype(np.float32), 1, mode="edge")
+    g = np.array(GAUSS3)
+    expected = sum(g[i] * g[j] * padded[j:j + height, i:i + width] for i in range(3) for j in range(3))
+    assert np.array_equal(from_planes, gathered)
+    np.testing.assert_allclose(from_planes.reshape(height, width), expected, rtol=1e-6)
+
+
 @pytest.mark.parametrize("radius", [1, 3])
 def test_box_mean_is_the_mean_over_the_box_inside_the_image(variant_vectorised_rgb, buffers, monkeypatch, radius):
     """One channel's box mean (A-SVGF's lambda): shifted planes and gathers alike, both
