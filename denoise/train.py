@@ -15,6 +15,7 @@ from it (``--restart`` starts over). After the last step the weights file
 (``--out``, default ``denoise/learned_asvgf.json``) gets the weights and a
 record of the run, and ``--plot`` the loss curves. A loss that is not
 finite stops the run with one line (exit 2), the weights file untouched.
+One training at a time in a ``--work``: a second is refused in one line.
 The steps run in a worker process: one step is native code that no signal
 interrupts, and Ctrl-C must not wait for it.
 """
@@ -44,6 +45,7 @@ from core.machine import machine
 from core.numbers import ascii_float, ascii_int
 from course import data_dir, resolve_scene
 from export import Spec, reference_folder, sequences_for
+from export.files import locked
 from export.frames import frame_indices, read_frame, same_size
 from export.ground_truth import check_work_folder
 from export.store import check_folder
@@ -149,14 +151,16 @@ def _main(argv: list[str] | None) -> int:
     set_variant("llvm_ad_rgb", jit=True)
     check_work(loaded, args.work)
     folders = [args.work / path.stem for path, _ in loaded]
-    checked = {f: [i for i in frame_indices(f) if (reference_folder(f) / f"beauty_{i}.exr").exists()]
-               if f.is_dir() else [] for f in folders}
-    for folder in folders:  # what is there already, before any rendering prints its progress
-        check_frames(folder, checked[folder])
-    for (_, spec), folder in zip(loaded, folders):
-        render(spec, folder)
-        check_frames(folder, [i for i in frame_indices(folder) if i not in checked[folder]])
-    theta, curve, seconds = train_interruptibly(folders, settings, checkpoint, args.quiet, args.restart)
+    # one training at a time in a --work: two would write one checkpoint, step by step
+    with locked([args.work], doing="training", remedy="give another --work"):
+        checked = {f: [i for i in frame_indices(f) if (reference_folder(f) / f"beauty_{i}.exr").exists()]
+                   if f.is_dir() else [] for f in folders}
+        for folder in folders:  # what is there already, before any rendering prints its progress
+            check_frames(folder, checked[folder])
+        for (_, spec), folder in zip(loaded, folders):
+            render(spec, folder)
+            check_frames(folder, [i for i in frame_indices(folder) if i not in checked[folder]])
+        theta, curve, seconds = train_interruptibly(folders, settings, checkpoint, args.quiet, args.restart)
     given = argv if argv is not None else sys.argv[1:]
     command = "python -m denoise.train " + " ".join(shlex.quote(a) for a in given)
     record = {"command": command.strip(), "training": [display_path(p) for p, _ in loaded

@@ -79,9 +79,10 @@ class FolderBusy(OutputError):
     """Another export holds a folder's lock."""
 
 
-def _lock(folder: Path, doing: str) -> int:
+def _lock(folder: Path, doing: str, remedy: str | None = None) -> int:
     """The descriptor of ``folder``'s lock file, locked; raises :class:`FolderBusy`
-    (``doing``: what holds it, "export" or "denoise", for the message)."""
+    (``doing``: what holds it, "export" or "denoise", and ``remedy``, what
+    else to do than wait, for the message)."""
     path = folder / LOCK_NAME
     while True:
         try:
@@ -94,7 +95,7 @@ def _lock(folder: Path, doing: str) -> int:
         except BlockingIOError:
             os.close(descriptor)
             raise FolderBusy(f"{folder}: another {doing} is writing into this folder; wait for it to "
-                             f"finish, or {doing} into another folder") from None
+                             f"finish, or {remedy or f'{doing} into another folder'}") from None
         try:
             if os.stat(path).st_ino == os.fstat(descriptor).st_ino:
                 TEMPORARY.add(str(path))  # a watchdog that ends the process removes it too
@@ -115,15 +116,15 @@ def _unlock(folder: Path, descriptor: int) -> None:
 
 
 @contextmanager
-def locked(folders: list[Path], doing: str = "export") -> Iterator[None]:
+def locked(folders: list[Path], doing: str = "export", remedy: str | None = None) -> Iterator[None]:
     """Holds the writer's lock (``flock`` on :data:`LOCK_NAME`) in every folder
     of ``folders`` (made where missing); raises :class:`FolderBusy` naming the
     first folder another process holds (``doing``: the command that writes,
-    for its message). The lock file goes when the writer ends; the lock itself
-    goes with its process, however it ends (a lock file a killed export left
-    behind locks nothing)."""
+    and ``remedy``, what else to do than wait, for its message). The lock
+    file goes when the writer ends; the lock itself goes with its process,
+    however it ends (a lock file a killed export left behind locks nothing)."""
     with ExitStack() as stack:
         for folder in sorted({Path(f).absolute() for f in folders}):
-            descriptor = _lock(folder, doing)
+            descriptor = _lock(folder, doing, remedy)
             stack.callback(_unlock, folder, descriptor)
         yield

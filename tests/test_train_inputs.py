@@ -351,3 +351,15 @@ def test_the_plot_goes_to_docs_only_for_a_committed_weights_file(tmp_path, out, 
 
     base = ROOT if out.startswith("denoise/") else tmp_path
     assert default_plot(base / out) == (ROOT if plot.startswith("docs/") else tmp_path) / plot
+
+
+def test_a_second_training_in_a_busy_work_folder_is_refused(setup, capfd):
+    """Two trainings in one --work at once wrote one checkpoint, step after step, each
+    resuming nothing of the other's; the second is now one line, its checkpoint and --out untouched."""
+    from export.files import locked
+
+    spec, work, out = setup
+    with locked([work], doing="training", remedy="give another --work"):  # as a training in progress holds it
+        refused(capfd, train(spec, work, out), f"{work}: another training is writing into this folder; wait for it "
+                "to finish, or give another --work")
+    assert out.read_text() == "before\n" and not list(work.glob("*.checkpoint.npz"))
