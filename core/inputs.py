@@ -51,5 +51,8 @@ def check_outside(outputs: dict[str, Path | None], inputs: dict[str, Path | None
             if base is not None and where == base:
                 raise UsageError(f"{out_label} {output} is the input {in_label} {folder}; write outputs elsewhere")
             if base is not None and base in where.parents:
-                raise UsageError(f"{out_label} {output} is inside the input folder {in_label} {folder}; "
+                # a flag or metavar is "the input folder --work"; a label that says what it is, as
+                # "frame folder (--work) of x", is not said to be a folder twice
+                kind = "" if " " in in_label else "folder "
+                raise UsageError(f"{out_label} {output} is inside the input {kind}{in_label} {folder}; "
                                  f"write outputs elsewhere")

@@ -193,7 +193,8 @@ def test_outputs_inside_an_input_folder_are_refused(setup, capfd, flag, where):
     spec, work, out = setup
     argv = train(spec, work, out)
     argv[argv.index(flag) + 1] = str(work / where)
-    refused(capfd, argv, flag, "inside the input folder")
+    refused(capfd, argv, flag, "inside the input frame folder (--work)" if "reference" not in where
+            else "inside the input ground truth (--work)")
     assert not (work / where).exists()
 
 

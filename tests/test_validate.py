@@ -53,8 +53,8 @@ def tiny_spec(tmp_path, frames: int):
 
 
 @pytest.mark.parametrize("argv, words", [
-    (["--json", "{work}/tiny5/x.json"], "is inside the input folder frame folder (--work) of tiny5"),
-    (["--json", "{work}/tiny5_reference/x.json"], "is inside the input folder ground truth (--work) of tiny5"),
+    (["--json", "{work}/tiny5/x.json"], "is inside the input frame folder (--work) of tiny5"),
+    (["--json", "{work}/tiny5_reference/x.json"], "is inside the input ground truth (--work) of tiny5"),
     (["--json", "{tmp}/w.json", "--network", "{tmp}/w.json"], "is the input --network"),
     (["--json", "{tmp}/x.txt"], "--json writes JSON: name it .json"),
     (["--network", "{tmp}"], ": a folder, not a weights file"),
@@ -191,10 +191,10 @@ def benchmark(argv: list[str]):
 
 @pytest.mark.parametrize("argv, words", [
     (["--json", "{work}/dolly_lamps_96x54_16spp_quick/x.json", "--no-timing"],
-     "is inside the input folder frame folder (--work) of dolly_lamps"),
+     "is inside the input frame folder (--work) of dolly_lamps"),
     (["--json", "{work}/dolly_lamps_96x54_16spp_quick_reference/x.json", "--no-timing"],
-     "is inside the input folder ground truth (--work) of dolly_lamps"),
-    (["--json", "{work}/timing_dolly_lamps_160x90_3f_quick/x.json"], "is inside the input folder frame folder"),
+     "is inside the input ground truth (--work) of dolly_lamps"),
+    (["--json", "{work}/timing_dolly_lamps_160x90_3f_quick/x.json"], "is inside the input frame folder"),
     (["--json", "{work}/x.txt", "--no-timing"], "--json writes JSON: name it .json"),
     (["--no-timing"], "made with other settings"),
 ])

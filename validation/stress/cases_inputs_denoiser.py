@@ -206,7 +206,7 @@ def training_inputs(folder: Path) -> list[str]:
         "a zero-byte checkpoint": ([folder / "tiny.json", *base], "w.checkpoint.npz: not a training checkpoint"),
         "a benchmark scene by path": ([folder / "bench.json", *base], "is the benchmark's"),
         "--out in a frame folder": ([folder / "tiny.json", *base, "--out", folder / "work" / "tiny" / "x.json"],
-                                    "inside the input folder")})
+                                    "inside the input frame folder (--work)")})
     return problems + [f"{p.name} was written" for p in (folder / "w.json", folder / "work" / "tiny") if p.exists()]
 
 
