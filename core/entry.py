@@ -337,8 +337,9 @@ class ArgumentParser(argparse.ArgumentParser):
 
     def _get_value(self, action, arg_string):  # argparse's one conversion point, groups' arguments included
         if action.type is Path and arg_string == "":
-            self.error(f"{'/'.join(action.option_strings) or action.metavar}: an empty path (give . for the current "
-                       "folder)")
+            # no "give ." advice: most path arguments name a file, and "." is no file
+            self.error(f"{'/'.join(action.option_strings) or action.metavar}: an empty path, not a name "
+                       "(an unset shell variable?)")
         return super()._get_value(action, arg_string)
 
 

@@ -558,7 +558,7 @@ def test_an_empty_path_is_refused_not_the_current_folder(tmp_path, capsys, monke
     main = importlib.import_module(module).main
     assert main([a.replace("{tmp}", str(tmp_path)) for a in argv]) == 2
     err = capsys.readouterr().err
-    assert err.count("\n") == 1 and f"error: {name}: an empty path (give . for the current folder)" in err, err
+    assert err.count("\n") == 1 and f"error: {name}: an empty path, not a name (an unset shell variable?)\n" in err, err
     assert sorted(tmp_path.iterdir()) == before
 
 
