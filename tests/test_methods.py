@@ -325,6 +325,9 @@ def test_help_names_the_methods_each_option_applies_to():
     *((name, f"method '{name}': write it [demod+][outliers+]atrous[+temporal], each part once and in that order")
       for name in ("atrous+temporal+temporal", "demod+demod+atrous", "outliers+outliers+atrous",
                    "outliers+demod+atrous", "temporal+atrous", "atrous+demod")),
+    # a method temporal by nature is not offered [+temporal], which it refuses
+    *((name, f"method '{name}': write it [demod+][outliers+]asvgf, each part once and in that order")
+      for name in ("demod+demod+asvgf", "asvgf+demod")),
 ])
 def test_temporal_on_a_method_that_cannot_take_it_is_refused(name, message):
     """svgf+temporal ran as svgf, the same bytes: a name that changes nothing is refused, not ignored."""

@@ -126,10 +126,11 @@ def resolve(name: str) -> tuple[type[DenoisingMethod], dict]:
                          "before and +temporal after, e.g. demod+atrous+temporal)")
     at = parts.index(found[0])
     prefix, suffix = parts[:at], parts[at + 1:]
-    if prefix not in ([], ["demod"], ["outliers"], ["demod", "outliers"]) or suffix not in ([], ["temporal"]):
-        raise UsageError(f"method {name!r}: write it [demod+][outliers+]{found[0]}[+temporal], each part once "
-                         "and in that order")
     cls, props = names[found[0]]
+    if prefix not in ([], ["demod"], ["outliers"], ["demod", "outliers"]) or suffix not in ([], ["temporal"]):
+        temporal = "[+temporal]" if accumulates(cls) else ""  # offered where the name takes it
+        raise UsageError(f"method {name!r}: write it [demod+][outliers+]{found[0]}{temporal}, each part once "
+                         "and in that order")
     if "temporal" in parts and not accumulates(cls):  # it would change nothing: the same bytes as without
         raise UsageError(f"method {name!r}: {found[0]} " + ("is temporal by nature; drop +temporal"
                                                             if cls.temporal_by_nature else "has no temporal step"))
