@@ -61,10 +61,13 @@ def check_not_an_export_folder(flag: str, output: Path) -> None:
 
 def check_work_folder(work: Path) -> None:
     """Refuses a ``--work`` cache (where a command exports its sequences) that
-    is, or lies inside, an export's frames or ground truth (by their records):
-    new sequences would be written into an input."""
+    is, or lies inside, a file, or an export's frames or ground truth (by their
+    records): new sequences would be written into an input."""
     work = Path(work).absolute()
     for folder in (work, *work.parents):
+        if folder.exists() and not folder.is_dir():  # else mkdir's "File exists", or an error about a folder in it
+            where = "is a file" if folder == work else f"lies inside {folder}, a file"
+            raise UsageError(f"--work {work} {where}, not a folder; give a folder")
         for record, what in ((SEQUENCE_RECORD, "frames"), (GROUND_TRUTH_RECORD, "ground truth")):
             if (folder / record).is_file():
                 where = "is" if folder == work else f"lies inside {folder}, which is"

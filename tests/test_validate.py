@@ -256,13 +256,15 @@ def test_the_benchmark_with_raw_alone_reports_and_exits_0(tmp_path):
     assert "not judged: dolly_lamps: no method besides raw" in captured.out
 
 
-@pytest.mark.parametrize("inside", ["seq", "seq_reference", "seq/deeper"])
+@pytest.mark.parametrize("inside", ["seq", "seq_reference", "seq/deeper", "a file", "a file/deeper"])
 @pytest.mark.parametrize("command", ["denoise.validate", "denoise.fit", "denoise.train", "benchmarks.denoise"])
 def test_a_work_folder_inside_an_exports_frames_or_truth_is_one_line(command, inside, tmp_path, capsys):
     """Each command that exports its sequences into --work wrote new sequence folders (and a
-    checkpoint) inside a frame folder or a ground truth given as --work."""
+    checkpoint) inside a frame folder or a ground truth given as --work. A --work that is a
+    file (or lies inside one) was mkdir's "File exists", or an error naming a folder in it."""
     import importlib
 
+    (tmp_path / "a file").write_text("not a folder")
     (tmp_path / "seq").mkdir()
     (tmp_path / "seq" / "sequence.json").write_text("{}")
     (tmp_path / "seq_reference").mkdir()
@@ -280,5 +282,6 @@ def test_a_work_folder_inside_an_exports_frames_or_truth_is_one_line(command, in
         code, err = captured.returncode, captured.err
     else:
         code, err = importlib.import_module(command).main(argv), capsys.readouterr().err
-    assert code == 2 and err.count("\n") == 1 and f"--work {work}" in err and "an input" in err, err
+    words = "a file" if inside.startswith("a file") else "an input"
+    assert code == 2 and err.count("\n") == 1 and f"--work {work}" in err and words in err, err
     assert sorted(tmp_path.rglob("*")) == before
