@@ -66,6 +66,10 @@ def check_checkpoint_place(path: Path) -> None:
                          f"--out another name (the checkpoint is named after it)")
 
 
+#: the first bytes of a .npz archive (a zip file) and of a .npy array
+ZIP_MAGIC, NPY_MAGIC = b"PK\x03\x04", b"\x93NUMPY"
+
+
 def load_checkpoint(path: Path, settings: Settings, names: list[str], held_out: bool) -> dict | None:
     """The checkpoint's state, or None where there is none; one that cannot
     be read, holds values no run writes, or was made with other settings or
@@ -76,6 +80,9 @@ def load_checkpoint(path: Path, settings: Settings, names: list[str], held_out: 
         return None
     try:
         with open(path, "rb") as file:  # np.load leaves a file it opened open when it is no archive
+            if file.read(len(ZIP_MAGIC)) not in (ZIP_MAGIC, NPY_MAGIC[:len(ZIP_MAGIC)]):  # else NumPy tries pickle
+                raise ValueError("not an .npz archive")
+            file.seek(0)
             data = np.load(file, allow_pickle=False)
             if not hasattr(data, "files"):
                 raise ValueError("one array, not an archive of arrays")
