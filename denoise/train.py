@@ -15,7 +15,7 @@ from it (``--restart`` starts over). After the last step the weights file
 (``--out``, default ``denoise/learned_asvgf.json``) gets the weights and a
 record of the run, and ``--plot`` the loss curves. A loss that is not
 finite stops the run with one line (exit 2), the weights file untouched.
-One training at a time in a ``--work``: a second is refused in one line.
+One training at a time in a ``--work`` and into an ``--out``: a second is refused in one line.
 The steps run in a worker process: one step is native code that no signal
 interrupts, and Ctrl-C must not wait for it.
 """
@@ -45,7 +45,7 @@ from core.machine import machine
 from core.numbers import ascii_float, ascii_int
 from course import data_dir, resolve_scene
 from export import Spec, reference_folder, sequences_for
-from export.files import locked
+from export.files import locked, name_locked
 from export.frames import frame_indices, read_frame, same_size
 from export.ground_truth import check_work_folder
 from export.store import check_folder
@@ -151,8 +151,10 @@ def _main(argv: list[str] | None) -> int:
     set_variant("llvm_ad_rgb", jit=True)
     check_work(loaded, args.work)
     folders = [args.work / path.stem for path, _ in loaded]
-    # one training at a time in a --work: two would write one checkpoint, step by step
-    with locked([args.work], doing="training", remedy="give another --work"):
+    # one training at a time in a --work (two would write one checkpoint, step by step) and into an
+    # --out (the one that ends last would replace the other's weights without a word)
+    with name_locked(args.out, doing="training", remedy="give another --out"), \
+            locked([args.work], doing="training", remedy="give another --work"):
         checked = {f: [i for i in frame_indices(f) if (reference_folder(f) / f"beauty_{i}.exr").exists()]
                    if f.is_dir() else [] for f in folders}
         for folder in folders:  # what is there already, before any rendering prints its progress
@@ -161,11 +163,23 @@ def _main(argv: list[str] | None) -> int:
             render(spec, folder)
             check_frames(folder, [i for i in frame_indices(folder) if i not in checked[folder]])
         theta, curve, seconds = train_interruptibly(folders, settings, checkpoint, args.quiet, args.restart)
-    given = argv if argv is not None else sys.argv[1:]
-    command = "python -m denoise.train " + " ".join(shlex.quote(a) for a in given)
-    record = {"command": command.strip(), "training": [display_path(p) for p, _ in loaded
-                                                       if p.stem not in HELD_OUT],
-              "held_out": [display_path(p) for p, _ in loaded if p.stem in HELD_OUT],
+        given = argv if argv is not None else sys.argv[1:]
+        write_weights(args, settings, [p for p, _ in loaded], theta, curve, seconds,
+                      "python -m denoise.train " + " ".join(shlex.quote(a) for a in given))
+    plot_curve(plot, curve, f"{printable(args.out.name)}: {settings.hidden} hidden units, "
+                                     f"{len(settings.features)} inputs")
+    if not args.quiet:
+        held = "no sequence held out" if curve[-1][2] is None else f"held out {curve[-1][2]:.6f}"
+        print(f"final loss {curve[-1][1]:.6f} ({held}); weights written to {printable(args.out)}, "
+              f"curves to {printable(plot)}", file=sys.stderr)
+    return 0
+
+
+def write_weights(args: argparse.Namespace, settings: Settings, specs: list[Path], theta: np.ndarray,
+                  curve: list, seconds: float, command: str) -> None:
+    """The weights file ``args.out``: the network of ``theta`` and the record of the run."""
+    record = {"command": command.strip(), "training": [display_path(p) for p in specs if p.stem not in HELD_OUT],
+              "held_out": [display_path(p) for p in specs if p.stem in HELD_OUT],
               "steps": len(curve), "seconds": round(seconds, 1), "seed": args.seed, "rate": args.rate,
               "batch": training.BATCH, "crop": list(training.CROP), "exposure": list(training.EXPOSURE),
               "first_train_loss": curve[0][1], "first_held_out_loss": curve[0][2],
@@ -178,13 +192,6 @@ def _main(argv: list[str] | None) -> int:
     network = training.network_of(theta, settings.features, settings.hidden)
     with atomic_path(args.out, ".json") as temporary:
         Path(temporary).write_text(json.dumps({**network.to_json(), "record": record}, indent=1) + "\n")
-    plot_curve(plot, curve, f"{printable(args.out.name)}: {settings.hidden} hidden units, "
-                                     f"{len(settings.features)} inputs")
-    if not args.quiet:
-        held = "no sequence held out" if curve[-1][2] is None else f"held out {curve[-1][2]:.6f}"
-        print(f"final loss {curve[-1][1]:.6f} ({held}); weights written to {printable(args.out)}, "
-              f"curves to {printable(plot)}", file=sys.stderr)
-    return 0
 
 
 def scene_file(name: str) -> str:

@@ -10,8 +10,10 @@ the next run removes (:func:`remove_staging`).
 from __future__ import annotations
 
 import fcntl
+import hashlib
 import os
 import re
+import tempfile
 from collections.abc import Callable, Iterator
 from contextlib import ExitStack, contextmanager
 from pathlib import Path
@@ -112,6 +114,30 @@ def _unlock(folder: Path, descriptor: int) -> None:
         (folder / LOCK_NAME).unlink(missing_ok=True)
     finally:
         TEMPORARY.discard(str(folder / LOCK_NAME))
+        os.close(descriptor)
+
+
+@contextmanager
+def name_locked(path: Path, doing: str, remedy: str) -> Iterator[None]:
+    """Holds a lock on the file name ``path`` (as resolved) for the block: an ``flock``
+    on a file in the system's temporary folder named by the name's hash, so that
+    no lock file lands beside ``path`` (a file of the repository, say); raises
+    :class:`FolderBusy` (``doing`` and ``remedy`` as :func:`locked`'s) where
+    another process holds it. The lock goes with its process, however it ends."""
+    key = hashlib.sha256(str(Path(path).resolve()).encode("utf-8", "surrogateescape")).hexdigest()[:32]
+    lock = Path(tempfile.gettempdir()) / f"toolkit-{key}.lock"
+    try:
+        descriptor = os.open(lock, os.O_RDWR | os.O_CREAT, 0o666)
+    except OSError as error:
+        raise OutputError(f"{lock}: cannot lock {path} there: {error.strerror or error}") from None
+    try:
+        try:
+            fcntl.flock(descriptor, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            raise FolderBusy(f"{path}: another {doing} is writing this file; wait for it to finish, "
+                             f"or {remedy}") from None
+        yield
+    finally:
         os.close(descriptor)
 
 
