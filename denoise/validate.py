@@ -44,14 +44,15 @@ from renderer.checks import check_memory
 from renderer.variants import set_variant
 
 from .methods import data_files, from_name, resolve
+from .methods.learned_asvgf import LearnedASVGF
 from .pipeline import BASE_BYTES as FRAME_BASE_BYTES, BYTES_PER_PIXEL as FRAME_BYTES_PER_PIXEL
 from .temporal_metrics import QUALITY_FROM
 from .training import HELD_OUT, LOADED_BYTES, ROOT, TRAINING
 
 #: the methods judged when --methods is not given
 METHODS = ("asvgf", "learned-asvgf", "learned-asvgf-no-temporal-inputs", "learned-asvgf-half-hidden")
-#: the training sequences a network learned from (the held-out ones it never did)
-TRAINED_ON = frozenset(p.stem for p in TRAINING) - frozenset(HELD_OUT)
+#: the training sequences a network learned from (the held-out ones it never did), by name
+TRAINED_ON = {p.stem: p for p in TRAINING if p.stem not in HELD_OUT}
 #: the ground truth's samples per pixel when --reference-spp is not given
 REFERENCE_SPP = 512
 
@@ -123,11 +124,22 @@ def cell(name: str) -> str:
     return printable(name).replace("|", "\\|")
 
 
+def training_sequences(loaded: dict[Path, Spec], reference_spp: int) -> list[str]:
+    """The names of the specs in ``loaded`` that are a training sequence the networks
+    learned from (:data:`TRAINED_ON`): of its name and the same in every setting but
+    the truth's samples (not merely a sequence of its name)."""
+    return [path.stem for path, spec in loaded.items() if path.stem in TRAINED_ON
+            and Spec.load(TRAINED_ON[path.stem], reference_spp=reference_spp) == spec]
+
+
 def judge(folder: Path, runners: dict) -> dict[str, list[float]]:
     """Per method (a factory of a fresh method), its relMSE per frame of ``folder`` against its ground truth."""
     indices = frame_indices(folder)
-    frames = [read_frame(folder, i) for i in indices]
-    truth = [read_exr_rgb(reference_folder(folder) / f"beauty_{i}.exr") for i in indices]
+    try:
+        frames = [read_frame(folder, i) for i in indices]
+        truth = [read_exr_rgb(reference_folder(folder) / f"beauty_{i}.exr") for i in indices]
+    except ToolkitError as error:  # a damaged file of the cache: render the sequence anew
+        raise error.with_remedy(f"remove {folder} and {reference_folder(folder)} to render them again") from None
     errors = {}
     for name, make in runners.items():
         method = make()
@@ -163,15 +175,17 @@ def _main(argv: list[str] | None) -> int:
     named = {}
     for path in args.network:
         if path.stem in named or path.stem in args.methods:
-            raise UsageError(f"--network {printable(path)}: a second method named {path.stem}")
+            raise UsageError(f"--network {printable(path)}: a second method named {path.stem} (each is named by "
+                             "its file name: copy one to another name)")
         named[path.stem] = path
     if args.json is not None and args.json.suffix.lower() != ".json":
         raise UsageError(f"--json writes JSON: name it .json, got {args.json}")
     specs = args.specs or [p for p in TRAINING if p.stem in HELD_OUT]
     if not specs:
         raise UsageError(f"no held-out sequence ({', '.join(HELD_OUT)}) among the training specs")
-    if len({p.stem for p in specs}) != len(specs):
-        raise UsageError("two specs of one name: they would share a folder in --work")
+    twice = sorted({p.stem for p in specs if [q.stem for q in specs].count(p.stem) > 1})
+    if twice:
+        raise UsageError(f"two specs named {', '.join(map(printable, twice))}: they would share a folder in --work")
     loaded = {p: Spec.load(p, reference_spp=args.reference_spp) for p in specs}  # a bad spec before any work
     for spec in specs:
         check_frames(spec, loaded[spec].frames)
@@ -192,8 +206,9 @@ def _main(argv: list[str] | None) -> int:
     runners.update({name: (lambda p=p: from_name("learned-asvgf", network=str(p))) for name, p in named.items()})
     for name in list(runners):  # a bad weights file is one line before any rendering
         runners[name]()
-    trained_on = [p.stem for p in specs if p.stem in TRAINED_ON]
-    if trained_on:  # judged all the same: a user may want a training sequence's numbers, but not as held-out ones
+    networks = [n for n in runners if n in named or resolve(n)[0] is LearnedASVGF]
+    trained_on = training_sequences(loaded, args.reference_spp)
+    if networks and trained_on:  # judged all the same, but its numbers are not held-out ones
         print(f"note: the networks were trained on {', '.join(map(printable, trained_on))}: "
               f"{'its' if len(trained_on) == 1 else 'their'} numbers are not held-out ones",
               file=sys.stderr, flush=True)
@@ -205,7 +220,7 @@ def _main(argv: list[str] | None) -> int:
               file=sys.stderr, flush=True)
         results[spec.stem] = judge(folder, runners)
     print(f"mean relMSE over frames >= {QUALITY_FROM} against a {args.reference_spp}-spp truth"
-          + (" (ratio to asvgf's):" if "asvgf" in runners else ":"))
+          + (" (ratio to asvgf's):" if "asvgf" in runners and len(runners) > 1 else ":"))
     print("\n".join(table(results)))
     if args.json is not None:
         with atomic_path(args.json, ".json") as temporary:

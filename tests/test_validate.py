@@ -1,6 +1,8 @@
 """python -m denoise.validate: the held-out sequences judged against a converged truth."""
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -23,6 +25,9 @@ def test_judge_scores_each_method_per_frame_and_the_table_gives_ratios(exported)
     (["--reference-spp", "3"], "--reference-spp must be even"),
     (["--methods", "nonsense"], "--methods: unknown method 'nonsense'"),
     (["--methods", "asvgf", "asvgf"], "--methods: a name is given twice"),
+    (["scenes/sequences/training/network/mirrors_switch.json"] * 2, "two specs named mirrors_switch: they would share"),
+    (["--network", "denoise/learned_asvgf.json", "denoise/../denoise/learned_asvgf.json"],
+     "a second method named learned_asvgf (each is named by its file name: copy one to another name)"),
     (["--network", "nowhere.json"], "nowhere.json: no such weights file"),
     (["nowhere_spec.json"], "nowhere_spec.json"),
     (["scenes/sequences/training/network/mirrors_switch.json", "--json",
@@ -72,19 +77,47 @@ def test_outputs_into_inputs_and_misnamed_files_are_one_line_before_any_work(arg
     assert not (tmp_path / "work").exists()
 
 
-def test_a_training_sequence_is_judged_with_a_note_and_any_method_name_is_taken(tmp_path, capsys):
+def test_any_method_name_is_taken_and_the_header_promises_no_missing_ratio(tmp_path, capsys):
     """validate took only the names of method_names() (not demod+atrous+temporal, which python -m
-    denoise takes), printed "ratio to asvgf's" without an asvgf column, and judged a sequence the
-    networks were trained on as if it were held out, without a word."""
+    denoise takes), printed "ratio to asvgf's" without an asvgf column (or with asvgf alone), and
+    noted a training sequence's name where no network was judged, on a sequence of that name alone."""
     from denoise.validate import main
 
-    spec = tiny_spec(tmp_path, 5).rename(tmp_path / "showcase_orbit.json")  # a training sequence's name
-    assert main([str(spec), "--work", str(tmp_path / "work"), "--reference-spp", "2",
-                 "--methods", "demod+atrous+temporal", "bilateral"]) == 0
-    captured = capsys.readouterr()
-    assert "note: the networks were trained on showcase_orbit: its numbers are not held-out ones" in captured.err
-    assert "ratio to asvgf" not in captured.out
-    assert "| sequence | demod+atrous+temporal | bilateral |" in captured.out
+    spec = tiny_spec(tmp_path, 5).rename(tmp_path / "showcase_orbit.json")  # a training sequence's name alone
+    runs = ((["demod+atrous+temporal", "bilateral"], "| sequence | demod+atrous+temporal | bilateral |"),
+            (["asvgf"], "| sequence | asvgf |"))  # the second renders nothing: the same --work
+    for methods, header in runs:
+        assert main([str(spec), "--work", str(tmp_path / "work"), "--reference-spp", "2", "--methods", *methods]) == 0
+        captured = capsys.readouterr()
+        assert "note:" not in captured.err and "ratio to asvgf" not in captured.out, captured
+        assert header in captured.out
+    frame = tmp_path / "work" / "showcase_orbit" / "beauty_2.exr"  # a damaged frame of the cache
+    frame.write_bytes(frame.read_bytes()[:100])
+    assert main([str(spec), "--work", str(tmp_path / "work"), "--reference-spp", "2", "--methods", "asvgf"]) == 2
+    err = capsys.readouterr().err.splitlines()[-1]  # after the progress line
+    work = tmp_path / "work"
+    remedy = f"remove {work / 'showcase_orbit'} and {work / 'showcase_orbit_reference'} to render them again"
+    assert err.startswith("python -m denoise.validate: error: ") and str(frame) in err and remedy in err, err
+
+
+def test_a_training_sequence_is_known_by_its_settings_not_its_name_alone(tmp_path):
+    """A judged training sequence gets a note (its numbers are not held-out ones) where it is the
+    training's own: the same settings but the truth's samples, wherever the file lies."""
+    import json
+    import shutil
+
+    from denoise.validate import TRAINED_ON, training_sequences
+    from export import Spec
+
+    shutil.copy(TINY_SPEC, tmp_path / "copy")
+    copy = (tmp_path / "copy").rename(tmp_path / "showcase_orbit.json")
+    assert "showcase_orbit" in TRAINED_ON
+    assert training_sequences({copy: Spec.load(copy, reference_spp=2)}, 2) == ["showcase_orbit"]
+    changed = json.loads(copy.read_text()) | {"frames": 5}
+    copy.write_text(json.dumps(changed))
+    assert training_sequences({copy: Spec.load(copy, reference_spp=2)}, 2) == []
+    held_out = Path(TINY_SPEC).parent / "mirrors_switch.json"
+    assert training_sequences({held_out: Spec.load(held_out, reference_spp=2)}, 2) == []
 
 
 @pytest.mark.parametrize("frames", [1, 3, 4])
