@@ -330,14 +330,13 @@ def interruption(error: BaseException) -> int | None:
 class ArgumentParser(argparse.ArgumentParser):
     """argparse whose errors are :class:`core.errors.UsageError` (one line, exit 2
     under :func:`run`), not a usage block; every user-facing command parses with it.
-    A path argument may not be empty: ``Path("")`` is the current folder."""
+    A path argument may not be empty (``Path("")`` is the current folder; no "give ." advice: most name a file)."""
 
     def error(self, message: str):
         raise UsageError(" ".join(message.split()))
 
     def _get_value(self, action, arg_string):  # argparse's one conversion point, groups' arguments included
         if action.type is Path and arg_string == "":
-            # no "give ." advice: most path arguments name a file, and "." is no file
             self.error(f"{'/'.join(action.option_strings) or action.metavar}: an empty path, not a name "
                        "(an unset shell variable?)")
         return super()._get_value(action, arg_string)
