@@ -285,12 +285,12 @@ def _main(argv: list[str] | None) -> int:
     if not (0.0 < args.rate <= 10.0):
         raise UsageError(f"--rate must be in (0, 10], got {args.rate}")
 
-    check_work_folder(args.work)
     for spec in specs:  # a fit never writes onto a spec it reads, nor into the frames it trains on
         check_outside({"--out": args.out, "--work": args.work}, {"SPEC.json": spec})
         frames = args.work / Path(spec).stem
         check_outside({"--out": args.out}, {f"frame folder (--work) of {Path(spec).name}": frames,
                                             f"ground truth (--work) of {Path(spec).name}": reference_folder(frames)})
+    check_work_folder(args.work)  # after: a --work that is a spec is told so, not merely that it is a file
     if args.out.suffix.lower() != ".json":
         raise UsageError(f"--out {args.out}: the parameter file is JSON; give a name ending in .json")
     if args.evaluate is not None:

@@ -118,9 +118,9 @@ def _main(argv: list[str] | None) -> int:
     specs = args.specs or TRAINING
     if not specs:
         raise UsageError("no training sequences (scenes/sequences/training/network/*.json is empty)")
-    check_work_folder(args.work)
     for spec in specs:  # a run never writes onto a spec it reads
         check_outside({"--out": args.out, "--work": args.work, "--plot": plot}, {"SPEC.json": spec})
+    check_work_folder(args.work)  # after: a --work that is a spec is told so, not merely that it is a file
     loaded = check_specs(specs)  # every refusal before any work
     check_frames_fit(loaded)
     names = [path.stem for path, _ in loaded]

@@ -190,12 +190,12 @@ def _main(argv: list[str] | None) -> int:
     for spec in specs:
         check_frames(spec, loaded[spec].frames)
     check_sequence_fits(loaded)
-    check_work_folder(args.work)
     for spec in specs:  # the command never writes onto a spec, a weights file or a frame folder it reads
         folder = args.work / spec.stem
         check_outside({"--work": args.work, "--json": args.json}, {"SPEC.json": spec})
         check_outside({"--json": args.json}, {f"frame folder (--work) of {spec.stem}": folder,
                                               f"ground truth (--work) of {spec.stem}": reference_folder(folder)})
+    check_work_folder(args.work)  # after: a --work that is a spec is told so, not merely that it is a file
     for path in named.values():
         check_outside({"--json": args.json}, {"--network": path})
     check_outside({"--json": args.json}, data_files())
