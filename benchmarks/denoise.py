@@ -70,7 +70,7 @@ from core import entry
 from core.entry import ArgumentParser
 from core.errors import OutputError, UsageError
 from core.inputs import check_outside
-from denoise.methods import benchmark_names, from_name, resolve
+from denoise.methods import benchmark_names, check_method_names, from_name
 from denoise.methods.oidn import oidn_version
 from denoise.methods.user import add_method_file_option, load_method_files
 from denoise.temporal_metrics import stability, temporal_relmse
@@ -261,15 +261,11 @@ def check_work_and_json(work: Path, json_path: Path | None, folders: list[Path] 
     check_json(json_path)
 
 
-def check_method_names(names: list[str], docs: bool) -> tuple[str, ...]:
+def checked_methods(names: list[str], docs: bool) -> tuple[str, ...]:
     """``--methods``: known names, each once, and not for the results page (which has every method)."""
     if docs:
         raise UsageError("--methods: --docs writes the page of every method; leave one of them out")
-    for name in names:
-        if name != "raw":
-            resolve(name)
-    if len(set(names)) != len(names):
-        raise UsageError("--methods: a name is given twice")
+    check_method_names("--methods", names, {"raw": "the noisy input"})
     return tuple(names)
 
 
@@ -296,7 +292,7 @@ def main(argv: list[str] | None = None) -> int:
                              ", ".join(f"{k} {v}" for k, v in REFERENCE_SPP.items()) + ")")
     load_method_files(argv)  # before parsing: --methods may name a method of one's own
     args = parser.parse_args(argv)
-    methods = METHODS if args.methods is None else check_method_names(args.methods, args.docs)
+    methods = METHODS if args.methods is None else checked_methods(args.methods, args.docs)
     known = [p.stem for p in SEQUENCES]
     unknown = [name for name in args.sequences or [] if name not in known]
     if unknown:

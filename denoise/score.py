@@ -45,7 +45,7 @@ from imaging.image_io import atomic_path, check_writable, read_exr_rgb
 from imaging.metrics import flip_error, relmse
 from renderer.variants import set_variant
 
-from .methods import data_files, from_name
+from .methods import check_method_names, data_files, from_name
 from .methods.user import add_method_file_option, load_method_files
 from .pipeline import check_folder
 from .temporal_metrics import stability, temporal_relmse
@@ -195,18 +195,6 @@ def read_frames(folder: Path, indices: list[int], truth: dict[Path, np.ndarray])
     return frames
 
 
-def check_methods(names: list[str]) -> None:
-    twice = sorted({name for name in names if names.count(name) > 1})
-    if twice:
-        raise UsageError(f"--compare: {', '.join(twice)} named twice (each method is scored once)")
-    for name in names:
-        if name != RAW:
-            try:
-                from_name(name)
-            except UsageError as error:
-                raise UsageError(f"--compare: {error}, or {RAW} (the noisy input)") from None
-
-
 def run_method(name: str, frames) -> list[np.ndarray]:
     """Our method ``name`` over ``frames`` in order (history kept), as ``benchmarks.denoise`` runs it."""
     if name == RAW:
@@ -232,7 +220,7 @@ def score_sequence(results: Path, reference: Path, frames_folder: Path | None = 
     pattern = check_pattern(pattern)
     if compare and frames_folder is None:
         raise UsageError("--compare runs our methods on the frames: give --frames FRAME_DIR")
-    check_methods(list(compare))
+    check_method_names("--compare", list(compare), {RAW: "the noisy input"})
     indices = reference_indices(reference)
     check_ground_truth("--reference", reference, frames_folder)
     if frames_folder is not None:
@@ -342,7 +330,7 @@ def _main(argv: list[str] | None) -> int:
     check_pattern(args.pattern)  # the cheap checks before Dr.Jit starts
     if args.compare and args.frames is None:
         raise UsageError("--compare runs our methods on the frames: give --frames FRAME_DIR")
-    check_methods(args.compare)
+    check_method_names("--compare", args.compare, {RAW: "the noisy input"})
     if args.frames is not None:  # back projection and our methods run in Dr.Jit
 
         set_variant(args.variant, jit=True)

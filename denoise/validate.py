@@ -43,7 +43,7 @@ from imaging.metrics import relmse
 from renderer.checks import check_memory
 from renderer.variants import set_variant
 
-from .methods import data_files, from_name, resolve
+from .methods import check_method_names, data_files, from_name, resolve
 from .methods.learned_asvgf import LearnedASVGF
 from .pipeline import BASE_BYTES as FRAME_BASE_BYTES, BYTES_PER_PIXEL as FRAME_BYTES_PER_PIXEL
 from .temporal_metrics import QUALITY_FROM
@@ -165,13 +165,7 @@ def _main(argv: list[str] | None) -> int:
     args = _parser().parse_args(argv)
     if not 2 <= args.reference_spp <= 1 << 16 or args.reference_spp % 2:
         raise UsageError(f"--reference-spp must be even, from 2 to 65536, got {args.reference_spp}")
-    for name in args.methods:  # every name python -m denoise --method takes, demod+ and outliers+ ones too
-        try:
-            resolve(name)
-        except UsageError as error:
-            raise UsageError(f"--methods: {error}") from None
-    if len(set(args.methods)) != len(args.methods):
-        raise UsageError("--methods: a name is given twice")
+    check_method_names("--methods", args.methods)  # every name python -m denoise --method takes, each once
     named = {}
     for path in args.network:
         if path.stem in named or path.stem in args.methods:

@@ -24,7 +24,7 @@ def test_judge_scores_each_method_per_frame_and_the_table_gives_ratios(exported)
 @pytest.mark.parametrize("argv, words", [
     (["--reference-spp", "3"], "--reference-spp must be even"),
     (["--methods", "nonsense"], "--methods: unknown method 'nonsense'"),
-    (["--methods", "asvgf", "asvgf"], "--methods: a name is given twice"),
+    (["--methods", "asvgf", "asvgf"], "--methods: asvgf named twice"),
     (["scenes/sequences/training/network/mirrors_switch.json"] * 2, "two specs named mirrors_switch: they would share"),
     (["--network", "denoise/learned_asvgf.json", "denoise/../denoise/learned_asvgf.json"],
      "a second method named learned_asvgf (each is named by its file name: copy one to another name)"),

@@ -138,6 +138,23 @@ def resolve(name: str) -> tuple[type[DenoisingMethod], dict]:
                      outliers=OutlierParams().k if "outliers" in parts else None)
 
 
+def check_method_names(flag: str, names: list[str], also: dict[str, str] | None = None) -> None:
+    """Each of ``names`` given once, and each a method's name (:func:`resolve`) or a key
+    of ``also`` (the other names the command takes, with what each is); else a one-line
+    :class:`UsageError` naming ``flag`` (``--methods``, ``--compare``)."""
+    also = also or {}
+    twice = sorted({name for name in names if names.count(name) > 1})
+    if twice:
+        raise UsageError(f"{flag}: {', '.join(twice)} named twice (each method is judged once)")
+    for name in names:
+        if name not in also:
+            try:
+                resolve(name)
+            except UsageError as error:
+                others = "".join(f", or {key} ({what})" for key, what in also.items())
+                raise UsageError(f"{flag}: {error}{others}") from None
+
+
 def from_name(name: str, **props) -> DenoisingMethod:
     """The method of a benchmark name (:func:`resolve`), ``props`` overriding its parameters."""
     cls, named = resolve(name)
