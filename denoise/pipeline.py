@@ -134,6 +134,11 @@ def last_run_results(target: Path) -> dict[Path, tuple[int, int]]:
         return {}
 
 
+def wrote_results(target: Path, before: dict) -> bool:
+    """Whether a result file in ``target`` is not as it was ``before`` (:func:`result_files`)."""
+    return any(before.get(path) != mark for path, mark in result_files(target).items())
+
+
 def finish_results(target: Path, source: Path, method: DenoisingMethod, last: dict, before: dict) -> int:
     """After a run that wrote results into ``target``: removes the last run's
     results (``last``, :func:`last_run_results`) that are still the files it
@@ -189,8 +194,9 @@ def denoise_folder(source: Path, target: Path, method: DenoisingMethod, on_frame
             try:
                 run_frames(source, target, method, indices, report, on_frame)
             except BaseException:
-                if report.written:  # the error is what the user needs to read: a failed clean-up is not
-                    with suppress(OutputError):
+                # a result is on disk from its rename on: a stop signal may raise before write_exr returns
+                if report.written or wrote_results(target, before):
+                    with suppress(OutputError):  # the error is what the user needs to read, not a failed clean-up
                         finish_results(target, source, method, last, before)
                 raise
             report.removed = finish_results(target, source, method, last, before)

@@ -1,6 +1,7 @@
 """The denoiser's Dr.Jit kernels against a plain NumPy implementation of the same maths."""
 from __future__ import annotations
 
+import signal
 from pathlib import Path
 
 import numpy as np
@@ -663,6 +664,30 @@ def test_results_of_an_earlier_run_are_not_left_beside_this_runs(variant_llvm_ad
     if second == "fewer frames":
         assert err == ("python -m denoise: note: 5 result files of the last run into "
                        f"{out}, which this run did not replace, removed\n"), err
+
+
+def test_a_stop_signal_just_after_a_results_rename_records_it(variant_llvm_ad_rgb, exported, tmp_path, monkeypatch):
+    """A stop signal's exception can come between a result's rename into place and
+    ``write_exr``'s return: the run still records that result as its own (the next
+    run removes it as the last run's), as it does a result written before the signal."""
+    import json
+
+    from core.entry import Interrupted
+    from denoise import pipeline
+    from denoise.methods import make
+
+    real = pipeline.write_exr
+
+    def renamed_then_stopped(path, layers):
+        real(path, layers)
+        raise Interrupted(signal.SIGTERM)
+
+    monkeypatch.setattr(pipeline, "write_exr", renamed_then_stopped)
+    out = tmp_path / "out"
+    with pytest.raises(Interrupted):
+        pipeline.denoise_folder(exported, out, make("bilateral"))
+    assert sorted(p.name for p in out.iterdir()) == ["denoise_results.json", "result_0.exr"]
+    assert list(json.loads((out / "denoise_results.json").read_text())["files"]) == ["result_0.exr"]
 
 
 def test_a_second_run_into_a_busy_out_dir_is_refused(variant_llvm_ad_rgb, exported, tmp_path, capsys):
