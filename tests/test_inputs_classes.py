@@ -83,24 +83,34 @@ def test_a_value_of_the_wrong_type_names_its_key(tmp_path, name):
         Spec.load(path)
 
 
+#: ``python -m denoise`` with asvgf's parameter file at the path given first (not the checkout's file)
+DENOISE_WITH_PARAMETER_FILE = """
+import sys
+from pathlib import Path
+from core.launcher import start
+start("python -m denoise", "denoise")
+from denoise.methods import asvgf
+asvgf.PARAMETER_FILE = Path(sys.argv.pop(1))
+from denoise.__main__ import main
+sys.exit(main(sys.argv[1:]))
+"""
+
+
 def test_a_damaged_parameter_file_leaves_other_methods_alone(tmp_path):
     """`--method svgf` does not read asvgf_params.json; `--method asvgf` says the file in one line."""
-    params = ROOT / "denoise" / "asvgf_params.json"
-    saved = params.read_bytes()
-    try:
-        params.write_bytes(b'{"parameters": {"slow_frames": 4, "slow_frames": 5}}')
-        done = {method: subprocess.run([sys.executable, "-m", "denoise", str(tmp_path / "none"), str(tmp_path / "o"),
-                                        "--method", method], cwd=ROOT, capture_output=True, text=True, timeout=120)
-                for method in ("svgf", "asvgf")}
-        # svgf is made and goes on to the folder; asvgf names the damaged file
-        assert done["svgf"].stderr.strip().endswith("none: not a folder"), done["svgf"].stderr
-        assert f"{params}: not a JSON parameter file (key \"slow_frames\" given twice" in done["asvgf"].stderr, \
-            done["asvgf"].stderr
-        assert {d.returncode for d in done.values()} == {2}
-        with pytest.raises(UsageError, match="given twice"):
-            load_parameter_file()
-    finally:
-        params.write_bytes(saved)
+    params = tmp_path / "asvgf_params.json"
+    params.write_bytes(b'{"parameters": {"slow_frames": 4, "slow_frames": 5}}')
+    done = {method: subprocess.run([sys.executable, "-c", DENOISE_WITH_PARAMETER_FILE, str(params),
+                                    str(tmp_path / "none"), str(tmp_path / "o"), "--method", method],
+                                   cwd=ROOT, capture_output=True, text=True, timeout=120)
+            for method in ("svgf", "asvgf")}
+    # svgf is made and goes on to the folder; asvgf names the damaged file
+    assert done["svgf"].stderr.strip().endswith("none: not a folder"), done["svgf"].stderr
+    assert f"{params}: not a JSON parameter file (key \"slow_frames\" given twice" in done["asvgf"].stderr, \
+        done["asvgf"].stderr
+    assert {d.returncode for d in done.values()} == {2}
+    with pytest.raises(UsageError, match="given twice"):
+        load_parameter_file(params)
 
 
 FAR_APART = (0, 10 ** 12)
