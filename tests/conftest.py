@@ -18,8 +18,11 @@ summary names it), so a broken set-up cannot pass as green.
 """
 from __future__ import annotations
 
+import fcntl
 import os
+import subprocess
 import sys
+from contextlib import contextmanager
 from pathlib import Path
 
 import pytest
@@ -138,6 +141,35 @@ def pytest_configure(config):
     config.addinivalue_line("markers", "slow: full-size or scalar-variant checks (deselect with -m 'not slow')")
     config.addinivalue_line("markers", "required: must run; a skip fails the session")
     config.addinivalue_line("markers", "vectorised: needs a vectorised (LLVM) variant; skips without one")
+    config.addinivalue_line("markers", "timed: asserts a wall-clock bound; under pytest-xdist no other test runs "
+                                       "meanwhile (see time_alone)")
+
+
+@contextmanager
+def turn(folder: Path, alone: bool):
+    """A test's turn among pytest-xdist's workers, through two lock files in
+    ``folder``: a ``timed`` test (``alone``) closes the gate, so no test starts,
+    and waits until the tests running have ended; any other shares the room."""
+    with open(folder / "tests.gate.lock", "a") as gate, open(folder / "tests.room.lock", "a") as room:
+        fcntl.flock(gate, fcntl.LOCK_EX)  # waits while a timed test waits for the room or is in it
+        try:
+            fcntl.flock(room, fcntl.LOCK_EX if alone else fcntl.LOCK_SH)
+        finally:
+            if not alone:
+                fcntl.flock(gate, fcntl.LOCK_UN)
+        yield  # closing the files releases the locks
+
+
+@pytest.fixture(autouse=True)
+def time_alone(request, tmp_path_factory):
+    """Under pytest-xdist, a test marked ``timed`` runs while no other does: its
+    wall-clock bound (a stop within 2 s) is the program's, not a share of the
+    cores. The lock files lie in the run's temporary folder, shared by its workers."""
+    if not is_worker(request.config):
+        yield
+        return
+    with turn(tmp_path_factory.getbasetemp().parent, request.node.get_closest_marker("timed") is not None):
+        yield
 
 
 def pytest_collection_modifyitems(config, items):
@@ -172,8 +204,53 @@ def pytest_terminal_summary(terminalreporter, exitstatus, config):
         terminalreporter.write_line(f"REQUIRED TEST SKIPPED {line}", red=True)
 
 
+#: the checkout's files (those git does not ignore) by modification time, at the session's start
+CHECKOUT_AT_START = pytest.StashKey[dict]()
+
+
+def checkout_files() -> dict[str, int]:
+    """Each file of the checkout that git does not ignore, by its modification time
+    (none outside a git checkout): a test writes only into its temporary folders."""
+    try:
+        listed = subprocess.run(["git", "ls-files", "-z", "--cached", "--others", "--exclude-standard"], cwd=ROOT,
+                                capture_output=True, check=True, timeout=60).stdout
+    except (OSError, subprocess.SubprocessError):
+        return {}
+    files = {}
+    for name in filter(None, listed.decode("utf-8", "surrogateescape").split("\0")):
+        try:
+            files[name] = (ROOT / name).lstat().st_mtime_ns
+        except OSError:
+            files[name] = -1  # listed but gone (deleted, not yet committed)
+    return files
+
+
+def is_worker(config) -> bool:
+    """Whether this process is a pytest-xdist worker (the controller reports for the session)."""
+    return hasattr(config, "workerinput")
+
+
+def pytest_sessionstart(session):
+    if not is_worker(session.config):
+        session.config.stash[CHECKOUT_AT_START] = checkout_files()
+
+
 def pytest_sessionfinish(session, exitstatus):
+    if is_worker(session.config):
+        return
     if _skipped["required"] and session.exitstatus == 0:
+        session.exitstatus = 1
+    before, after = session.config.stash.get(CHECKOUT_AT_START, {}), checkout_files()
+    changed = sorted(name for name in before.keys() | after.keys() if before.get(name) != after.get(name))
+    if before and changed:
+        terminal = session.config.pluginmanager.get_plugin("terminalreporter")
+        line = (f"THE TESTS CHANGED THE CHECKOUT (a test must write only into its temporary folders): "
+                f"{', '.join(changed[:10])}{' ...' if len(changed) > 10 else ''}")
+        if terminal:
+            terminal.write("\n")
+            terminal.write_line(line, red=True)
+        else:
+            print(line, file=sys.stderr)
         session.exitstatus = 1
     report = os.environ.get("PYTEST_SKIP_REPORT")  # benchmarks.report's scalar_suite step
     if report:

@@ -82,6 +82,7 @@ LONG_FRAME = dict(TINY, size=[1200, 1200], frames=1, reference_spp=128)
 LONG_FRAME_STOP_S = 3.0
 
 
+@pytest.mark.timed
 @pytest.mark.slow
 @pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
 def test_a_signal_during_a_long_render_ends_the_export_at_once(tmp_path, signum):

@@ -153,6 +153,7 @@ def test_parameter_file_round_trip(variant_vectorised_rgb, tmp_path):
     assert json.loads(path.read_text())["hand_set_loss"] == 0.2
 
 
+@pytest.mark.timed
 @pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
 def test_a_signal_during_the_fit_stops_it_within_two_seconds(tmp_path, signum):
     """A gradient step is one native call of up to minutes (its first one

@@ -23,6 +23,9 @@ from core.start_up import INTERRUPTED
 from validation.stress.cases_system import FACING_MIRRORS
 from validation.stress.system import ROOT, interrupt, python, run_command
 
+#: each test here bounds a wall-clock time (see conftest.time_alone)
+pytestmark = pytest.mark.timed
+
 #: The largest delay between a signal and the exit
 STOP_SECONDS = 2.0
 #: Sizes at which a render takes minutes (llvm: ~3000 ray casts per pixel)

@@ -242,6 +242,7 @@ def test_a_loss_that_is_not_finite_stops_the_step(variant_llvm_ad_rgb):
     assert adam.t == 0 and np.isnan(adam.theta[-1])
 
 
+@pytest.mark.timed
 def test_ctrl_c_keeps_the_checkpoint_and_a_rerun_resumes(tiny, tmp_path):
     """Ctrl-C during a step: exit 130 within 2 s, the last step's checkpoint
     kept; the rerun trains the remaining steps only and writes the weights."""

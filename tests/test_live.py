@@ -334,6 +334,7 @@ def test_a_viewer_that_stops_reading_gets_no_queue(server):
     assert len(frames) <= 2 * IN_FLIGHT, frames
 
 
+@pytest.mark.timed
 @pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
 def test_interrupt_stops_within_a_second(signum):
     _needs_llvm()

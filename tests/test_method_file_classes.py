@@ -146,6 +146,7 @@ def stop_while_filtering(signum: int, body: str, exported: Path, tmp_path: Path)
     assert not list(out.glob("*")) if out.exists() else True
 
 
+@pytest.mark.timed
 @pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
 def test_a_filter_that_swallows_the_stop_signal_still_stops(signum, exported, tmp_path):
     """The filter catches the interruption and returns: the command still stops at once."""
@@ -153,6 +154,7 @@ def test_a_filter_that_swallows_the_stop_signal_still_stops(signum, exported, tm
                          "            pass\n        return arrays.tensor(arrays.color)", exported, tmp_path)
 
 
+@pytest.mark.timed
 @pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
 def test_a_filter_that_never_lets_the_stop_signal_out_still_stops(signum, exported, tmp_path):
     """The filter loops for ever, swallowing every interruption: the handler's watchdog ends

@@ -99,6 +99,7 @@ def test_launcher_without_a_venv_says_what_to_do(monkeypatch, capsys, tmp_path):
 
 
 @pytest.mark.slow
+@pytest.mark.xdist_group("notebooks")  # may install the notebook extra: not while a notebook runs
 def test_jupyter_command_of_the_readme():
     """`./dev notebooks` (the README's way to open the notebooks) finds JupyterLab
     and nbconvert in ./.venv, installing the notebook extra on first use."""

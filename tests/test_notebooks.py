@@ -15,6 +15,8 @@ from nbformat.v4 import new_code_cell, new_notebook
 
 from notebooks import build
 
+#: one worker runs these and the README's Jupyter command, which may install the notebook extra
+pytestmark = pytest.mark.xdist_group("notebooks")
 ROOT = Path(__file__).resolve().parent.parent
 NAMES = sorted(build.NOTEBOOKS)
 #: the smallest image side of a full-size notebook

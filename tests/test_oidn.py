@@ -59,6 +59,7 @@ def test_quality_mode_is_set_on_the_filter(quality):
     assert denoiser.quality == quality  # read back from the library
 
 
+@pytest.mark.timed
 def test_fast_and_high_are_different_networks():
     """With albedo and normals, ``high`` runs OIDN 2's large network: a different
     output from ``fast`` on the same input, and a slower execute."""

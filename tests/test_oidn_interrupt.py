@@ -11,6 +11,9 @@ import time
 import numpy as np
 import pytest
 
+#: each test here bounds a wall-clock time (see conftest.time_alone)
+pytestmark = pytest.mark.timed
+
 
 class NativeSleep:
     """A filter whose execute is native code that holds no GIL and sees no signal (as OIDN's)."""

@@ -204,6 +204,7 @@ def test_one_sample_renders_as_mitsuba_does(variant_vectorised_rgb):
     assert np.mean(np.any(ours != theirs, axis=-1)) < 0.002
 
 
+@pytest.mark.timed
 def test_ctrl_c_stops_a_long_render(variant_llvm_ad_rgb, tmp_path):
     """A render that needs well over a minute gets SIGINT 8 s after its start (it is
     rendering by then): it exits with 130 within 2 s."""
@@ -301,6 +302,7 @@ def test_light_loop_misses_no_light(variant_llvm_ad_rgb):
     assert np.abs(looped - unrolled).max() > 1e-3
 
 
+@pytest.mark.timed
 def test_thousand_lights_compile_fast(variant_vectorised_rgb):
     start = time.perf_counter()
     image, _ = render_lights(many_lights(1000), 8, size=(32, 32))

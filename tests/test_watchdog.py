@@ -62,6 +62,7 @@ def stopped(source: str, signum: int, *args: str) -> tuple[int, str, float]:
             process.wait(10)
 
 
+@pytest.mark.timed
 @pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
 def test_a_body_that_swallows_the_signal_inside_a_write_is_ended_without_its_temporary_file(signum, tmp_path):
     code, err, took = stopped(SWALLOWING_WRITE, signum, str(tmp_path / "out.txt"))
@@ -70,6 +71,7 @@ def test_a_body_that_swallows_the_signal_inside_a_write_is_ended_without_its_tem
     assert list(tmp_path.iterdir()) == []
 
 
+@pytest.mark.timed
 def test_a_teardown_that_waits_for_a_thread_is_ended_with_the_code(tmp_path):
     code, err, took = stopped(ENDLESS_THREAD, signal.SIGINT)
     assert code == 130 and err.count("\n") == 1 and "Traceback" not in err, err
