@@ -7,8 +7,8 @@ The training sequences (default ``scenes/sequences/training/network/*.json``)
 are exported into ``--work`` once (a rerun renders nothing); a benchmark
 sequence or scene, or a sequence without ground truth, is refused in one
 line before any work. Each step prints the training loss and the held-out
-sequences' loss on stderr (each sequence's relMSE over asvgf's: 1 is asvgf,
-below 1 better), and writes a checkpoint
+sequences' loss on stderr (progress: each sequence's relMSE over asvgf's, 1
+is asvgf, below 1 better; the final line goes to stdout), and writes a checkpoint
 (``WORK/OUT-NAME.checkpoint.npz``): Ctrl-C stops at once (exit 130) with
 the last step's checkpoint kept, and a rerun with the same settings resumes
 from it (``--restart`` starts over). After the last step the weights file
@@ -121,7 +121,8 @@ def _main(argv: list[str] | None) -> int:
     for spec in specs:  # a run never writes onto a spec it reads
         check_outside({"--out": args.out, "--work": args.work, "--plot": plot}, {"SPEC.json": spec})
     check_work_folder(args.work)  # after: a --work that is a spec is told so, not merely that it is a file
-    loaded = check_specs(specs)  # every refusal before any work
+    # every refusal before any work; in name order: a training is of a set of sequences, whatever order they came in
+    loaded = sorted(check_specs(specs), key=lambda item: item[0].stem)
     check_frames_fit(loaded)
     names = [path.stem for path, _ in loaded]
     if len(set(names)) != len(names):
@@ -171,7 +172,7 @@ def _main(argv: list[str] | None) -> int:
     if not args.quiet:
         held = "no sequence held out" if curve[-1][2] is None else f"held out {curve[-1][2]:.6f}"
         print(f"final loss {curve[-1][1]:.6f} ({held}); weights written to {printable(args.out)}, "
-              f"curves to {printable(plot)}", file=sys.stderr)
+              f"curves to {printable(plot)}")  # the result, on stdout as every command's; steps are progress
     return 0
 
 

@@ -205,6 +205,22 @@ def tiny(tmp_path_factory):
     return spec, folder / "work"
 
 
+def test_the_specs_order_does_not_change_the_training(tiny, tmp_path):
+    """The same sequences in another order on the command line are the same training:
+    a rerun resumes from the checkpoint instead of refusing it as another one's."""
+    from denoise.train import main
+
+    spec, work = tiny
+    other = tmp_path / "tiny_again.json"
+    other.write_text(spec.read_text())
+    out = tmp_path / "order.json"
+    common = ["--work", str(work), "--out", str(out), "--plot", str(tmp_path / "o.png"), "--hidden", "4", "--quiet"]
+    assert main([str(spec), str(other), "--steps", "1", *common]) == 0
+    assert main([str(other), str(spec), "--steps", "2", *common]) == 0
+    assert json.loads(out.read_text())["record"]["steps"] == 2
+    (work / "order.checkpoint.npz").unlink(missing_ok=True)
+
+
 def test_a_checkpoint_with_nan_weights_is_refused_and_writes_nothing(tiny, tmp_path, capsys):
     """A NaN in a checkpoint's weights (which made the loss NaN after a step's
     work) is refused before the worker starts: one line, exit 2, the weights
@@ -269,7 +285,8 @@ def test_ctrl_c_keeps_the_checkpoint_and_a_rerun_resumes(tiny, tmp_path):
 
 
 def test_quiet_training_prints_nothing(tiny, tmp_path):
-    """--quiet: stderr empty on success (its step lines were printed all the same)."""
+    """--quiet: stderr empty on success (its step lines were printed all the same); without it the
+    steps go to stderr and the final line to stdout."""
     spec, work = tiny
     out = tmp_path / "q.json"
     done = subprocess.run([sys.executable, "-m", "denoise.train", str(spec), "--work", str(work), "--out", str(out),
@@ -277,6 +294,12 @@ def test_quiet_training_prints_nothing(tiny, tmp_path):
                            "--quiet"], cwd=ROOT, capture_output=True, text=True, timeout=600)
     assert done.returncode == 0 and done.stderr == "", done.stderr
     assert json.loads(out.read_text())["record"]["steps"] == 1
+    # without it: the steps (progress) on stderr, the result's line on stdout, as every command's
+    done = subprocess.run([sys.executable, "-m", "denoise.train", str(spec), "--work", str(work), "--out", str(out),
+                           "--plot", str(tmp_path / "q.png"), "--hidden", "4", "--steps", "1", "--restart"],
+                          cwd=ROOT, capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0 and done.stderr.startswith("step 1/1: loss "), done.stderr
+    assert done.stdout.startswith("final loss ") and f"weights written to {out}" in done.stdout, done.stdout
     (work / "q.checkpoint.npz").unlink(missing_ok=True)
 
 
