@@ -81,23 +81,20 @@ class FolderBusy(OutputError):
     """Another export holds a folder's lock."""
 
 
-def _lock(folder: Path, doing: str, remedy: str | None = None) -> int:
-    """The descriptor of ``folder``'s lock file, locked; raises :class:`FolderBusy`
-    (``doing``: what holds it, "export" or "denoise", and ``remedy``, what
-    else to do than wait, for the message)."""
-    path = folder / LOCK_NAME
+def lock_file(path: Path, busy: str, cannot: str) -> int:
+    """The descriptor of the lock file ``path`` (made where missing), locked; raises
+    :class:`FolderBusy` saying ``busy`` where another process holds it, and
+    :class:`OutputError` (``cannot``, then why) where it cannot be made."""
     while True:
         try:
-            folder.mkdir(parents=True, exist_ok=True)
             descriptor = os.open(path, os.O_RDWR | os.O_CREAT, 0o666)
         except OSError as error:
-            raise OutputError(f"{folder}: cannot write there: {error.strerror or error}") from None
+            raise OutputError(f"{cannot}: {error.strerror or error}") from None
         try:
             fcntl.flock(descriptor, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
             os.close(descriptor)
-            raise FolderBusy(f"{folder}: another {doing} is writing into this folder; wait for it to "
-                             f"finish, or {remedy or f'{doing} into another folder'}") from None
+            raise FolderBusy(busy) from None
         try:
             if os.stat(path).st_ino == os.fstat(descriptor).st_ino:
                 TEMPORARY.add(str(path))  # a watchdog that ends the process removes it too
@@ -107,14 +104,34 @@ def _lock(folder: Path, doing: str, remedy: str | None = None) -> int:
         os.close(descriptor)  # the holder removed that file as it finished: lock the new one
 
 
-def _unlock(folder: Path, descriptor: int) -> None:
-    """Removes the lock file while still holding it (so that no one waits on a
-    file no one else sees), then releases it."""
+def unlock_file(path: Path, descriptor: int) -> None:
+    """Removes the lock file ``path`` while still holding it (so that no one waits on
+    a file no one else sees), then releases it."""
     try:
-        (folder / LOCK_NAME).unlink(missing_ok=True)
+        path.unlink(missing_ok=True)
     finally:
-        TEMPORARY.discard(str(folder / LOCK_NAME))
+        TEMPORARY.discard(str(path))
         os.close(descriptor)
+
+
+def _lock(folder: Path, doing: str, remedy: str | None = None) -> int:
+    """The descriptor of ``folder``'s lock file, locked; raises :class:`FolderBusy`
+    (``doing``: what holds it, "export" or "denoise", and ``remedy``, what
+    else to do than wait, for the message)."""
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        raise OutputError(f"{folder}: cannot write there: {error.strerror or error}") from None
+    return lock_file(folder / LOCK_NAME, f"{folder}: another {doing} is writing into this folder; wait for it to "
+                                         f"finish, or {remedy or f'{doing} into another folder'}",
+                     f"{folder}: cannot write there")
+
+
+def name_lock_file(path: Path) -> Path:
+    """The lock file of :func:`name_locked` for ``path``: in the system's temporary folder,
+    named by the hash of the resolved name."""
+    key = hashlib.sha256(str(Path(path).resolve()).encode("utf-8", "surrogateescape")).hexdigest()[:32]
+    return Path(tempfile.gettempdir()) / f"toolkit-{key}.lock"
 
 
 @contextmanager
@@ -123,22 +140,15 @@ def name_locked(path: Path, doing: str, remedy: str) -> Iterator[None]:
     on a file in the system's temporary folder named by the name's hash, so that
     no lock file lands beside ``path`` (a file of the repository, say); raises
     :class:`FolderBusy` (``doing`` and ``remedy`` as :func:`locked`'s) where
-    another process holds it. The lock goes with its process, however it ends."""
-    key = hashlib.sha256(str(Path(path).resolve()).encode("utf-8", "surrogateescape")).hexdigest()[:32]
-    lock = Path(tempfile.gettempdir()) / f"toolkit-{key}.lock"
+    another process holds it. The lock file goes when the block ends; the lock
+    itself goes with its process, however it ends."""
+    lock = name_lock_file(path)
+    descriptor = lock_file(lock, f"{path}: another {doing} is writing this file; wait for it to finish, or {remedy}",
+                           f"{lock}: cannot lock {path} there")
     try:
-        descriptor = os.open(lock, os.O_RDWR | os.O_CREAT, 0o666)
-    except OSError as error:
-        raise OutputError(f"{lock}: cannot lock {path} there: {error.strerror or error}") from None
-    try:
-        try:
-            fcntl.flock(descriptor, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            raise FolderBusy(f"{path}: another {doing} is writing this file; wait for it to finish, "
-                             f"or {remedy}") from None
         yield
     finally:
-        os.close(descriptor)
+        unlock_file(lock, descriptor)
 
 
 @contextmanager
@@ -152,5 +162,5 @@ def locked(folders: list[Path], doing: str = "export", remedy: str | None = None
     with ExitStack() as stack:
         for folder in sorted({Path(f).absolute() for f in folders}):
             descriptor = _lock(folder, doing, remedy)
-            stack.callback(_unlock, folder, descriptor)
+            stack.callback(unlock_file, folder / LOCK_NAME, descriptor)
         yield

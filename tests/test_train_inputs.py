@@ -375,11 +375,13 @@ def test_a_second_training_in_a_busy_work_folder_is_refused(setup, capfd):
 def test_a_second_training_into_a_busy_out_is_refused(setup, capfd, tmp_path):
     """Two trainings into one --out from two --work folders: the one that ended last replaced
     the other's weights without a word; the second is now one line, --out untouched."""
-    from export.files import name_locked
+    from export.files import name_lock_file, name_locked
 
     spec, work, out = setup
     other = tmp_path / "other work"
     with name_locked(out, doing="training", remedy="give another --out"):  # as a training in progress holds it
         refused(capfd, train(spec, other, out), f"{out}: another training is writing this file; wait for it to "
                 "finish, or give another --out")
+        assert name_lock_file(out).is_file()
     assert out.read_text() == "before\n" and not other.exists()
+    assert not name_lock_file(out).exists()  # the lock file goes with the lock: none is left in /tmp per --out
