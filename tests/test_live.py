@@ -487,9 +487,23 @@ def test_the_page_offers_its_sizes_and_the_one_it_started_with():
     for name in (*SIZES, "32x18"):
         session.apply(parse_message(f'{{"type": "size", "name": "{name}"}}', "svgf"))
         assert "{}x{}".format(*session.view().size) == name
-    with pytest.raises(MessageError, match="unknown size '99x99'"):
+    with pytest.raises(MessageError, match=re.escape(f"unknown size '99x99'; known: {', '.join(SIZES)} (those the "
+                                                     "page lists), and 32x18, the size the server started with")):
         session.apply(parse_message('{"type": "size", "name": "99x99"}', "svgf"))
     assert session.view().size == (32, 18)
+
+
+@pytest.mark.parametrize("text, expected", [
+    ("null", "expected a JSON object, got null"), ("[1, 2]", "expected a JSON object, got an array"),
+    ('"step"', "expected a JSON object, got a string"), ("7", "expected a JSON object, got a number"),
+    ('{"type": "step", "": 1}', 'step: unknown keys ""'),
+    ('{"type": "pause", "paused": null}', "pause.paused: expected true or false, got null"),
+    ('{"type": "dolly", "amount": true}', "dolly.amount: expected a number in [-1, 1], got true")])
+def test_a_refused_message_says_what_it_got_in_json_words(text, expected):
+    """The page speaks JSON: a refusal names what came in JSON's words (null, an array, true), not Python's."""
+    with pytest.raises(MessageError) as error:
+        parse_message(text, "svgf")
+    assert str(error.value) == expected
 
 
 def test_dolly_out_stays_within_float32():

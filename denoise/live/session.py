@@ -10,6 +10,7 @@ page) and changes nothing.
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
 import re
 import threading
@@ -49,6 +50,19 @@ MAX_PIVOT_DISTANCE = 1e3
 PITCH_MARGIN = 1.0
 
 
+def json_kind(value) -> str:
+    """What ``value``, parsed from JSON, is, in JSON's words."""
+    if isinstance(value, bool) or value is None:
+        return json.dumps(value)
+    return {dict: "an object", list: "an array", str: "a string"}.get(type(value), "a number")
+
+
+def shown(value) -> str:
+    """``value`` as the JSON text the page sent, cut to 40 characters."""
+    text = json.dumps(value)
+    return text if len(text) <= 40 else text[:37] + "..."
+
+
 class MessageError(ValueError):
     """A message the page sent that is not acceptable; the text says why."""
 
@@ -63,7 +77,7 @@ def parse_message(text: str | bytes, method: str) -> dict:
     except JSONInputError as error:
         raise MessageError(f"not JSON: {error}") from None
     if not isinstance(message, dict):
-        raise MessageError(f"expected a JSON object, got {type(message).__name__}")
+        raise MessageError(f"expected a JSON object, got {json_kind(message)}")
     kind = message.get("type")
     if not isinstance(kind, str) or kind not in MESSAGES:
         raise MessageError(f"unknown message type {kind!r}; known: {', '.join(MESSAGES)}")
@@ -72,13 +86,13 @@ def parse_message(text: str | bytes, method: str) -> dict:
     if keys != set(schema):
         extra, missing = sorted(keys - set(schema)), sorted(set(schema) - keys)
         raise MessageError(f"{kind}: " + "; ".join(
-            ([f"unknown keys {', '.join(map(str, extra))}"] if extra else [])
+            ([f"unknown keys {', '.join(map(shown, extra))}"] if extra else [])
             + ([f"missing keys {', '.join(missing)}"] if missing else [])))
     for key, rule in schema.items():
         value = message[key]
         if rule is bool:
             if not isinstance(value, bool):
-                raise MessageError(f"{kind}.{key}: expected true or false, got {value!r}")
+                raise MessageError(f"{kind}.{key}: expected true or false, got {shown(value)}")
         elif rule == "method":
             if not isinstance(value, str) or value not in METHOD_NAMES:
                 raise MessageError(f"{kind}.{key}: unknown method {str(value)[:40]!r}; "
@@ -96,7 +110,7 @@ def parse_message(text: str | bytes, method: str) -> dict:
             low, high = rule
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) \
                     or not low <= value <= high:
-                raise MessageError(f"{kind}.{key}: expected a number in [{low:g}, {high:g}], got {value!r}")
+                raise MessageError(f"{kind}.{key}: expected a number in [{low:g}, {high:g}], got {shown(value)}")
     if kind == "param":
         slider = next(s for s in SLIDERS[method] if s.name == message["name"])
         value = message["value"]
@@ -217,15 +231,13 @@ class Session:
     def _size(self, name: str) -> None:
         width, height = (int(v) for v in name.split("x"))
         if name not in SIZES and (width, height) != self.first_size:
-            raise MessageError(f"size.name: unknown size {name!r}; known: {', '.join(self.sizes())}")
+            first = "{}x{}".format(*self.first_size)
+            started = "" if first in SIZES else f", and {first}, the size the server started with"
+            raise MessageError(f"size.name: unknown size {name!r}; known: {', '.join(SIZES)} (those the page "
+                               f"lists){started}")
         if (width, height) != self.size:
             self.size = (width, height)
             self.history_resets += 1
-
-    def sizes(self) -> list[str]:
-        """The sizes the page offers: :data:`SIZES`, and the one the server started with."""
-        first = "{}x{}".format(*self.first_size)
-        return list(SIZES) + ([first] if first not in SIZES else [])
 
     def _param(self, name: str, value: float) -> None:
         self.values[self.method][name] = value
