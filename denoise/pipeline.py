@@ -136,7 +136,24 @@ def last_run_results(target: Path) -> dict[Path, tuple[int, int]]:
 
 def wrote_results(target: Path, before: dict) -> bool:
     """Whether a result file in ``target`` is not as it was ``before`` (:func:`result_files`)."""
-    return any(before.get(path) != mark for path, mark in result_files(target).items())
+    return bool(results_since(target, before))
+
+
+def results_since(target: Path, before: dict) -> dict[str, list]:
+    """This run's results in ``target``: the result files not as they were ``before``, by name, with their identity."""
+    return {path.name: list(mark) for path, mark in result_files(target).items() if before.get(path) != mark}
+
+
+def record_results(target: Path, source: Path, method: DenoisingMethod, files: dict[str, list]) -> None:
+    write_record(target / RESULTS_RECORD, {"source": str(source.absolute()), "method": method.name, "files": files})
+
+
+def record_progress(target: Path, source: Path, method: DenoisingMethod, last: dict, before: dict) -> None:
+    """Records this run's results so far with the last run's results still as it wrote them:
+    a run that ends before :func:`finish_results` (the watchdog after a stop signal, a kill)
+    leaves the next run every one of them to remove."""
+    files = {path.name: list(mark) for path, mark in last.items() if identity(path) == mark}
+    record_results(target, source, method, {**files, **results_since(target, before)})
 
 
 def finish_results(target: Path, source: Path, method: DenoisingMethod, last: dict, before: dict) -> int:
@@ -154,9 +171,7 @@ def finish_results(target: Path, source: Path, method: DenoisingMethod, last: di
                 raise OutputError(f"{path}: a result of the last run cannot be removed ({error.strerror or error})"
                                   ) from None
             removed += 1
-    written = {path.name: list(mark) for path, mark in result_files(target).items() if before.get(path) != mark}
-    write_record(target / RESULTS_RECORD, {"source": str(source.absolute()), "method": method.name,
-                                           "files": written})
+    record_results(target, source, method, results_since(target, before))
     return removed
 
 
@@ -192,7 +207,12 @@ def denoise_folder(source: Path, target: Path, method: DenoisingMethod, on_frame
         with locked([target], doing="denoise"):
             last, before = last_run_results(target), result_files(target)
             try:
-                run_frames(source, target, method, indices, report, on_frame)
+                def frame_done(index, frame, result):
+                    if on_frame is not None:
+                        on_frame(index, frame, result)
+                    record_progress(target, source, method, last, before)
+
+                run_frames(source, target, method, indices, report, frame_done)
             except BaseException:
                 # a result is on disk from its rename on: a stop signal may raise before write_exr returns
                 if report.written or wrote_results(target, before):

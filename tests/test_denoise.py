@@ -690,6 +690,26 @@ def test_a_stop_signal_just_after_a_results_rename_records_it(variant_llvm_ad_rg
     assert list(json.loads((out / "denoise_results.json").read_text())["files"]) == ["result_0.exr"]
 
 
+def test_the_record_is_kept_frame_by_frame(variant_llvm_ad_rgb, exported, tmp_path):
+    """After each frame the record lists this run's results so far and the last run's
+    that it has not replaced: a run that the watchdog ends after a stop signal (no
+    clean-up: the process exits from another thread) leaves the next run all of them."""
+    import json
+
+    from denoise import pipeline
+    from denoise.methods import make
+
+    out = tmp_path / "out"
+    pipeline.denoise_folder(exported, out, make("bilateral"))
+    first = json.loads((out / pipeline.RESULTS_RECORD).read_text())["files"]
+    seen = []
+    pipeline.denoise_folder(exported, out, make("bilateral"), on_frame=lambda index, frame, result: seen.append(
+        json.loads((out / pipeline.RESULTS_RECORD).read_text())["files"]))
+    assert seen[0] == first  # frame 0's result written, not yet recorded
+    assert sorted(seen[1]) == ["result_0.exr", "result_1.exr"]  # frame 0's, then the last run's frame 1
+    assert seen[1]["result_0.exr"] != first["result_0.exr"] and seen[1]["result_1.exr"] == first["result_1.exr"]
+
+
 def test_a_second_run_into_a_busy_out_dir_is_refused(variant_llvm_ad_rgb, exported, tmp_path, capsys):
     """Two runs of python -m denoise into one OUT_DIR at once: the second is refused in
     one line (each would take the other's results for a last run's)."""
