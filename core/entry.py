@@ -424,14 +424,14 @@ def run(prog: str, body: Callable[[], int | None], interrupted: str = INTERRUPTE
 
 
 def restore_handlers(record: SignalRecord, previous: dict) -> None:
-    """Puts back the handlers :func:`run` replaced; a stop signal recorded once the body had
-    ended (not raised out of here as a traceback) is given to the handler put back."""
+    """Puts back the handlers :func:`run` replaced; a stop signal recorded once the body had ended is given
+    to the handler put back, unless one had stopped the body (the late one is that stop sent again)."""
     record.finished = True
     if not previous:
         return
     for signum, handler in previous.items():
         signal.signal(signum, handler)
-    deliver(record.late, previous)
+    deliver(record.late if len(record.received) == len(record.late) else [], previous)
 
 
 def finish(code: int) -> NoReturn:

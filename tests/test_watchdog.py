@@ -111,3 +111,36 @@ def test_the_watchdog_waits_for_a_cleanup_of_ours():
             process.kill()
             process.wait(10)
     assert process.returncode == 130 and out == "closed\n" and err.count("\n") == 1, (out, err)
+
+
+#: ``run`` on a body that stops by SIGINT (argv[1] "stopped") or returns 0 ("finished"), with a
+#: SIGINT arriving once the body has ended and before the handlers are put back (as a stop
+#: signal that the unraisable hook sends anew): prints run's exit code, or what escaped it
+LATE_SIGNAL = """
+import os, signal, sys
+from core import entry
+
+def body():
+    if sys.argv[1] == "stopped":
+        os.kill(os.getpid(), signal.SIGINT)
+    return 0
+
+def end_then_signal(self):
+    os.kill(os.getpid(), signal.SIGINT)  # recorded as late: the body has finished
+
+entry.SignalRecord.end = end_then_signal
+try:
+    print(entry.run("prog", body))
+except KeyboardInterrupt:
+    print("KeyboardInterrupt")
+"""
+
+
+@pytest.mark.parametrize("body, expected", [("stopped", "130"), ("finished", "KeyboardInterrupt")])
+def test_a_stop_signal_after_the_body_is_dropped_only_where_one_had_stopped_it(body, expected):
+    """A run stopped by SIGINT returns 130 even where that SIGINT comes again after the
+    body (it had ended by SIGINT itself, after its line, once in 40 stops); a run that
+    finished still gets a late signal from the handler put back."""
+    done = subprocess.run([sys.executable, "-c", LATE_SIGNAL, body], cwd=ROOT, capture_output=True, text=True,
+                          timeout=60)
+    assert done.stdout.split() == [expected], (done.stdout, done.stderr)
