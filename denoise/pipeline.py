@@ -210,7 +210,8 @@ def denoise_folder(source: Path, target: Path, method: DenoisingMethod, on_frame
                 def frame_done(index, frame, result):
                     if on_frame is not None:
                         on_frame(index, frame, result)
-                    record_progress(target, source, method, last, before)
+                    with suppress(OutputError):  # a full disk is said by the next result's error, or the end's
+                        record_progress(target, source, method, last, before)
 
                 run_frames(source, target, method, indices, report, frame_done)
             except BaseException:
