@@ -134,11 +134,6 @@ def last_run_results(target: Path) -> dict[Path, tuple[int, int]]:
         return {}
 
 
-def wrote_results(target: Path, before: dict) -> bool:
-    """Whether a result file in ``target`` is not as it was ``before`` (:func:`result_files`)."""
-    return bool(results_since(target, before))
-
-
 def results_since(target: Path, before: dict) -> dict[str, list]:
     """This run's results in ``target``: the result files not as they were ``before``, by name, with their identity."""
     return {path.name: list(mark) for path, mark in result_files(target).items() if before.get(path) != mark}
@@ -216,7 +211,7 @@ def denoise_folder(source: Path, target: Path, method: DenoisingMethod, on_frame
                 run_frames(source, target, method, indices, report, frame_done)
             except BaseException:
                 # a result is on disk from its rename on: a stop signal may raise before write_exr returns
-                if report.written or wrote_results(target, before):
+                if report.written or results_since(target, before):
                     with suppress(OutputError):  # the error is what the user needs to read, not a failed clean-up
                         finish_results(target, source, method, last, before)
                 raise
