@@ -128,3 +128,17 @@ def read_json(path: Path, limit: int, constants: bool = False):
         raise JSONInputError(f"{path}: {error}") from None
     except OSError as error:
         raise JSONInputError(f"{path}: {error.strerror or error}") from None
+
+
+def json_kind(value) -> str:
+    """What ``value``, parsed from JSON, is, in JSON's words (``null``, ``an array``)."""
+    if isinstance(value, bool) or value is None:
+        return json.dumps(value)
+    return {dict: "an object", list: "an array", str: "a string"}.get(type(value), "a number")
+
+
+def shown(value) -> str:
+    """``value``, parsed from JSON, as JSON text (``null``, ``"x"``, ``[1, 2]``) for an error
+    message, cut to 40 characters: what the user wrote, not Python's spelling of it."""
+    text = json.dumps(value, default=str)
+    return text if len(text) <= 40 else text[:37] + "..."

@@ -12,7 +12,7 @@ from pathlib import Path
 
 from converters.model import DirectionalLight, PointLight, Scene
 from core.errors import SpecError
-from core.json_input import JSONInputError, read_json
+from core.json_input import JSONInputError, json_kind, read_json, shown
 
 # Limits: Mitsuba indexes one render's samples with 32-bit integers
 MAX_SIDE = 16384
@@ -35,7 +35,7 @@ INDEX = r"0|[1-9]\d{0,8}"
 
 def _int(value, name: str, source: str, low: int, high: int) -> int:
     if isinstance(value, bool) or not isinstance(value, int):
-        raise SpecError(f"{_key_in(source, name)}: expected an integer, found {value!r}")
+        raise SpecError(f"{_key_in(source, name)}: expected an integer, found {shown(value)}")
     if not low <= value <= high:
         raise SpecError(f"{_key_in(source, name)}: expected {low}..{high}, found {value}")
     return value
@@ -45,28 +45,28 @@ def _number(value, name: str, source: str) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) \
             or abs(value) > 1e30:
         raise SpecError(f"{_key_in(source, name)}: expected a finite number of magnitude at most 1e30, "
-                        f"found {value!r}")
+                        f"found {shown(value)}")
     return float(value)
 
 
 def _vector(value, name: str, source: str) -> list[float]:
     if not isinstance(value, (list, tuple)) or len(value) != 3:
-        raise SpecError(f"{_key_in(source, name)}: expected [x, y, z], found {value!r}")
+        raise SpecError(f"{_key_in(source, name)}: expected [x, y, z], found {shown(value)}")
     return [_number(v, f"{name}[{k}]", source) for k, v in enumerate(value)]
 
 
 def _bool(value, name: str, source: str) -> bool:
     if not isinstance(value, bool):
-        raise SpecError(f"{_key_in(source, name)}: expected true or false, found {value!r}")
+        raise SpecError(f"{_key_in(source, name)}: expected true or false, found {shown(value)}")
     return value
 
 
 def _keys(value, name: str, source: str, known: set[str]) -> dict:
     if not isinstance(value, dict):
-        raise SpecError(f"{_key_in(source, name)}: expected an object, found {value!r}")
+        raise SpecError(f"{_key_in(source, name)}: expected an object, found {shown(value)}")
     unknown = set(value) - known
     if unknown:
-        raise SpecError(f"{_key_in(source, name)}: unknown keys {', '.join(sorted(unknown))} "
+        raise SpecError(f"{_key_in(source, name)}: unknown keys {', '.join(map(shown, sorted(unknown)))} "
                         f"(known: {', '.join(sorted(known))})")
     return value
 
@@ -141,7 +141,7 @@ class Spec:
         except JSONInputError as error:
             raise SpecError(str(error)) from None
         if not isinstance(data, dict):
-            raise SpecError(f"{path}: expected a JSON object, found {type(data).__name__}")
+            raise SpecError(f"{path}: expected a JSON object, found {json_kind(data)}")
         Spec.from_dict(data, str(path))  # the spec as written: a flag does not hide a damaged key
         given = {k: v for k, v in overrides.items() if v is not None}
         for key, value in given.items():
@@ -158,18 +158,19 @@ class Spec:
     @staticmethod
     def from_dict(data: dict, source: str = "spec") -> Spec:
         if not isinstance(data, dict):
-            raise SpecError(f"{source}: expected an object, found {data!r}")
+            raise SpecError(f"{source}: expected an object, found {shown(data)}")
         known = {f.name for f in dataclasses.fields(Spec)}
         unknown = set(data) - known
         if unknown:
-            raise SpecError(f"{source}: unknown keys {', '.join(sorted(unknown))} (known: {', '.join(sorted(known))})")
+            raise SpecError(f"{source}: unknown keys {', '.join(map(shown, sorted(unknown)))} "
+                            f"(known: {', '.join(sorted(known))})")
         if "scene" not in data:
             raise SpecError(f"{source}: no \"scene\" (a scene name or .txt path)")
         data = dict(data)
         if "size" in data:
             size = data["size"]
             if not isinstance(size, (list, tuple)) or len(size) != 2:
-                raise SpecError(f"{_key_in(source, 'size')}: expected [width, height], found {size!r}")
+                raise SpecError(f"{_key_in(source, 'size')}: expected [width, height], found {shown(size)}")
             data["size"] = tuple(size)
         spec = Spec(**data)
         spec.check(source)
@@ -179,10 +180,10 @@ class Spec:
         """Raises :class:`SpecError` for anything out of range, before any work."""
         if not isinstance(self.scene, str) or not (self.scene.endswith(".txt") or re.fullmatch(SCENE_NAME, self.scene)):
             raise SpecError(f"{_key_in(source, 'scene')}: expected a scene name (box, scene06) or a .txt scene "
-                            f"file, found {self.scene!r}")
+                            f"file, found {shown(self.scene)}")
         _int(self.frames, "frames", source, 1, MAX_FRAMES)
         if not isinstance(self.size, (list, tuple)) or len(self.size) != 2:
-            raise SpecError(f"{_key_in(source, 'size')}: expected [width, height], found {self.size!r}")
+            raise SpecError(f"{_key_in(source, 'size')}: expected [width, height], found {shown(self.size)}")
         width = _int(self.size[0], "size[0] (width)", source, 1, MAX_SIDE)
         height = _int(self.size[1], "size[1] (height)", source, 1, MAX_SIDE)
         spp = _int(self.spp, "spp", source, 1, MAX_SPP)
@@ -210,11 +211,11 @@ class Spec:
         if "pan" in camera:
             _vector(camera["pan"], "camera.pan", source)
         if not isinstance(self.objects, dict):
-            raise SpecError(f"{_key_in(source, 'objects')}: expected an object, found {self.objects!r}")
+            raise SpecError(f"{_key_in(source, 'objects')}: expected an object, found {shown(self.objects)}")
         for key, move in self.objects.items():
             name = f"objects.{key}"
             if not re.fullmatch(INDEX, str(key)):
-                raise SpecError(f"{_key_in(source, name)}: expected an object index (0, 1, ...), found {key!r}")
+                raise SpecError(f"{_key_in(source, name)}: expected an object index (0, 1, ...), found {shown(key)}")
             move = _keys(move, name, source, {"translate", "rotate"})
             if "translate" in move:
                 _vector(move["translate"], f"{name}.translate", source)
@@ -225,11 +226,11 @@ class Spec:
 
     def _check_lights(self, source: str) -> None:
         if not isinstance(self.lights, dict):
-            raise SpecError(f"{_key_in(source, 'lights')}: expected an object, found {self.lights!r}")
+            raise SpecError(f"{_key_in(source, 'lights')}: expected an object, found {shown(self.lights)}")
         for key, change in self.lights.items():
             name = f"lights.{key}"
             if not re.fullmatch(INDEX, str(key)):
-                raise SpecError(f"{_key_in(source, name)}: expected a light index (0, 1, ...), found {key!r}")
+                raise SpecError(f"{_key_in(source, name)}: expected a light index (0, 1, ...), found {shown(key)}")
             change = _keys(change, name, source, {"translate", "rotate", "scale", "frames"})
             if not set(change) - {"frames"}:
                 raise SpecError(f"{_key_in(source, name)}: changes nothing; give translate, rotate or scale")
@@ -243,7 +244,8 @@ class Spec:
             if "frames" in change:
                 frames = change["frames"]
                 if not isinstance(frames, (list, tuple)) or len(frames) != 2:
-                    raise SpecError(f"{_key_in(source, name + '.frames')}: expected [first, last], found {frames!r}")
+                    raise SpecError(f"{_key_in(source, name + '.frames')}: expected [first, last], "
+                                    f"found {shown(frames)}")
                 last = self.frames - 1
                 first = _int(frames[0], f"{name}.frames[0]", source, 0, last)
                 end = _int(frames[1], f"{name}.frames[1]", source, 0, last)

@@ -111,8 +111,10 @@ def test_batches_split_each_half_exactly():
     ({"size": [16]}, "size: expected [width, height]"),
     ({"spp": 2.5}, "spp: expected an integer"),
     ({"shadows": "yes"}, "shadows: expected true or false"),
-    ({"colour": 1}, "unknown keys colour"),
-    ({"camera": {"zoom": 2}}, "unknown keys zoom"),
+    ({"shadows": None}, "shadows: expected true or false, found null"),  # in JSON's words, not Python's
+    ({"": 1}, 'unknown keys ""'),  # an empty key is shown, not left out
+    ({"colour": 1}, 'unknown keys "colour"'),
+    ({"camera": {"zoom": 2}}, 'unknown keys "zoom"'),
     ({"camera": {"dolly": float("nan")}}, "camera.dolly: expected a finite number"),
     ({"objects": {"x": {}}}, "expected an object index"),
     ({"objects": {"1": {"rotate": {"axis": [0, 0, 0], "degrees": 3}}}}, "expected an axis of length"),

@@ -83,7 +83,7 @@ def test_specs_without_lights_keep_their_seeds():
 @pytest.mark.parametrize("lights, message", [
     ([], "lights: expected an object"),
     ({"x": {}}, "lights.x: expected a light index"),
-    ({"0": {"dim": 1}}, "lights.0: unknown keys dim"),
+    ({"0": {"dim": 1}}, 'lights.0: unknown keys "dim"'),
     ({"0": {"translate": [1, 0]}}, "lights.0.translate: expected [x, y, z]"),
     ({"0": {"scale": -1}}, "lights.0.scale: expected a factor >= 0"),
     ({"0": {"scale": "half"}}, "lights.0.scale: expected a finite number"),

@@ -10,7 +10,6 @@ page) and changes nothing.
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
 import re
 import threading
@@ -18,7 +17,7 @@ import threading
 import numpy as np
 
 from converters.model import Camera
-from core.json_input import JSONInputError, parse_json
+from core.json_input import JSONInputError, json_kind, parse_json, shown
 
 from .methods import METHOD_NAMES, SLIDERS
 
@@ -48,19 +47,6 @@ MIN_PIVOT_DISTANCE = 1e-3
 MAX_PIVOT_DISTANCE = 1e3
 #: pitch stays this many degrees away from straight up or down
 PITCH_MARGIN = 1.0
-
-
-def json_kind(value) -> str:
-    """What ``value``, parsed from JSON, is, in JSON's words."""
-    if isinstance(value, bool) or value is None:
-        return json.dumps(value)
-    return {dict: "an object", list: "an array", str: "a string"}.get(type(value), "a number")
-
-
-def shown(value) -> str:
-    """``value`` as the JSON text the page sent, cut to 40 characters."""
-    text = json.dumps(value)
-    return text if len(text) <= 40 else text[:37] + "..."
 
 
 class MessageError(ValueError):
