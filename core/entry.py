@@ -60,6 +60,8 @@ class Interrupted(BaseException):
 
 #: seconds a command has, after a stop signal reached its handler, to end before the watchdog ends it
 GRACE_S = 1.5
+#: seconds the teardown has after a stopped command (its files complete): 2 s from the signal at most, in all
+TEARDOWN_S = 0.4
 #: the temporary files of the atomic writes in progress: the watchdog removes them before it ends the process
 TEMPORARY: set[str] = set()
 #: seconds after the signal up to which the watchdog waits for our own cleanups (:func:`own_cleanup`)
@@ -435,16 +437,13 @@ def restore_handlers(record: SignalRecord, previous: dict) -> None:
 
 
 def finish(code: int) -> NoReturn:
-    """Ends a command with ``code`` once :func:`run` has returned it: every file
-    is complete, so a stop signal during the interpreter's teardown (Dr.Jit's
-    shutdown takes a moment, and Python restores the default handlers there,
-    which would end the process by the signal without a word) is ignored.
-
-    After a stop signal (``code`` 128 + one), a teardown that has not ended
-    :data:`GRACE_S` later (a thread that never ends, an exit handler that waits)
-    is cut short with the same code: the line was printed."""
+    """Ends a command with ``code`` once :func:`run` has returned it: every file is complete, so a stop
+    signal during the interpreter's teardown (Dr.Jit's shutdown takes a moment, and Python restores the
+    default handlers there, which would end the process by the signal without a word) is ignored. After a
+    stop signal (``code`` 128 + one), a teardown not ended :data:`TEARDOWN_S` later (a thread that never
+    ends, an exit handler that waits) is cut short with that code."""
     for signum in STOP_SIGNALS:
         signal.signal(signum, signal.SIG_IGN)
     if code - 128 in STOP_SIGNALS:
-        watchdog(GRACE_S, lambda: end_now(code))
+        watchdog(TEARDOWN_S, lambda: end_now(code))
     sys.exit(code)
