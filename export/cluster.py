@@ -56,8 +56,14 @@ def dask_setup(worker) -> None:
     it starts: the process leaves the terminal's process group, so that Ctrl-C
     reaches the export alone, which then stops the cluster (in the group every
     worker would print a traceback, and Mitsuba its warning on stdout). Before
-    it, from the worker's first instruction, SIGINT is ignored (:data:`WORKER_PYTHON`)."""
+    it, from the worker's first instruction, SIGINT is ignored (:data:`WORKER_PYTHON`).
+
+    The worker logs nothing: a task's error reaches the export through its
+    future, and what a worker logs otherwise comes from losing its scheduler,
+    which happens only as the export ends (its heartbeat's traceback after a
+    Ctrl-C)."""
     os.setpgid(0, 0)
+    silence_dask()
 
 
 #: the workers' interpreter: this process's Python started with SIGINT ignored (a script)
@@ -115,7 +121,7 @@ def check_scheduler(address: str) -> str:
 def silence_dask() -> None:
     """After an interruption or a failure the user gets one line from the
     command, not the errors Dask logs while it drops the cancelled work and
-    shuts down. Their child loggers too: Dask gives some a level of their own
+    shuts down; a worker process of our LocalCluster is silent throughout. Their child loggers too: Dask gives some a level of their own
     (``tornado.application`` logged a closed stream's traceback)."""
     families = ("distributed", "tornado", "asyncio")
     for name in [*families, *list(logging.root.manager.loggerDict)]:

@@ -76,6 +76,37 @@ def test_ctrl_c_while_the_workers_start_is_one_line(tmp_path):
     export_interrupted(tmp_path, ["--workers", "2"], starting)
 
 
+#: a LocalCluster of one worker whose scheduler stops without a word to it (as
+#: when the export's process ends first); the process then ends without closing
+WORKER_WITHOUT_SCHEDULER = """
+import os, sys, time
+from export.cluster import dask_client
+
+async def stop(dask_scheduler):
+    dask_scheduler.stop()
+
+if __name__ == "__main__":
+    with dask_client(workers=1) as (client, _):
+        client.run_on_scheduler(stop)
+        time.sleep(4)  # the worker's heartbeat is due about every second and fails after 1 s
+        print("END", file=sys.stderr, flush=True)  # after it: Python's notes on ending this way
+        os._exit(0)
+"""
+
+
+def test_a_worker_that_loses_its_scheduler_logs_nothing(tmp_path):
+    """After a Ctrl-C the scheduler may close before a worker's heartbeat: the
+    worker's traceback would come before the export's one line."""
+    script = tmp_path / "lose_scheduler.py"
+    script.write_text(WORKER_WITHOUT_SCHEDULER)
+    # a refused connection is retried for this long (30 s by default) before the worker logs
+    env = dict(os.environ, PYTHONPATH=str(ROOT), DASK_DISTRIBUTED__COMM__TIMEOUTS__CONNECT="1s")
+    result = subprocess.run([sys.executable, str(script)], cwd=tmp_path, env=env, capture_output=True,
+                            text=True, timeout=120)
+    assert result.returncode == 0, result.stderr[-2000:]
+    assert result.stderr.startswith("END\n"), result.stderr[-2000:]
+
+
 #: a frame whose ground-truth batch is one render of several seconds (about 90 M samples)
 LONG_FRAME = dict(TINY, size=[1200, 1200], frames=1, reference_spp=128)
 #: the stop contract's 2 s, and the moment the OS takes to free a render's memory (about 1 s for this one)
