@@ -82,6 +82,11 @@ class FrameError(ToolkitError):
     """A damaged, missing or inconsistent frame folder (names the file)."""
 
 
+class ClusterError(ToolkitError):
+    """A Dask cluster that could not finish an export's tasks: its scheduler
+    went away, or a task's workers died more often than Dask allows."""
+
+
 class SpecError(ToolkitError):
     """A sequence/export spec that is malformed, out of range, or does not
     match the folder it would be resumed into."""

@@ -32,7 +32,7 @@ from contextlib import contextmanager
 from pathlib import Path
 
 from core.entry import own_cleanup
-from core.errors import UsageError
+from core.errors import ClusterError, UsageError
 from core.libllvm import prepare_libllvm
 
 from .recorder import Recorder, progress_bar
@@ -58,10 +58,10 @@ def dask_setup(worker) -> None:
     worker would print a traceback, and Mitsuba its warning on stdout). Before
     it, from the worker's first instruction, SIGINT is ignored (:data:`WORKER_PYTHON`).
 
-    The worker logs nothing: a task's error reaches the export through its
-    future, and what a worker logs otherwise comes from losing its scheduler,
-    which happens only as the export ends (its heartbeat's traceback after a
-    Ctrl-C)."""
+    The worker logs nothing (:func:`silence_dask`): a task's error reaches the
+    export through its future, and what a worker logs otherwise comes from
+    losing its scheduler, which happens only as the export ends (its
+    heartbeat's traceback after a Ctrl-C)."""
     os.setpgid(0, 0)
     silence_dask()
 
@@ -119,9 +119,11 @@ def check_scheduler(address: str) -> str:
 
 
 def silence_dask() -> None:
-    """After an interruption or a failure the user gets one line from the
-    command, not the errors Dask logs while it drops the cancelled work and
-    shuts down; a worker process of our LocalCluster is silent throughout. Their child loggers too: Dask gives some a level of their own
+    """The user gets one line from the command for a failure or an interruption
+    (Dask's own reach the export as exceptions, translated there), not what
+    Dask logs in the export's process and in the workers of its LocalCluster:
+    a lost scheduler's or worker's tracebacks, its INFO lines on closed comms.
+    Their child loggers too: Dask gives some a level of their own
     (``tornado.application`` logged a closed stream's traceback)."""
     families = ("distributed", "tornado", "asyncio")
     for name in [*families, *list(logging.root.manager.loggerDict)]:
@@ -135,6 +137,7 @@ def dask_client(scheduler: str | None = None, workers: int | None = None) -> Ite
     from distributed import Client, LocalCluster  # noqa: PLC0415  Dask loads only for cluster exports
     from distributed.deploy.spec import close_clusters  # noqa: PLC0415  as above
 
+    silence_dask()
     cluster = None
     if scheduler:
         try:
@@ -157,15 +160,11 @@ def dask_client(scheduler: str | None = None, workers: int | None = None) -> Ite
             # workers never finished starting (an AssertionError traceback); they end with this
             # process (multiprocessing terminates them, and each watches its parent)
             atexit.unregister(close_clusters)
-            silence_dask()
             raise
         client = Client(cluster)
         threads = max(1, cores // workers)
     try:
         yield client, threads
-    except BaseException:
-        silence_dask()
-        raise
     finally:
         with own_cleanup("closing the Dask cluster"):  # core.entry's watchdog waits for it
             client.close()
@@ -226,7 +225,8 @@ def run_futures(client, tasks: list[Task], recorder: Recorder, after_task: Calla
                 if not completed.has_ready():
                     time.sleep(POLL_S)
                     continue
-                future, (result, timing) = next(completed)
+                future, outcome = next_outcome(completed, len(futures), len(tasks))
+                result, timing = outcome
                 task = futures.pop(future)
                 recorder.record(task, result, timing)
                 bar.update()
@@ -237,6 +237,28 @@ def run_futures(client, tasks: list[Task], recorder: Recorder, after_task: Calla
     finally:
         if futures:  # interrupted: the cluster stops working for us
             client.cancel(list(futures))
+
+
+#: what the user is told after a cluster failure: what stays and what to do
+CLUSTER_REMEDY = "the finished frames are complete; the same command again resumes with the others"
+
+
+def next_outcome(completed, unfinished: int, total: int) -> tuple[object, tuple]:
+    """The next (future, its result) of ``completed``; a task's own error is raised as
+    it is, the cluster's failures as one :class:`ClusterError` with the remedy."""
+    from distributed import CancelledError, KilledWorker  # noqa: PLC0415  Dask loads only for cluster exports
+
+    try:
+        future, outcome = next(completed)
+    except KilledWorker as error:
+        raise ClusterError(f"the Dask cluster lost a worker on task {error.task} {error.allowed_failures + 1} "
+                           f"times, more than it retries ({unfinished} of {total} tasks unfinished)",
+                           CLUSTER_REMEDY) from error
+    if isinstance(outcome, CancelledError):  # not by us: we cancel only once we stop reading them
+        reason = getattr(outcome, "reason", "unknown")
+        raise ClusterError(f"the Dask scheduler cancelled the export's tasks ({unfinished} of {total} unfinished; "
+                           f"Dask's reason: {reason})", CLUSTER_REMEDY) from outcome
+    return future, outcome
 
 
 def cluster_description(client, scheduler: str | None = None) -> dict:

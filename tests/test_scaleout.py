@@ -1,11 +1,14 @@
 """export on Dask: the same bytes with 1 and 2 workers as in one
-process, a killed worker's tasks redone, several specs into one dataset, and
-the scale-out benchmark's figures (at a tiny size)."""
+process, a killed worker's tasks redone, a scheduler that goes away, several
+specs into one dataset, and the scale-out benchmark's figures (at a tiny size)."""
 from __future__ import annotations
 
 import json
 import os
 import signal
+import socket
+import subprocess
+import sys
 import threading
 import time
 from contextlib import contextmanager
@@ -148,23 +151,70 @@ def test_killed_worker_is_replaced_and_the_result_is_unchanged(tmp_path, in_proc
 
 def test_kill_check_fails_when_dask_may_not_retry(tmp_path, in_process):
     """The kill test on purpose-broken fault tolerance (no retries allowed):
-    the same kill ends the export with KilledWorker instead. A kill can lose
+    the same kill ends the export with KilledWorker instead (one line: a
+    ClusterError that names the task and the remedy). A kill can lose
     the race with its task's own result (a short batch finishes between the
     look at the worker and the SIGKILL; then nothing is lost), so it is
     tried up to three times: one KilledWorker shows the check bites."""
     import dask
     from distributed import KilledWorker
 
+    from core.errors import ClusterError
+
     outcomes = []
     for attempt in range(3):
         with dask.config.set({"distributed.scheduler.allowed-failures": 0}), killing_a_busy_worker() as killed:
             try:
                 export_with(tmp_path / f"seq{attempt}", workers=2)
-            except KilledWorker:
+            except ClusterError as error:
+                assert isinstance(error.__cause__, KilledWorker), error
+                assert "lost a worker on task" in str(error) and "resumes" in str(error), error
                 return
         assert killed, "no worker was busy after any result: the test did not kill anything"
         outcomes.append(killed)
     pytest.fail(f"no KilledWorker in three kills without retries: {outcomes}")
+
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def free_port() -> int:
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        return probe.getsockname()[1]
+
+
+def test_a_scheduler_that_goes_away_is_one_line(tmp_path):
+    """``--scheduler`` on a cluster of its own whose scheduler is killed while the
+    export renders: exit 2 and one line that says so and how to resume (Dask
+    reports the loss as cancelled futures, which the export took for results)."""
+    address = f"tcp://127.0.0.1:{free_port()}"
+    dask = Path(sys.executable).with_name("dask")
+    quiet = dict(stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    scheduler = subprocess.Popen([dask, "scheduler", "--host", "127.0.0.1", "--port", address.rsplit(":", 1)[1],
+                                  "--no-dashboard"], **quiet)
+    worker = subprocess.Popen([dask, "worker", address, "--nthreads", "1", "--no-dashboard"], **quiet)
+    spec = tmp_path / "seq.json"
+    spec.write_text(json.dumps(dict(TINY, size=[64, 48], frames=3, reference_spp=512)))
+    target = tmp_path / "out" / "seq"
+    try:
+        export = subprocess.Popen([sys.executable, "-m", "export", str(spec), str(target), "--scheduler", address,
+                                   "--batch-spp", "4"], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                  text=True)
+        batches = target.parent / "seq_reference" / ".batches"
+        deadline = time.monotonic() + 120
+        while not list(batches.glob("*/*.npy")):
+            assert export.poll() is None and time.monotonic() < deadline, export.communicate()
+            time.sleep(0.05)
+        scheduler.kill()
+        out, err = export.communicate(timeout=120)
+    finally:
+        for process in (scheduler, worker):
+            process.kill()
+            process.wait()
+    assert export.returncode == 2, err[-3000:]
+    assert err.count("\n") == 1 and "Dask scheduler" in err and "resumes" in err, err[-3000:]
+    assert "Traceback" not in err
 
 
 def test_dataset_of_two_specs_and_the_cli(tmp_path, capsys):
