@@ -138,7 +138,8 @@ def course() -> Path:
 
 
 def pytest_configure(config):
-    config.addinivalue_line("markers", "slow: full-size or scalar-variant checks (deselect with -m 'not slow')")
+    config.addinivalue_line("markers", "slow: exhaustive, full-size or scalar-variant forms of checks made in small "
+                            "without the mark (./dev test leaves them out; -m slow runs them)")
     config.addinivalue_line("markers", "required: must run; a skip fails the session")
     config.addinivalue_line("markers", "vectorised: needs a vectorised (LLVM) variant; skips without one")
     config.addinivalue_line("markers", "timed: asserts a wall-clock bound; under pytest-xdist no other test runs "

@@ -98,7 +98,6 @@ def test_launcher_without_a_venv_says_what_to_do(monkeypatch, capsys, tmp_path):
     assert message.count("\n") == 1 and "run ./dev setup" in message and "no_such_package_here" in message
 
 
-@pytest.mark.slow
 @pytest.mark.xdist_group("notebooks")  # may install the notebook extra: not while a notebook runs
 def test_jupyter_command_of_the_readme():
     """`./dev notebooks` (the README's way to open the notebooks) finds JupyterLab

@@ -88,7 +88,6 @@ def test_stored_error_against_time_has_slopes_near_minus_one():
         assert abs(slope + 1) <= 0.15 and low <= slope <= high and decades >= 2, row.group(0)
 
 
-@pytest.mark.slow
 @pytest.mark.parametrize("name", NAMES)
 def test_notebook_reruns_with_its_plots(name, tmp_path):
     """CI re-executes each notebook (quick size) in a scratch copy: no error, no
