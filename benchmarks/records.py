@@ -10,6 +10,7 @@ from core.errors import OutputError
 from core.inputs import check_outside
 from core.machine import machine
 from denoise.methods import data_files
+from export.ground_truth import check_outside_exports
 from imaging.image_io import atomic_path, check_writable
 
 
@@ -34,6 +35,7 @@ def check_json(path: Path | None) -> None:
     if path.is_dir():
         raise OutputError(f"--json {path}: a folder; give a file name such as {path / 'results.json'}")
     check_outside({"--json": path}, data_files())
+    check_outside_exports({"--json": path})
     check_writable("--json", path)
     # its folder made now: where that fails (e.g. under /proc, which root may "write"),
     # the OSError names it at once, not after the measurement

@@ -19,7 +19,12 @@ from core.entry import ArgumentParser, finish, printable, run
 from core.errors import FrameError, UsageError
 from core.inputs import check_outside
 from core.numbers import ascii_int
-from export.ground_truth import check_ground_truth, check_not_an_export_folder, reference_folder
+from export.ground_truth import (
+    check_ground_truth,
+    check_not_an_export_folder,
+    check_outside_exports,
+    reference_folder,
+)
 from imaging.colour import side_by_side, tone_map
 from imaging.image_io import read_exr_rgb, write_image, write_video
 from renderer.variants import set_variant
@@ -184,6 +189,7 @@ def _main(argv: list[str] | None) -> int:
                   {"IN_DIR": args.source, "--reference": args.reference,
                    "IN_DIR's ground truth": reference_folder(args.source)})
     check_not_an_export_folder("OUT_DIR", args.target)
+    check_outside_exports({"OUT_DIR": args.target, "--video": args.video})
     if args.reference is not None and not args.reference.is_dir():
         raise FrameError(f"{args.reference}: not a folder")
     if args.reference is not None:

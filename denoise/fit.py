@@ -54,7 +54,7 @@ from core.inputs import check_outside
 from core.numbers import ascii_float, ascii_int
 from export import Spec, reference_folder
 from export.frames import frame_indices, read_frame, same_size
-from export.ground_truth import GROUND_TRUTH_RECORD, check_ground_truth, check_work_folder
+from export.ground_truth import GROUND_TRUTH_RECORD, check_ground_truth, check_outside_exports, check_work_folder
 from imaging.image_io import atomic_path, check_writable, read_exr_rgb
 from imaging.metrics import relmse
 from renderer.variants import set_variant
@@ -312,6 +312,7 @@ def _main(argv: list[str] | None) -> int:
         print_evaluation(args.evaluate, switch)
         return 0
 
+    check_outside_exports({"--out": args.out})
     check_outside({"--out": args.out}, data_files(keep=(PARAMETER_FILE,)))  # a fit writes parameters, no weights
     check_writable("--out", args.out)  # before minutes of fitting, not after
     loaded = [(path, Spec.load(path)) for path in specs]  # all checked before any work

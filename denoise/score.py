@@ -40,7 +40,7 @@ from core.entry import ArgumentParser, finish, run
 from core.errors import FrameError, OutputError, UsageError
 from core.inputs import check_outside
 from export.frames import frame_indices, missing_between, read_frame, same_size
-from export.ground_truth import check_ground_truth
+from export.ground_truth import check_ground_truth, check_outside_exports
 from imaging.image_io import atomic_path, check_writable, read_exr_rgb
 from imaging.metrics import flip_error, relmse
 from renderer.variants import set_variant
@@ -325,6 +325,7 @@ def _main(argv: list[str] | None) -> int:
             if path.is_dir():
                 raise OutputError(f"{flag} {path}: a folder, not a file")
             check_writable(flag, path)
+    check_outside_exports({"--plot": args.plot, "--json": args.json})  # the reference's frames, a dataset's record
     check_outside({"--plot": args.plot, "--json": args.json},
                   {"RESULTS": args.results, "--reference": args.reference, "--frames": args.frames, **data_files()})
     check_pattern(args.pattern)  # the cheap checks before Dr.Jit starts

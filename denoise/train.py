@@ -47,7 +47,7 @@ from course import data_dir, resolve_scene
 from export import Spec, reference_folder, sequences_for
 from export.files import locked, name_locked
 from export.frames import frame_indices, read_frame, same_size
-from export.ground_truth import check_work_folder
+from export.ground_truth import check_outside_exports, check_work_folder
 from export.store import check_folder
 from imaging.image_io import atomic_path, check_writable, read_exr_rgb
 from renderer.variants import set_variant
@@ -136,6 +136,7 @@ def _main(argv: list[str] | None) -> int:
         check_outside({"--out": args.out, "--plot": plot},
                       {f"frame folder (--work) of {path.name}": frames,
                        f"ground truth (--work) of {path.name}": reference_folder(frames)})
+    check_outside_exports({"--out": args.out, "--plot": plot})
     check_outside({"--out": args.out}, data_files(keep=(WEIGHTS_FILE, *ABLATIONS.values())))  # weights, no parameters
     check_writable("--out", args.out)
     check_writable("--plot", plot)

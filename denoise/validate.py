@@ -37,7 +37,7 @@ from core.numbers import ascii_int
 from course import ENVIRONMENT
 from export import Spec, export, reference_folder
 from export.frames import frame_indices, read_frame
-from export.ground_truth import check_work_folder
+from export.ground_truth import check_outside_exports, check_work_folder
 from imaging.image_io import atomic_path, check_writable, read_exr_rgb
 from imaging.metrics import relmse
 from renderer.checks import check_memory
@@ -193,6 +193,7 @@ def _main(argv: list[str] | None) -> int:
     for path in named.values():
         check_outside({"--json": args.json}, {"--network": path})
     check_outside({"--json": args.json}, data_files())
+    check_outside_exports({"--json": args.json})
     if args.json is not None:
         check_writable("--json", args.json)
     set_variant(None, jit=True)  # the methods have no scalar form: an unusable libLLVM is one line naming it

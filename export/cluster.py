@@ -31,6 +31,8 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
+from tqdm import tqdm
+
 from core.entry import own_cleanup
 from core.errors import ClusterError, UsageError
 from core.libllvm import prepare_libllvm
@@ -131,6 +133,11 @@ def silence_dask() -> None:
             logging.getLogger(name).setLevel(logging.CRITICAL)
 
 
+#: what a worker of the user's own cluster needs (docs/dataset.md)
+WORKER_REMEDY = ("every worker needs this project installed (./dev setup) and the scenes at the same path, "
+                 "and is started with its .venv/bin/dask worker")
+
+
 @contextmanager
 def dask_client(scheduler: str | None = None, workers: int | None = None) -> Iterator[tuple[object, int | None]]:
     """(a Dask client, the Dr.Jit thread count each worker should use)."""
@@ -146,7 +153,12 @@ def dask_client(scheduler: str | None = None, workers: int | None = None) -> Ite
             raise UsageError(f"--scheduler {scheduler}: cannot reach a Dask scheduler there ({error})") from None
         # its workers ran no entry point of ours: each chooses its libLLVM before a task (whose
         # module imports Dr.Jit) reaches it; our LocalCluster's workers inherit this process's choice
-        client.run(prepare_libllvm)
+        try:
+            client.run(prepare_libllvm)
+        except Exception as error:  # noqa: BLE001  whatever a worker's Python made of our code: one line
+            client.close()
+            raise ClusterError(f"--scheduler {scheduler}: a worker cannot run the export's code "
+                               f"({type(error).__name__}: {error})", WORKER_REMEDY) from error
         threads = None
     else:
         cores = os.cpu_count() or 1
@@ -208,6 +220,38 @@ def deferred_signals() -> Iterator[Callable[[], None]]:
         restore()
 
 
+class WorkerWatch:
+    """Says once on stderr when the export waits on a cluster without workers (a
+    scheduler of the user's with none yet, or whose workers all died), and
+    once when workers are back; looks every :data:`WORKER_LOOK_S` without a result."""
+
+    def __init__(self, client):
+        self.client, self.since, self.said = client, time.monotonic(), False
+
+    def reset(self) -> None:
+        self.since = time.monotonic()
+
+    def look(self) -> None:
+        if time.monotonic() - self.since < WORKER_LOOK_S:
+            return
+        self.since = time.monotonic()
+        try:
+            workers = len(self.client.nthreads())
+        except Exception:  # noqa: BLE001  a scheduler gone: its cancelled tasks say so, in one line
+            return
+        if workers == 0 and not self.said:
+            address = self.client.scheduler.address
+            tqdm.write(f"export: waiting: the Dask scheduler at {address} has no workers; start one "
+                       f"(.venv/bin/dask worker {address}) or press Ctrl-C", file=sys.stderr)
+        elif workers and self.said:
+            tqdm.write(f"export: {workers} worker{'s' * (workers > 1)} joined; going on", file=sys.stderr)
+        self.said = workers == 0
+
+
+#: seconds without a result after which the export looks whether its cluster has workers
+WORKER_LOOK_S = 5.0
+
+
 def run_futures(client, tasks: list[Task], recorder: Recorder, after_task: Callable[[Task], None] | None = None,
                 total_frames: int = 0) -> None:
     """Submits ``tasks`` (earlier frames first) and records results as they complete."""
@@ -218,13 +262,16 @@ def run_futures(client, tasks: list[Task], recorder: Recorder, after_task: Calla
         future = client.submit(run_task, task, key=task.name, priority=len(tasks) - order)
         futures[future] = task
     try:
+        waiting = WorkerWatch(client)
         with deferred_signals() as raise_noted, progress_bar(len(tasks), total_frames) as bar:
             completed = as_completed(futures, with_results=True)
             while not completed.is_empty():
                 raise_noted()
                 if not completed.has_ready():
+                    waiting.look()
                     time.sleep(POLL_S)
                     continue
+                waiting.reset()
                 future, outcome = next_outcome(completed, len(futures), len(tasks))
                 result, timing = outcome
                 task = futures.pop(future)

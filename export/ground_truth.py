@@ -59,6 +59,28 @@ def check_not_an_export_folder(flag: str, output: Path) -> None:
                              f"write outputs elsewhere")
 
 
+#: the export's record of a whole dataset, in OUT beside its sequences' folders
+DATASET_RECORD = "dataset.json"
+
+
+def check_outside_exports(outputs: dict[str, Path | None]) -> None:
+    """Refuses an output (label -> path; a file or a folder a command writes) that
+    lies inside an export's frames or ground truth (by their records), whichever
+    the command was given, or that is an export's record itself (a dataset's
+    ``dataset.json``): it would replace what the export and the commands after it read."""
+    for label, output in outputs.items():
+        if output is None:
+            continue
+        path = Path(output).absolute()
+        if path.name in (SEQUENCE_RECORD, GROUND_TRUTH_RECORD, DATASET_RECORD) and path.is_file():
+            raise UsageError(f"{label} {output} is an export's record ({path.name}), an input; write outputs elsewhere")
+        for folder in path.parents:
+            for record, what in ((SEQUENCE_RECORD, "frames"), (GROUND_TRUTH_RECORD, "ground truth")):
+                if (folder / record).is_file():
+                    raise UsageError(f"{label} {output} lies inside {folder}, an export's {what} ({record}), "
+                                     f"an input; write outputs elsewhere")
+
+
 def check_work_folder(work: Path) -> None:
     """Refuses a ``--work`` cache (where a command exports its sequences) that
     is, or lies inside, a file, or an export's frames or ground truth (by their

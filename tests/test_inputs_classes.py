@@ -592,3 +592,50 @@ def test_out_of_memory_names_no_flag_a_command_may_lack(capsys):
     assert run("python -m denoise", body) == 2
     assert capsys.readouterr().err == "python -m denoise: error: out of memory: this work needs more than the memory " \
                                       "available\n"
+
+
+# No output inside an export's frames or ground truth, nor onto a dataset's record, whichever
+# command writes it and whether or not that export is among the command's inputs
+EXPORT_PLACES = {"in the frames": "seq/{name}", "in the ground truth": "seq_reference/sub/{name}",
+                 "onto a dataset's record": "set/dataset.json"}
+
+
+def export_records(root: Path) -> None:
+    for folder, record in (("seq", "sequence.json"), ("seq_reference", "ground_truth.json"), ("set", "dataset.json")):
+        (root / folder).mkdir()
+        (root / folder / record).write_text("{}")
+
+
+#: (command, its output flag, the output's name): every command that writes where a user says
+WRITERS = [("denoise.score", "--json", "s.json"), ("denoise.score", "--plot", "p.png"), ("denoise", "OUT_DIR", "den"),
+           ("denoise.fit", "--out", "p.json"), ("denoise.train", "--out", "w.json"),
+           ("denoise.validate", "--json", "v.json")]
+
+
+# the record is JSON: a PNG or a folder output is refused for its name before it could land there
+@pytest.mark.parametrize("command, flag, name, place",
+                         [(*writer, place) for writer in WRITERS for place in EXPORT_PLACES
+                          if writer[2].endswith(".json") or place != "onto a dataset's record"])
+def test_no_command_writes_into_an_export(tmp_path, capsys, command, flag, name, place):
+    import importlib
+
+    from test_export import TINY
+
+    inputs = tmp_path / "inputs"
+    inputs.mkdir()
+    export_records(tmp_path)
+    output = tmp_path / EXPORT_PLACES[place].format(name=name)
+    spec = inputs / "tiny.json"
+    spec.write_text(json.dumps(dict(TINY, scene="showcase", frames=5)))  # a scene no benchmark uses
+    argv = {"denoise.score": [str(inputs), "--reference", str(inputs), flag, str(output)],
+            "denoise": [str(inputs), str(output)],
+            "denoise.fit": [str(spec), "--work", str(inputs / "work"), flag, str(output)],
+            "denoise.train": [str(spec), "--work", str(inputs / "work"), flag, str(output)],
+            "denoise.validate": [str(spec), "--work", str(inputs / "work"), flag, str(output)]}[command]
+    before = sorted((p, p.stat().st_mtime_ns) for p in tmp_path.rglob("*"))
+    main = importlib.import_module("denoise.__main__" if command == "denoise" else command).main
+    status = main(argv)
+    err = capsys.readouterr().err
+    assert status == 2 and err.count("\n") == 1, err
+    assert f"{flag} {output}" in err and "an export's" in err and "write outputs elsewhere" in err, err
+    assert sorted((p, p.stat().st_mtime_ns) for p in tmp_path.rglob("*")) == before

@@ -184,23 +184,47 @@ def free_port() -> int:
         return probe.getsockname()[1]
 
 
+def worker_env() -> dict:
+    """A user's environment: without the PYTHONPATH the test session gives its children (the checkout)."""
+    return {name: value for name, value in os.environ.items() if name != "PYTHONPATH"}
+
+
+@contextmanager
+def own_cluster(tmp_path: Path, worker_python: str | None = sys.executable):
+    """A Dask scheduler and (unless ``worker_python`` is None) one worker of that
+    Python, as a user starts them (docs/dataset.md); yields (address, scheduler's process)."""
+    address = f"tcp://127.0.0.1:{free_port()}"
+    quiet = dict(stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    processes = [subprocess.Popen([Path(sys.executable).with_name("dask"), "scheduler", "--host", "127.0.0.1",
+                                   "--port", address.rsplit(":", 1)[1], "--no-dashboard"], **quiet)]
+    if worker_python is not None:
+        processes.append(subprocess.Popen([worker_python, "-m", "distributed.cli.dask_worker", address,
+                                           "--nthreads", "1", "--no-dashboard"], cwd=tmp_path, env=worker_env(),
+                                          **quiet))
+    try:
+        yield address, processes[0]
+    finally:
+        for process in processes:
+            process.kill()
+            process.wait()
+
+
+def start_export(tmp_path: Path, address: str) -> tuple[subprocess.Popen, Path]:
+    spec = tmp_path / "seq.json"
+    spec.write_text(json.dumps(dict(TINY, size=[64, 48], frames=3, reference_spp=512)))
+    target = tmp_path / "out" / "seq"
+    export = subprocess.Popen([sys.executable, "-m", "export", str(spec), str(target), "--scheduler", address,
+                               "--batch-spp", "4"], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                              text=True)
+    return export, target
+
+
 def test_a_scheduler_that_goes_away_is_one_line(tmp_path):
     """``--scheduler`` on a cluster of its own whose scheduler is killed while the
     export renders: exit 2 and one line that says so and how to resume (Dask
     reports the loss as cancelled futures, which the export took for results)."""
-    address = f"tcp://127.0.0.1:{free_port()}"
-    dask = Path(sys.executable).with_name("dask")
-    quiet = dict(stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    scheduler = subprocess.Popen([dask, "scheduler", "--host", "127.0.0.1", "--port", address.rsplit(":", 1)[1],
-                                  "--no-dashboard"], **quiet)
-    worker = subprocess.Popen([dask, "worker", address, "--nthreads", "1", "--no-dashboard"], **quiet)
-    spec = tmp_path / "seq.json"
-    spec.write_text(json.dumps(dict(TINY, size=[64, 48], frames=3, reference_spp=512)))
-    target = tmp_path / "out" / "seq"
-    try:
-        export = subprocess.Popen([sys.executable, "-m", "export", str(spec), str(target), "--scheduler", address,
-                                   "--batch-spp", "4"], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                                  text=True)
+    with own_cluster(tmp_path) as (address, scheduler):
+        export, target = start_export(tmp_path, address)
         batches = target.parent / "seq_reference" / ".batches"
         deadline = time.monotonic() + 120
         while not list(batches.glob("*/*.npy")):
@@ -208,13 +232,58 @@ def test_a_scheduler_that_goes_away_is_one_line(tmp_path):
             time.sleep(0.05)
         scheduler.kill()
         out, err = export.communicate(timeout=120)
-    finally:
-        for process in (scheduler, worker):
-            process.kill()
-            process.wait()
     assert export.returncode == 2, err[-3000:]
     assert err.count("\n") == 1 and "Dask scheduler" in err and "resumes" in err, err[-3000:]
     assert "Traceback" not in err
+
+
+def test_a_worker_without_the_project_is_one_line(tmp_path):
+    """A worker whose Python has Dask and Mitsuba but not this project (a venv of
+    its own that sees the packages, started outside the checkout): the export's
+    first call on it fails, and the user is told what every worker needs."""
+    foreign = tmp_path / "foreign"
+    subprocess.run([sys.executable, "-m", "venv", "--without-pip", str(foreign)], check=True)
+    packages = next(Path(sys.prefix).glob("lib/python3*/site-packages"))
+    next(foreign.glob("lib/python3*/site-packages")).joinpath("packages.pth").write_text(f"{packages}\n")
+    with own_cluster(tmp_path, str(foreign / "bin" / "python")) as (address, _):
+        probe = subprocess.run([foreign / "bin" / "python", "-c", "import distributed, mitsuba; import core"],
+                               capture_output=True, text=True, cwd=tmp_path, env=worker_env())
+        assert "No module named 'core'" in probe.stderr, probe.stderr  # what the worker lacks, and only that
+        deadline = time.monotonic() + 60
+        while True:  # its worker registered: the export's first call reaches it
+            from distributed import Client
+
+            with Client(address, timeout="15s") as client:
+                if client.nthreads():
+                    break
+            assert time.monotonic() < deadline
+            time.sleep(0.2)
+        export, _ = start_export(tmp_path, address)
+        out, err = export.communicate(timeout=120)
+    assert export.returncode == 2, err[-3000:]
+    assert err.count("\n") == 1 and "a worker cannot run the export's code" in err, err[-3000:]
+    assert "No module named 'core'" in err and "every worker needs this project" in err, err
+    assert "Traceback" not in err
+
+
+def test_a_scheduler_without_workers_says_so(tmp_path):
+    """A scheduler with no worker: the export says once that it waits, and why, and
+    Ctrl-C ends it as ever (it waited in silence)."""
+    with own_cluster(tmp_path, None) as (address, _):
+        export, _ = start_export(tmp_path, address)
+        lines = []
+        reader = threading.Thread(target=lambda: lines.extend(export.stderr), daemon=True)
+        reader.start()
+        deadline = time.monotonic() + 30
+        while not any("has no workers" in line for line in lines) and time.monotonic() < deadline:
+            time.sleep(0.1)
+        export.send_signal(signal.SIGINT)
+        export.wait(timeout=60)
+        reader.join(timeout=10)
+    said = "".join(lines)
+    assert export.returncode == 130, said
+    assert said.count("\n") == 2 and f"the Dask scheduler at {address} has no workers" in said, said
+    assert "interrupted" in said.splitlines()[-1]
 
 
 def test_dataset_of_two_specs_and_the_cli(tmp_path, capsys):
