@@ -15,7 +15,7 @@ from nbformat.v4 import new_code_cell, new_notebook
 
 from notebooks import build
 
-#: one worker runs these and the README's Jupyter command, which may install the notebook extra
+#: these and the README's Jupyter command (which may install the notebook extra) take turns (tests/conftest.py)
 pytestmark = pytest.mark.xdist_group("notebooks")
 ROOT = Path(__file__).resolve().parent.parent
 NAMES = sorted(build.NOTEBOOKS)
