@@ -13,7 +13,7 @@ from renderer.variants import set_variant
 
 from . import __doc__ as PACKAGE_DOC
 from .cluster import check_scheduler
-from .ground_truth import reference_folder
+from .ground_truth import DATASET_RECORD, reference_folder
 from .runners import export_sequences, sequences_for
 from .sequence import DEFAULT_BATCH_SPP
 from .spec import Spec
@@ -72,7 +72,7 @@ def _main(argv: list[str] | None) -> int:
     specs = [(path.stem, Spec.load(path, **overrides)) for path in spec_paths]  # all checked before any work
     variant = set_variant(args.variant)
     sequences = sequences_for(specs, out, args.data, args.whitted, args.batch_spp, variant)
-    manifest = out / "dataset.json"
+    manifest = out / DATASET_RECORD
     done = export_sequences(sequences, args.force, args.scheduler, args.workers, args.local, manifest)
     for sequence in sequences:
         print(f"{len(done[sequence.name])} frames rendered into {printable(sequence.target)} "

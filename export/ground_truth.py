@@ -25,6 +25,8 @@ from core.json_input import JSONInputError, read_json
 SEQUENCE_RECORD = "sequence.json"
 #: a reference folder's contents, written by the export
 GROUND_TRUTH_RECORD = "ground_truth.json"
+#: an export's folders by their records: (record, what the folder holds)
+RECORDS = ((SEQUENCE_RECORD, "frames"), (GROUND_TRUTH_RECORD, "ground truth"))
 #: the largest record read (they are a few kilobytes)
 RECORD_LIMIT = 1 << 20
 
@@ -53,7 +55,7 @@ def reference_folder(target: Path) -> Path:
 def check_not_an_export_folder(flag: str, output: Path) -> None:
     """Refuses an output folder that holds an export's frames or ground truth (by
     their records): results written there would be read back as its input."""
-    for record, what in ((SEQUENCE_RECORD, "frames"), (GROUND_TRUTH_RECORD, "ground truth")):
+    for record, what in RECORDS:
         if (Path(output) / record).exists():
             raise UsageError(f"{flag} {output} holds an export's {what} ({record}), an input; "
                              f"write outputs elsewhere")
@@ -75,7 +77,7 @@ def check_outside_exports(outputs: dict[str, Path | None]) -> None:
         if path.name in (SEQUENCE_RECORD, GROUND_TRUTH_RECORD, DATASET_RECORD) and path.is_file():
             raise UsageError(f"{label} {output} is an export's record ({path.name}), an input; write outputs elsewhere")
         for folder in path.parents:
-            for record, what in ((SEQUENCE_RECORD, "frames"), (GROUND_TRUTH_RECORD, "ground truth")):
+            for record, what in RECORDS:
                 if (folder / record).is_file():
                     raise UsageError(f"{label} {output} lies inside {folder}, an export's {what} ({record}), "
                                      f"an input; write outputs elsewhere")
@@ -90,7 +92,7 @@ def check_work_folder(work: Path) -> None:
         if folder.exists() and not folder.is_dir():  # else mkdir's "File exists", or an error about a folder in it
             where = "is a file" if folder == work else f"lies inside {folder}, a file"
             raise UsageError(f"--work {work} {where}, not a folder; give a folder")
-        for record, what in ((SEQUENCE_RECORD, "frames"), (GROUND_TRUTH_RECORD, "ground truth")):
+        for record, what in RECORDS:
             if (folder / record).is_file():
                 where = "is" if folder == work else f"lies inside {folder}, which is"
                 raise UsageError(f"--work {work} {where} an export's {what} ({record}), an input; "

@@ -15,6 +15,7 @@ from renderer.checks import check_memory
 
 from .cluster import cluster_description, dask_client, run_futures
 from .files import locked, remove_staging
+from .ground_truth import DATASET_RECORD
 from .recorder import Recorder, progress_bar
 from .sequence import DEFAULT_BATCH_SPP, Sequence
 from .spec import MAX_SAMPLES_PER_RENDER, MAX_SPP, Spec
@@ -156,5 +157,5 @@ def export(spec: Spec, target: Path, data: Path | None = None, whitted: bool = F
     where.setdefault("local", not where.get("scheduler") and not where.get("workers"))
     target = Path(target)
     sequences = sequences_for([(target.name, spec)], target, data, whitted, batch_spp)
-    done = export_sequences(sequences, force, manifest=target / "dataset.json", **where)
+    done = export_sequences(sequences, force, manifest=target / DATASET_RECORD, **where)
     return done[target.name]
