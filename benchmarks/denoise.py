@@ -328,11 +328,13 @@ def main(argv: list[str] | None = None) -> int:
                "load_average_at_start": round(os.getloadavg()[0], 2),
                "oidn": f"OIDN {oidn_version()} through pyoidn: hdr on, albedo and normal with cleanAux, "
                        "one filter per quality mode committed once per size", "sequences": [], "results": []}
+    # every sequence and the speed frames in one export: on one Dask worker per core (each render
+    # is single-threaded so that bytes do not depend on thread counts); the quick CI size in-process
+    timing_spec = [] if timed is None else [(Spec.load(SEQUENCES[0], **timing_size), timed)]
+    render([(spec, folder) for _, spec, folder in planned] + timing_spec,
+           **({} if args.quick else {"workers": os.cpu_count() or 1}))
     outputs_hard = None
     for spec_path, spec, folder in planned:
-        # one Dask worker per core (each render is single-threaded so that bytes do not
-        # depend on thread counts; see export.py); the quick CI size stays in-process
-        render(spec, folder, **({} if args.quick else {"workers": os.cpu_count() or 1}))
         outputs = {} if spec_path.stem == HARD else None
         rows, figures = run_sequence(folder, spec_path.stem, methods, outputs=outputs)
         if outputs is not None:
@@ -348,7 +350,6 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{spec_path.stem}: reference noise {figures['reference_noise']:.2e}", file=sys.stderr)
     if not args.no_timing:
         spec_path, folder = SEQUENCES[0], timed
-        render(Spec.load(spec_path, **timing_size), folder)
         results["timing"] = {"sequence": spec_path.stem,
                              **run_timing(folder, TIMED if args.methods is None else methods)}
     results.update(load_average_at_end=round(os.getloadavg()[0], 2), wall_s=round(time.perf_counter() - start, 1))

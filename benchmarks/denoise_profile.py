@@ -117,7 +117,7 @@ def main(argv: list[str] | None = None) -> int:
     set_variant(None, jit=True)  # it reads Dr.Jit's kernel history
     size = QUICK_TIMING if args.quick else TIMING
     folder = timing_folder(args.work, SEQUENCES[0].stem, size, args.quick)
-    render(Spec.load(SEQUENCES[0], **size), folder)
+    render([(Spec.load(SEQUENCES[0], **size), folder)])
     frames = [read_frame(folder, i) for i in frame_indices(folder)]
     results = {"date": datetime.date.today().isoformat(), "machine": machine(),
                "load_average_at_start": round(os.getloadavg()[0], 2),

@@ -53,6 +53,7 @@ from core.errors import UsageError
 from core.inputs import check_outside
 from core.numbers import ascii_float, ascii_int
 from export import Spec, reference_folder
+from export.cluster import CLUSTER_OPTIONS, add_cluster_options, cluster_options
 from export.frames import frame_indices, read_frame, same_size
 from export.ground_truth import GROUND_TRUTH_RECORD, check_ground_truth, check_outside_exports, check_work_folder
 from imaging.image_io import atomic_path, check_writable, read_exr_rgb
@@ -242,6 +243,7 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--quiet", action="store_true", help="print nothing but errors")
     parser.add_argument("--evaluate", type=Path, metavar="FOLDER",
                         help="fit nothing: relMSE per frame of svgf and asvgf (hand-set, fitted) on FOLDER")
+    add_cluster_options(parser)
     return parser
 
 
@@ -267,7 +269,8 @@ def check_switch_frame(frame: int | None, frames: int, where: Path) -> int:
 
 
 #: the options of a fit, which --evaluate (it fits nothing) does not take
-FIT_ONLY = {"specs": "SPEC.json", "work": "--work", "steps": "--steps", "rate": "--rate", "out": "--out"}
+FIT_ONLY = {"specs": "SPEC.json", "work": "--work", "steps": "--steps", "rate": "--rate", "out": "--out",
+            **CLUSTER_OPTIONS}
 
 
 def _main(argv: list[str] | None) -> int:
@@ -284,6 +287,7 @@ def _main(argv: list[str] | None) -> int:
         raise UsageError(f"--steps must be from 1 to 10000, got {args.steps}")
     if not (0.0 < args.rate <= 10.0):
         raise UsageError(f"--rate must be in (0, 10], got {args.rate}")
+    where = cluster_options(args)
 
     for spec in specs:  # a fit never writes onto a spec it reads, nor into the frames it trains on
         check_outside({"--out": args.out, "--work": args.work}, {"SPEC.json": spec})
@@ -321,10 +325,8 @@ def _main(argv: list[str] | None) -> int:
     switch = check_switch_frame(args.switch_frame, spec.frames, shortest)
     set_variant("llvm_ad_rgb", jit=True)
 
-    targets = []
-    for path, spec in loaded:
-        targets.append(args.work / path.stem)
-        render(spec, targets[-1])
+    targets = [args.work / path.stem for path, _ in loaded]
+    render([(spec, target) for (_, spec), target in zip(loaded, targets)], **where)
     best, hand_set_loss = fit_interruptibly(targets, switch, args.steps, args.rate, args.quiet)
     write_parameters(args.out, best[1], best[0], hand_set_loss, specs)
     if not args.quiet:

@@ -44,11 +44,11 @@ from core.inputs import check_outside
 from core.machine import machine
 from core.numbers import ascii_float, ascii_int
 from course import data_dir, resolve_scene
-from export import Spec, reference_folder, sequences_for
+from export import Spec, reference_folder
+from export.cluster import add_cluster_options, cluster_options
 from export.files import locked, name_locked
 from export.frames import frame_indices, read_frame, same_size
 from export.ground_truth import check_outside_exports, check_work_folder
-from export.store import check_folder
 from imaging.image_io import atomic_path, check_writable, read_exr_rgb
 from renderer.variants import set_variant
 
@@ -59,7 +59,7 @@ from .methods.learned_asvgf import ABLATIONS, WEIGHT_LIMIT, WEIGHTS_FILE
 from .pipeline import check_sequences_fit
 from .training import BENCHMARK, HELD_OUT, ROOT, TRAINING
 from .training_state import Settings, check_checkpoint_place, feature_set, load_checkpoint
-from .validate import cache_remedies, render
+from .validate import check_folders, render
 from .worker_process import ignore_group_signals, run_in_worker
 
 DOCS = ROOT / "docs"
@@ -84,6 +84,7 @@ def _parser() -> argparse.ArgumentParser:
                         "the committed weights files, else OUT-NAME_loss.png beside --out)")
     parser.add_argument("--restart", action="store_true", help="start over instead of resuming the checkpoint")
     parser.add_argument("--quiet", action="store_true", help="print nothing but errors")
+    add_cluster_options(parser)
     return parser
 
 
@@ -102,6 +103,7 @@ def default_plot(out: Path) -> Path:
 
 def _main(argv: list[str] | None) -> int:
     args = _parser().parse_args(argv)
+    where = cluster_options(args)
     if not 1 <= args.steps <= 100000:
         raise UsageError(f"--steps must be from 1 to 100000, got {args.steps}")
     if not 0.0 < args.rate <= 1.0:
@@ -151,7 +153,7 @@ def _main(argv: list[str] | None) -> int:
                              f"{args.steps}; give --steps {int(state['t'])} or more, or --restart")
 
     set_variant("llvm_ad_rgb", jit=True)
-    check_work(loaded, args.work)
+    check_folders([(spec, args.work / path.stem) for path, spec in loaded])  # before anything is rendered
     folders = [args.work / path.stem for path, _ in loaded]
     # one training at a time in a --work (two would write one checkpoint, step by step) and into an
     # --out (the one that ends last would replace the other's weights without a word)
@@ -161,8 +163,8 @@ def _main(argv: list[str] | None) -> int:
                    if f.is_dir() else [] for f in folders}
         for folder in folders:  # what is there already, before any rendering prints its progress
             check_frames(folder, checked[folder])
-        for (_, spec), folder in zip(loaded, folders):
-            render(spec, folder)
+        render([(spec, folder) for (_, spec), folder in zip(loaded, folders)], **where)
+        for folder in folders:
             check_frames(folder, [i for i in frame_indices(folder) if i not in checked[folder]])
         theta, curve, seconds = train_interruptibly(folders, settings, checkpoint, args.quiet, args.restart)
         given = argv if argv is not None else sys.argv[1:]
@@ -258,13 +260,6 @@ def check_frames_fit(loaded: list[tuple[Path, Spec]], memory: int | None = None)
                         f"{training.CROP[1]} crops)", memory)
 
 
-def check_work(loaded: list[tuple[Path, Spec]], work: Path) -> None:
-    """Every sequence's scene and its folders in ``work`` (new, or made with the
-    same settings), before anything is rendered. Writes nothing."""
-    for path, spec in loaded:
-        with cache_remedies(work / path.stem):
-            for sequence in sequences_for([(path.stem, spec)], work / path.stem):
-                check_folder(sequence)
 
 
 def rerender(folder: Path) -> str:

@@ -35,9 +35,11 @@ from core.errors import NEED_COURSE, NEED_OWN_FOLDER, NEED_SMALLER_RENDER, Toolk
 from core.inputs import check_outside
 from core.numbers import ascii_int
 from course import ENVIRONMENT
-from export import Spec, export, reference_folder
+from export import Sequence, Spec, export_sequences, reference_folder, sequences_into
+from export.cluster import add_cluster_options, cluster_options
 from export.frames import frame_indices, read_frame
-from export.ground_truth import check_outside_exports, check_work_folder
+from export.ground_truth import DATASET_RECORD, check_outside_exports, check_work_folder
+from export.store import check_folder
 from imaging.image_io import atomic_path, check_writable, read_exr_rgb
 from imaging.metrics import relmse
 from renderer.checks import check_memory
@@ -70,6 +72,7 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--network", nargs="+", type=Path, default=[], metavar="FILE",
                         help="weights files of learned-asvgf to judge besides, each named by its file name")
     parser.add_argument("--json", type=Path, help="write every number as JSON")
+    add_cluster_options(parser)
     return parser
 
 
@@ -80,24 +83,50 @@ CACHE_REMEDIES = {NEED_COURSE: f"set {ENVIRONMENT} to the course folder",
 
 
 @contextmanager
-def cache_remedies(folder: Path) -> Iterator[None]:
+def cache_remedies(folder: Path | None = None) -> Iterator[None]:
     """The export's errors (and the scene lookup's) about the sequence in
-    ``folder`` with the remedies of a command whose --work is a cache
-    (:data:`CACHE_REMEDIES`; a folder made with other settings: remove it)."""
+    ``folder`` (None: in the folder the error names) with the remedies of a
+    command whose --work is a cache (:data:`CACHE_REMEDIES`; a folder made with
+    other settings: remove it)."""
     try:
         yield
     except ToolkitError as error:
-        remedy = (f"remove {folder} and {reference_folder(folder)} to render them again, or give another --work"
+        removal = (f"remove {folder} and {reference_folder(folder)}" if folder is not None else
+                   "remove the folder it names and its _reference folder")
+        remedy = (f"{removal} to render them again, or give another --work"
                   if error.need == NEED_OWN_FOLDER else CACHE_REMEDIES.get(error.need))
         if remedy is None:
             raise
         raise error.with_remedy(remedy) from None
 
 
-def render(spec: Spec, folder: Path, **where) -> None:
-    """``export(spec, folder)`` for a command whose --work is a cache (:func:`cache_remedies`)."""
-    with cache_remedies(folder):
-        export(spec, folder, **where)
+def check_folders(folders: list[tuple[Spec, Path]]) -> list[Sequence]:
+    """The export's sequence of every (spec, frame folder) in a --work cache, its
+    scene and its folders (new, or made with the same settings) checked with the
+    cache's remedies (:func:`cache_remedies`). Writes nothing."""
+    sequences = []
+    for spec, folder in folders:
+        with cache_remedies(folder):
+            sequences += sequences_into([(spec, folder)])
+            check_folder(sequences[-1])
+    return sequences
+
+
+def render(folders: list[tuple[Spec, Path]], **where) -> None:
+    """Renders what is missing of every (spec, frame folder) of a --work cache in
+    one export: in this process by default, or as ``where`` says (the keywords
+    of :func:`export.cluster.cluster_options`: one Dask cluster for them all).
+    Every folder is checked before any is written (:func:`check_folders`); the
+    export's manifest is written into the folders' parent, the --work."""
+    if not folders:
+        return
+    where.setdefault("local", not where.get("scheduler") and not where.get("workers"))
+    sequences = check_folders(folders)
+    parents = {Path(folder).parent for _, folder in folders}
+    if len(parents) != 1:
+        raise ValueError(f"render: the folders lie in {len(parents)} folders, not in one --work")
+    with cache_remedies():
+        export_sequences(sequences, manifest=parents.pop() / DATASET_RECORD, **where)
 
 
 def check_frames(spec: Path, frames: int) -> None:
@@ -166,6 +195,7 @@ def _main(argv: list[str] | None) -> int:
     if not 2 <= args.reference_spp <= 1 << 16 or args.reference_spp % 2:
         raise UsageError(f"--reference-spp must be even, from 2 to 65536, got {args.reference_spp}")
     check_method_names("--methods", args.methods)  # every name python -m denoise --method takes, each once
+    where = cluster_options(args)
     named = {}
     for path in args.network:
         if path.stem in named or path.stem in args.methods:
@@ -207,10 +237,10 @@ def _main(argv: list[str] | None) -> int:
         print(f"note: the networks were trained on {', '.join(map(printable, trained_on))}: "
               f"{'its' if len(trained_on) == 1 else 'their'} numbers are not held-out ones",
               file=sys.stderr, flush=True)
+    render([(loaded[spec], args.work / spec.stem) for spec in specs], **where)
     results = {}
     for spec in specs:
         folder = args.work / spec.stem
-        render(loaded[spec], folder)
         print(f"{printable(spec.stem)}: judging {len(runners)} method{'' if len(runners) == 1 else 's'}",
               file=sys.stderr, flush=True)
         results[spec.stem] = judge(folder, runners)

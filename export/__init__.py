@@ -78,6 +78,7 @@ _HOMES = {
     "Recorder": "recorder",
     "dask_client": "cluster",
     "run_local": "runners", "sequences_for": "runners", "export_sequences": "runners", "export": "runners",
+    "sequences_into": "runners",
     "main": "cli",
 }
 __all__ = sorted(_HOMES)

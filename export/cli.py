@@ -12,7 +12,7 @@ from course import check_data_flag
 from renderer.variants import set_variant
 
 from . import __doc__ as PACKAGE_DOC
-from .cluster import check_scheduler
+from .cluster import add_cluster_options, cluster_options
 from .ground_truth import DATASET_RECORD, reference_folder
 from .runners import export_sequences, sequences_for
 from .sequence import DEFAULT_BATCH_SPP
@@ -34,10 +34,7 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--data", type=Path, help="course data folder for course scene names")
     parser.add_argument("--variant")
     parser.add_argument("--force", action="store_true", help="start over in folders made with other settings")
-    where = parser.add_mutually_exclusive_group()
-    where.add_argument("--scheduler", metavar="ADDRESS", help="a running Dask scheduler (tcp://host:8786)")
-    where.add_argument("--workers", type=ascii_int, help="local Dask worker processes (default: one per core)")
-    where.add_argument("--local", action="store_true", help="render in this process, without Dask")
+    add_cluster_options(parser)
     return parser
 
 
@@ -63,17 +60,14 @@ def _main(argv: list[str] | None) -> int:
     for path in spec_paths:
         check_outside({"OUT": out}, {"SPEC.json": path})
     check_not_spec_folders(out, spec_paths)
-    if args.scheduler is not None:
-        check_scheduler(args.scheduler)
-    if args.workers is not None and not 1 <= args.workers <= 1024:
-        raise UsageError(f"--workers: expected 1..1024, found {args.workers}")
+    where = cluster_options(args)
     overrides = dict(frames=args.frames, size=tuple(args.size) if args.size else None, spp=args.spp,
                      reference_spp=args.reference_spp)
     specs = [(path.stem, Spec.load(path, **overrides)) for path in spec_paths]  # all checked before any work
     variant = set_variant(args.variant)
     sequences = sequences_for(specs, out, args.data, args.whitted, args.batch_spp, variant)
     manifest = out / DATASET_RECORD
-    done = export_sequences(sequences, args.force, args.scheduler, args.workers, args.local, manifest)
+    done = export_sequences(sequences, args.force, manifest=manifest, **where)
     for sequence in sequences:
         print(f"{len(done[sequence.name])} frames rendered into {printable(sequence.target)} "
               f"(ground truth in {printable(sequence.reference)})")

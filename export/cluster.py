@@ -16,6 +16,7 @@ cluster start one single-threaded worker per core:
 """
 from __future__ import annotations
 
+import argparse
 import atexit
 import ipaddress
 import logging
@@ -36,6 +37,7 @@ from tqdm import tqdm
 from core.entry import own_cleanup
 from core.errors import ClusterError, UsageError
 from core.libllvm import prepare_libllvm
+from core.numbers import ascii_int
 
 from .recorder import Recorder, progress_bar
 from .tasks import Task, run_task
@@ -118,6 +120,35 @@ def check_scheduler(address: str) -> str:
     if not 1 <= port <= 65535:
         raise UsageError(f"--scheduler {address!r}: port {port} is not 1..65535")
     return address
+
+
+#: the most local worker processes ``--workers`` starts
+MAX_WORKERS = 1024
+
+
+def add_cluster_options(parser: argparse.ArgumentParser) -> None:
+    """``--scheduler``, ``--workers`` and ``--local``: where a command's export
+    renders. Declared here once for every command that renders sequences;
+    :func:`cluster_options` reads them back, checked."""
+    where = parser.add_mutually_exclusive_group()
+    where.add_argument("--scheduler", metavar="ADDRESS", help="render on a running Dask scheduler (tcp://host:8786)")
+    where.add_argument("--workers", type=ascii_int, metavar="N",
+                       help="render on N local Dask worker processes (default: one per core)")
+    where.add_argument("--local", action="store_true", help="render in this process, without Dask (one core)")
+
+
+#: the destinations of :func:`add_cluster_options`' flags, and the flags
+CLUSTER_OPTIONS = {"scheduler": "--scheduler", "workers": "--workers", "local": "--local"}
+
+
+def cluster_options(args: argparse.Namespace) -> dict:
+    """The options of :func:`add_cluster_options`, checked (one line naming the
+    flag), as the keywords of :func:`export.runners.export_sequences`."""
+    if args.scheduler is not None:
+        check_scheduler(args.scheduler)
+    if args.workers is not None and not 1 <= args.workers <= MAX_WORKERS:
+        raise UsageError(f"--workers: expected 1..{MAX_WORKERS}, found {args.workers}")
+    return {name: getattr(args, name) for name in CLUSTER_OPTIONS}
 
 
 def silence_dask() -> None:

@@ -123,7 +123,7 @@ def export_sequences(sequences: list[Sequence], force: bool = False, scheduler: 
             recover(sequence)
         if manifest is not None:
             remove_staging(manifest.parent)
-        if local or client is not None:
+        if local or client is not None or not any(plan(s) for s in sequences):  # no cluster for nothing to do
             return _run(sequences, manifest, after_task, client, threads)
         with dask_client(scheduler, workers) as (client, threads):
             return _run(sequences, manifest, after_task, client, threads, scheduler or "LocalCluster")
@@ -159,3 +159,11 @@ def export(spec: Spec, target: Path, data: Path | None = None, whitted: bool = F
     sequences = sequences_for([(target.name, spec)], target, data, whitted, batch_spp)
     done = export_sequences(sequences, force, manifest=target / DATASET_RECORD, **where)
     return done[target.name]
+
+
+def sequences_into(folders: list[tuple[Spec, Path]], data: Path | None = None) -> list[Sequence]:
+    """One :class:`Sequence` per (spec, frame folder), each named by its folder
+    (scenes loaded and checked, as :func:`sequences_for`); writes nothing."""
+    sequences = [s for spec, folder in folders for s in sequences_for([(Path(folder).name, spec)], Path(folder), data)]
+    check_distinct_folders(sequences)
+    return sequences

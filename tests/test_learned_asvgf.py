@@ -214,7 +214,8 @@ def test_the_specs_order_does_not_change_the_training(tiny, tmp_path):
     other = tmp_path / "tiny_again.json"
     other.write_text(spec.read_text())
     out = tmp_path / "order.json"
-    common = ["--work", str(work), "--out", str(out), "--plot", str(tmp_path / "o.png"), "--hidden", "4", "--quiet"]
+    common = ["--work", str(work), "--out", str(out), "--plot", str(tmp_path / "o.png"), "--hidden", "4", "--quiet",
+              "--local"]
     assert main([str(spec), str(other), "--steps", "1", *common]) == 0
     assert main([str(other), str(spec), "--steps", "2", *common]) == 0
     assert json.loads(out.read_text())["record"]["steps"] == 2

@@ -87,7 +87,8 @@ def test_any_method_name_is_taken_and_the_header_promises_no_missing_ratio(tmp_p
     runs = ((["demod+atrous+temporal", "bilateral"], "| sequence | demod+atrous+temporal | bilateral |"),
             (["asvgf"], "| sequence | asvgf |"))  # the second renders nothing: the same --work
     for methods, header in runs:
-        assert main([str(spec), "--work", str(tmp_path / "work"), "--reference-spp", "2", "--methods", *methods]) == 0
+        assert main([str(spec), "--work", str(tmp_path / "work"), "--reference-spp", "2", "--local",
+                     "--methods", *methods]) == 0
         captured = capsys.readouterr()
         assert "note:" not in captured.err and "ratio to asvgf" not in captured.out, captured
         assert header in captured.out
@@ -169,7 +170,7 @@ def test_a_render_too_large_for_one_batch_names_no_flag_that_does_not_exist(tmp_
 
     spec = Spec.from_dict({"scene": "lamps", "frames": 1, "size": [16384, 16384], "spp": 1, "reference_spp": 64})
     with pytest.raises(SpecError) as error:
-        render(spec, tmp_path / "work" / "big")
+        render([(spec, tmp_path / "work" / "big")])
     assert str(error.value).endswith("samples in one render; make the spec's size smaller"), error.value
     assert "--" not in str(error.value)
     assert not (tmp_path / "work").exists()
