@@ -19,7 +19,17 @@ Prints the mean relMSE over frames >= ``QUALITY_FROM`` of each and its
 ratio to ``oidn-high``'s (the bar of ``python -m benchmarks.denoise`` is
 1.5). If even the exact λ leaves a sequence above the bar, what is missing
 there is spatial: the filtering of pixels whose history is short.
-``--docs`` writes the table into docs/asvgf.md (section ``asvgf-bounds``).
+
+Then the spatial side's bound for a method that steers asvgf (as
+``learned-asvgf`` does): the images asvgf can make of a frame from the
+history it has (its slow history and the output of every À-Trous level, the
+wide one too, with σ_luminance times each of ``SELECTION_SCALES``, and its
+own output), and the error of an oracle that picks, with the truth in hand,
+the best of them per pixel, or per square tile of ``SELECTION_TILES``
+pixels a side (a choice a network could make from a neighbourhood; one
+pixel's choice also picks its noise). As ratios to asvgf's.
+``--docs`` writes the tables into docs/asvgf.md (sections ``asvgf-bounds``
+and ``asvgf-selection``).
 """
 from __future__ import annotations
 
@@ -51,11 +61,20 @@ from core.markdown import replace_section
 from denoise.filters import demodulate, remodulate
 from denoise.fit import prepare
 from denoise.methods import from_name
-from denoise.methods.asvgf import GRADIENT_FLOOR, ASVGFParams, asvgf, box_statistics, fitted, to_ycocg
+from denoise.methods.asvgf import (
+    GRADIENT_FLOOR,
+    ASVGFHistory,
+    ASVGFParams,
+    FilterValues,
+    asvgf,
+    box_statistics,
+    fitted,
+    to_ycocg,
+)
 from denoise.temporal_metrics import QUALITY_FROM
 from export import reference_folder
 from export.frames import frame_indices, read_frame
-from imaging.metrics import relmse
+from imaging.metrics import least_error_per_tile, relmse, relmse_per_pixel
 from renderer.variants import set_variant
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -69,6 +88,12 @@ NO_CLIP = 100.0
 #: with the exact λ deciding what to forget, the history may be long: the cap is then this
 LONG_HISTORY = 32.0
 VARIANTS = ("asvgf", "asvgf, exact λ", "asvgf, exact λ, no clip, long history")
+#: the σ_luminance factors of the À-Trous outputs the oracle picks from
+SELECTION_SCALES = (0.25, 0.5, 1.0, 2.0, 4.0)
+#: the sides, in pixels, of the square tiles the tiled oracles pick per
+SELECTION_TILES = (8, 32)
+SELECTIONS = ("best of σ×1, per pixel", "best of all, per pixel", *(f"best of all, per {t}×{t} tile"
+                                                                    for t in SELECTION_TILES))
 
 
 def exact_gradient(frame, previous) -> mi.Float:
@@ -98,6 +123,38 @@ def run_asvgf(frames, params: ASVGFParams, exact: bool) -> list[float]:
     return errors
 
 
+def candidates(f, params: ASVGFParams, history: ASVGFHistory | None) -> dict[float, list[np.ndarray]]:
+    """What asvgf can make of frame ``f`` (a :class:`denoise.fit.PreparedFrame`)
+    from ``history``, by σ_luminance factor: the slow history, then every
+    À-Trous level's output (the wide one too), remodulated, (H, W, 3) each."""
+    result = {}
+    for factor in SELECTION_SCALES:
+        values = replace(FilterValues.of(params), sigma_luminance=params.sigma_luminance * factor)
+        images = []
+        asvgf(f.buffers, params, history if f.index is not None else None, f.index, f.valid, values, images=images)
+        result[factor] = [(remodulate(i, f.albedo) if f.albedo is not None else i).numpy() for i in images]
+    return result
+
+
+def run_selection(frames, params: ASVGFParams) -> dict[str, list[float]]:
+    """relMSE per frame of asvgf and of the oracles of :data:`SELECTIONS`."""
+    history, errors = None, {name: [] for name in ("asvgf", *SELECTIONS)}
+    for f in frames:
+        images = candidates(f, params, history)
+        result, history = asvgf(f.buffers, params, history if f.index is not None else None, f.index, f.valid)
+        if f.albedo is not None:
+            result = remodulate(result, f.albedo)
+        reference = f.reference.numpy()
+        at_one = relmse_per_pixel([*images[1.0], result.numpy()], reference)
+        every = np.concatenate([at_one, relmse_per_pixel([i for k in SELECTION_SCALES if k != 1.0 for i in images[k]],
+                                                     reference)])
+        values = (float(at_one[-1].mean()), float(at_one.min(axis=0).mean()), float(every.min(axis=0).mean()),
+                  *(least_error_per_tile(every, tile) for tile in SELECTION_TILES))
+        for name, value in zip(errors, values, strict=True):
+            errors[name].append(value)
+    return errors
+
+
 def run_baseline(folder: Path, frames) -> list[float]:
     method = from_name(BASELINE)
     return [relmse(method.step(read_frame(folder, i)), f.reference.numpy())
@@ -112,16 +169,32 @@ def measure(folder: Path) -> dict[str, float]:
     per_frame = {BASELINE: run_baseline(folder, frames), "asvgf": run_asvgf(frames, shipped, False),
                  "asvgf, exact λ": run_asvgf(frames, shipped, True),
                  "asvgf, exact λ, no clip, long history": run_asvgf(frames, unclipped, True)}
+    selection = run_selection(frames, shipped)
+    per_frame.update({name: selection[name] for name in SELECTIONS})
     return {name: float(np.mean(values[QUALITY_FROM:])) for name, values in per_frame.items()}
 
 
-def table(results: dict) -> str:
-    rows = ["| sequence | " + BASELINE + " | " + " | ".join(VARIANTS) + " |", "|---" * (2 + len(VARIANTS)) + "|"]
+def table(results: dict, base_name: str = BASELINE, columns: tuple[str, ...] = VARIANTS) -> str:
+    """Mean relMSE of ``columns`` per sequence, with the ratio to ``base_name``'s."""
+    rows = [f"| sequence | {base_name} | " + " | ".join(columns) + " |", "|---" * (2 + len(columns)) + "|"]
     for name, means in results["sequences"].items():
-        base = means[BASELINE]
+        base = means[base_name]
         rows.append(f"| {name} | {base:.4f} | " + " | ".join(
-            f"{means[v]:.4f} ({means[v] / base:.2f}x)" for v in VARIANTS) + " |")
+            f"{means[v]:.4f} ({means[v] / base:.2f}x)" for v in columns) + " |")
     return "\n".join(rows)
+
+
+def selection_table(results: dict) -> str:
+    """The oracles' table, with OIDN 2 high's ratio to asvgf's beside them."""
+    return table(results, "asvgf", (*SELECTIONS, BASELINE))
+
+
+def selection_section(results: dict) -> str:
+    scales = ", ".join(f"{k:g}" for k in SELECTION_SCALES)
+    return (f"Written by `{PROG} --docs` on {results['date']} ({results['machine']}): mean relMSE over frames "
+            f">= {QUALITY_FROM} at 320x180 on the benchmark's frames and ground truth, and its ratio to asvgf's; "
+            f"the oracles pick among asvgf's slow history, its output and every À-Trous level's output at "
+            f"σ_luminance × {scales} (σ×1: the levels asvgf runs).\n\n" + selection_table(results))
 
 
 def section(results: dict) -> str:
@@ -160,10 +233,12 @@ def main(argv: list[str] | None = None) -> int:
     for name, folder in folders.items():
         results["sequences"][name] = measure(folder)
     print(table(results))
+    print(selection_table(results))
     if args.json:
         write_json(args.json, results)
     if args.docs:
         replace_section(PAGE, "asvgf-bounds", section(results))
+        replace_section(PAGE, "asvgf-selection", selection_section(results))
     return 0
 
 

@@ -14,10 +14,30 @@ TOLERANCE = 2
 MAX_BAD_FRACTION = 0.005
 
 
-def relmse(image: np.ndarray, reference: np.ndarray, epsilon: float = 1e-2) -> float:
+#: relMSE's term in the denominator: dark pixels' errors count as absolute ones
+RELMSE_EPSILON = 1e-2
+
+
+def relmse(image: np.ndarray, reference: np.ndarray, epsilon: float = RELMSE_EPSILON) -> float:
     """Relative mean squared error, ``mean((x - ref)^2 / (ref^2 + eps))``."""
     image, reference = np.asarray(image, np.float64), np.asarray(reference, np.float64)
     return float(np.mean((image - reference) ** 2 / (reference ** 2 + epsilon)))
+
+
+def relmse_per_pixel(images, reference: np.ndarray, epsilon: float = RELMSE_EPSILON) -> np.ndarray:
+    """(K, H, W): each of K (H, W, C) images' relMSE per pixel (its mean over the channels)."""
+    stack, reference = np.asarray(images, np.float64), np.asarray(reference, np.float64)
+    return np.mean((stack - reference) ** 2 / (reference ** 2 + epsilon), axis=-1)
+
+
+def least_error_per_tile(errors: np.ndarray, tile: int) -> float:
+    """The mean error of the image that takes, in each ``tile``-square tile (those on
+    the right and bottom edges cut short), the one of K images whose summed error
+    there is least; ``errors``: (K, H, W) per pixel."""
+    _, height, width = errors.shape
+    ids = (np.arange(height)[:, None] // tile) * -(-width // tile) + np.arange(width)[None, :] // tile
+    sums = np.stack([np.bincount(ids.ravel(), weights=e.ravel()) for e in errors])
+    return float(sums.min(axis=0).sum() / (height * width))
 
 
 def flip_error(image: np.ndarray, reference: np.ndarray) -> float:

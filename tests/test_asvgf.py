@@ -297,6 +297,28 @@ def test_the_method_passes_its_options_to_the_filter(variant_vectorised_rgb):
         make("asvgf", clip_width=-1.0)
 
 
+@pytest.mark.parametrize("wide_levels", [0, 1])
+def test_the_images_asked_for_are_the_ones_the_filter_makes(variant_vectorised_rgb, wide_levels):
+    """``images=`` (benchmarks.asvgf_bounds' oracles pick among them) takes the slow
+    history and every level's output, and changes nothing: the next history's slow
+    is the feedback level's image and, without the wide blend, the output the last."""
+    import mitsuba as mi
+
+    from denoise.methods.asvgf import asvgf
+
+    p = params(wide_levels=wide_levels, feedback_level=0)
+    c, n, x = synthetic(3)
+    history, index, valid = random_history(4)
+    where = (dr_history(history), mi.UInt32(index.astype(np.uint32)), mi.Bool(valid))
+    images = []
+    out, kept = asvgf(frame_of(c, n, x), p, *where, images=images)
+    plain, _ = asvgf(frame_of(c, n, x), p, *where)
+    assert np.array_equal(np.array(out), np.array(plain)) and len(images) == 1 + 2 + wide_levels
+    assert np.array_equal(np.array(images[1]), arrays(kept.slow, 3))
+    if not wide_levels:
+        assert np.array_equal(np.array(images[-1]), np.array(out))
+
+
 @pytest.mark.parametrize("forget", [True, False])
 def test_a_given_gradient_replaces_the_estimate(variant_vectorised_rgb, forget):
     """λ = 1 everywhere forgets the history (length 1, the slow history is the

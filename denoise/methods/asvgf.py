@@ -254,23 +254,28 @@ def variance(frame: FrameArrays, moments: mi.Vector2f, length: mi.Float, p: ASVG
 
 
 def asvgf(frame: FrameArrays, p: ASVGFParams, history: ASVGFHistory | None = None, index: mi.UInt32 | None = None,
-          valid: mi.Bool | None = None, values: FilterValues | None = None, gradient: mi.Float | None = None
-          ) -> tuple[mi.TensorXf, ASVGFHistory]:
+          valid: mi.Bool | None = None, values: FilterValues | None = None, gradient: mi.Float | None = None,
+          images: list | None = None) -> tuple[mi.TensorXf, ASVGFHistory]:
     """One frame on ``frame.color``; ``index``/``valid`` are the back
     projection onto the frame that ``history`` belongs to. ``values``
     overrides ``p``'s continuous parameters (Dr.Jit Floats to differentiate);
     ``gradient`` gives λ per pixel (from gradient samples, or from the ground
-    truth in :mod:`benchmarks.asvgf_bounds`) instead of step 1's estimate.
+    truth in :mod:`benchmarks.asvgf_bounds`) instead of step 1's estimate;
+    ``images``, where given, receives the slow history and every À-Trous
+    level's output, the wide ones too (demodulated tensors, in that order).
     Returns (the filtered colour, the history for the next frame)."""
     v = FilterValues.of(p) if values is None else values.widened(dr.width(frame.color))
     fast, slow, moments, length = temporal_accumulation(frame, history, index, valid, p, v, gradient)
     dr.eval(fast, slow, moments, length)
     var = variance(frame, moments, length, p, v)
     color, feedback = slow, slow
+    keep = images.append if images is not None else lambda image: None
+    keep(frame.tensor(slow))
     levels = p.levels if p.levels is not None else levels_for(frame.width)
     for level in range(levels):
         color, var = atrous_level(frame, color, var, 1 << level, v)
         dr.eval(color, var)
+        keep(frame.tensor(color))
         if level == min(p.feedback_level, levels - 1):
             feedback = color
     if p.wide_levels:
@@ -278,6 +283,7 @@ def asvgf(frame: FrameArrays, p: ASVGFParams, history: ASVGFHistory | None = Non
         for level in range(levels, levels + p.wide_levels):
             wide, var = atrous_level(frame, wide, var, 1 << level, v)
             dr.eval(wide, var)
+            keep(frame.tensor(wide))
         color = dr.lerp(wide, color, dr.clip((length - 1.0) / v.wide_frames, 0.0, 1.0))
     return frame.tensor(color), ASVGFHistory(fast, feedback, moments, length)
 
