@@ -219,6 +219,34 @@ def start_export(tmp_path: Path, address: str) -> tuple[subprocess.Popen, Path]:
     return export, target
 
 
+#: run on workers; a lambda travels by value (a user's worker cannot import this module)
+parse_is_serialized = lambda: getattr(__import__("ast").parse, "serialized", False)  # noqa: E731
+
+
+@pytest.mark.parametrize("cluster", ["LocalCluster", "own"])
+def test_every_worker_parses_python_one_call_at_a_time(tmp_path, cluster):
+    """CPython 3.11 keeps the AST constructor's recursion depth per interpreter:
+    a worker's event loop parsing a task's signature while the task thread's
+    first Mitsuba import parsed its integrators failed the task ("AST
+    constructor recursion depth mismatch", 1 of 22 runs of the killed-worker
+    test under load). Our LocalCluster's workers (by their preload) and those
+    of a user's cluster (by the export's first call) serialize ast.parse."""
+    from distributed import Client
+
+    from export.cluster import dask_client
+
+    if cluster == "LocalCluster":
+        with dask_client(workers=2) as (client, _):
+            assert list(client.run(parse_is_serialized).values()) == [True, True]
+        return
+    with own_cluster(tmp_path) as (address, _):
+        with Client(address, timeout="15s") as client:
+            client.wait_for_workers(1, timeout=60)
+            assert list(client.run(parse_is_serialized).values()) == [False]  # a user's worker as it starts
+        with dask_client(address) as (client, _):
+            assert list(client.run(parse_is_serialized).values()) == [True]
+
+
 def test_a_scheduler_that_goes_away_is_one_line(tmp_path):
     """``--scheduler`` on a cluster of its own whose scheduler is killed while the
     export renders: exit 2 and one line that says so and how to resume (Dask
@@ -257,7 +285,7 @@ def test_a_worker_without_the_project_is_one_line(tmp_path):
         out, err = export.communicate(timeout=120)
     assert export.returncode == 2, err[-3000:]
     assert err.count("\n") == 1 and "a worker cannot run the export's code" in err, err[-3000:]
-    assert "No module named 'core'" in err and "every worker needs this project" in err, err
+    assert "No module named 'export'" in err and "every worker needs this project" in err, err
     assert "Traceback" not in err
 
 
