@@ -260,8 +260,6 @@ def check_frames_fit(loaded: list[tuple[Path, Spec]], memory: int | None = None)
                         f"{training.CROP[1]} crops)", memory)
 
 
-
-
 def rerender(folder: Path) -> str:
     """What a damaged frame's message advises (--restart starts the steps over, it renders nothing)."""
     return f"remove {folder} and {reference_folder(folder)} and run again: the training renders the sequence anew"

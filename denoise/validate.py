@@ -104,11 +104,11 @@ def check_folders(folders: list[tuple[Spec, Path]]) -> list[Sequence]:
     """The export's sequence of every (spec, frame folder) in a --work cache, its
     scene and its folders (new, or made with the same settings) checked with the
     cache's remedies (:func:`cache_remedies`). Writes nothing."""
-    sequences = []
-    for spec, folder in folders:
+    with cache_remedies():  # the scenes, and no folder of one sequence another's
+        sequences = sequences_into(folders)
+    for sequence, (_, folder) in zip(sequences, folders):
         with cache_remedies(folder):
-            sequences += sequences_into([(spec, folder)])
-            check_folder(sequences[-1])
+            check_folder(sequence)
     return sequences
 
 

@@ -61,3 +61,19 @@ def test_one_export_needs_its_folders_in_one_work(tmp_path):
     spec = Spec.load(Path(tiny_spec(tmp_path, 5)))
     with pytest.raises(ValueError, match="not in one --work"):
         render([(spec, tmp_path / "a" / "x"), (spec, tmp_path / "b" / "y")])
+
+
+@pytest.mark.parametrize("command", COMMANDS)
+def test_a_sequence_whose_frames_are_another_ones_truth_is_refused_before_any_render(command, tmp_path, capsys):
+    """Specs x and x_reference in one --work: x_reference's frames would be x's truth."""
+    main = importlib.import_module(command).main
+    spec = tiny_spec(tmp_path, 5)
+    other = tmp_path / f"{spec.stem}_reference.json"
+    other.write_text(spec.read_text())
+    argv = [str(spec), str(other), "--work", str(tmp_path / "work"), "--local"]
+    if command != "denoise.validate":
+        argv += ["--out", str(tmp_path / "out.json")]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "would be both tiny5's ground truth and tiny5_reference's frame folder" in err, err
+    assert not (tmp_path / "work").exists()

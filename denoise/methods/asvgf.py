@@ -269,13 +269,14 @@ def asvgf(frame: FrameArrays, p: ASVGFParams, history: ASVGFHistory | None = Non
     dr.eval(fast, slow, moments, length)
     var = variance(frame, moments, length, p, v)
     color, feedback = slow, slow
-    keep = images.append if images is not None else lambda image: None
-    keep(frame.tensor(slow))
+    if images is not None:
+        images.append(frame.tensor(slow))
     levels = p.levels if p.levels is not None else levels_for(frame.width)
     for level in range(levels):
         color, var = atrous_level(frame, color, var, 1 << level, v)
         dr.eval(color, var)
-        keep(frame.tensor(color))
+        if images is not None:
+            images.append(frame.tensor(color))
         if level == min(p.feedback_level, levels - 1):
             feedback = color
     if p.wide_levels:
@@ -283,7 +284,8 @@ def asvgf(frame: FrameArrays, p: ASVGFParams, history: ASVGFHistory | None = Non
         for level in range(levels, levels + p.wide_levels):
             wide, var = atrous_level(frame, wide, var, 1 << level, v)
             dr.eval(wide, var)
-            keep(frame.tensor(wide))
+            if images is not None:
+                images.append(frame.tensor(wide))
         color = dr.lerp(wide, color, dr.clip((length - 1.0) / v.wide_frames, 0.0, 1.0))
     return frame.tensor(color), ASVGFHistory(fast, feedback, moments, length)
 
