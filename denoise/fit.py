@@ -270,7 +270,7 @@ def check_switch_frame(frame: int | None, frames: int, where: Path) -> int:
 
 #: the options of a fit, which --evaluate (it fits nothing) does not take
 FIT_ONLY = {"specs": "SPEC.json", "work": "--work", "steps": "--steps", "rate": "--rate", "out": "--out",
-            **CLUSTER_OPTIONS}
+            **{name: flag for name, (flag, _) in CLUSTER_OPTIONS.items()}}
 
 
 def _main(argv: list[str] | None) -> int:

@@ -162,19 +162,21 @@ def check_scheduler(address: str) -> str:
 MAX_WORKERS = 1024
 
 
+#: where a command's export renders: each option's destination, flag and argparse settings
+CLUSTER_OPTIONS = {
+    "scheduler": ("--scheduler", dict(metavar="ADDRESS", help="render on a running Dask scheduler (tcp://host:8786)")),
+    "workers": ("--workers", dict(type=ascii_int, metavar="N",
+                                  help="render on N local Dask worker processes (default: one per core)")),
+    "local": ("--local", dict(action="store_true", help="render in this process, without Dask (one core)")),
+}
+
+
 def add_cluster_options(parser: argparse.ArgumentParser) -> None:
-    """``--scheduler``, ``--workers`` and ``--local``: where a command's export
-    renders. Declared here once for every command that renders sequences;
-    :func:`cluster_options` reads them back, checked."""
+    """:data:`CLUSTER_OPTIONS`, one of them at most, for every command that
+    renders sequences; :func:`cluster_options` reads them back, checked."""
     where = parser.add_mutually_exclusive_group()
-    where.add_argument("--scheduler", metavar="ADDRESS", help="render on a running Dask scheduler (tcp://host:8786)")
-    where.add_argument("--workers", type=ascii_int, metavar="N",
-                       help="render on N local Dask worker processes (default: one per core)")
-    where.add_argument("--local", action="store_true", help="render in this process, without Dask (one core)")
-
-
-#: the destinations of :func:`add_cluster_options`' flags, and the flags
-CLUSTER_OPTIONS = {"scheduler": "--scheduler", "workers": "--workers", "local": "--local"}
+    for name, (flag, settings) in CLUSTER_OPTIONS.items():
+        where.add_argument(flag, dest=name, **settings)
 
 
 def cluster_options(args: argparse.Namespace) -> dict:
