@@ -65,7 +65,7 @@ from .methods import data_files, from_name, make
 from .methods.asvgf import FITTED_OPTIONS, PARAMETER_FILE, FilterValues, asvgf, fitted, hand_set
 from .pipeline import check_sequences_fit
 from .temporal_metrics import QUALITY_FROM
-from .validate import render
+from .validate import check_spec_name, render
 from .worker_process import ignore_group_signals, run_in_worker
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -291,6 +291,7 @@ def _main(argv: list[str] | None) -> int:
 
     for spec in specs:  # a fit never writes onto a spec it reads, nor into the frames it trains on
         check_outside({"--out": args.out, "--work": args.work}, {"SPEC.json": spec})
+        check_spec_name(spec)
         frames = args.work / Path(spec).stem
         check_outside({"--out": args.out}, {f"frame folder (--work) of {Path(spec).name}": frames,
                                             f"ground truth (--work) of {Path(spec).name}": reference_folder(frames)})

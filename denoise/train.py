@@ -59,7 +59,7 @@ from .methods.learned_asvgf import ABLATIONS, WEIGHT_LIMIT, WEIGHTS_FILE
 from .pipeline import check_sequences_fit
 from .training import BENCHMARK, HELD_OUT, ROOT, TRAINING
 from .training_state import Settings, check_checkpoint_place, feature_set, load_checkpoint
-from .validate import check_folders, render
+from .validate import check_folders, check_spec_name, render
 from .worker_process import ignore_group_signals, run_in_worker
 
 DOCS = ROOT / "docs"
@@ -134,6 +134,7 @@ def _main(argv: list[str] | None) -> int:
     if not [n for n in names if n not in HELD_OUT]:
         raise UsageError(f"every sequence given is held out ({', '.join(HELD_OUT)}): nothing to train on")
     for path, _ in loaded:  # nor into a sequence's frames or its ground truth
+        check_spec_name(path)
         frames = args.work / path.stem
         check_outside({"--out": args.out, "--plot": plot},
                       {f"frame folder (--work) of {path.name}": frames,
@@ -153,7 +154,7 @@ def _main(argv: list[str] | None) -> int:
                              f"{args.steps}; give --steps {int(state['t'])} or more, or --restart")
 
     set_variant("llvm_ad_rgb", jit=True)
-    check_folders([(spec, args.work / path.stem) for path, spec in loaded])  # before anything is rendered
+    check_folders([(spec, args.work / path.stem) for path, spec in loaded], (checkpoint,))  # before any render
     folders = [args.work / path.stem for path, _ in loaded]
     # one training at a time in a --work (two would write one checkpoint, step by step) and into an
     # --out (the one that ends last would replace the other's weights without a word)

@@ -100,12 +100,32 @@ def cache_remedies(folder: Path | None = None) -> Iterator[None]:
         raise error.with_remedy(remedy) from None
 
 
-def check_folders(folders: list[tuple[Spec, Path]]) -> list[Sequence]:
+def check_spec_name(spec: Path) -> None:
+    """A spec's name (its file name less ``.json``) names its folder in --work:
+    ``..json`` would render into --work itself and ``...json`` into its parent."""
+    if Path(spec).stem in ("", ".", ".."):
+        raise UsageError(f"{printable(spec)}: a sequence named {Path(spec).stem!r} has no folder of its own in "
+                         f"--work; rename the spec")
+
+
+def check_folders(folders: list[tuple[Spec, Path]], files: tuple[Path, ...] = ()) -> list[Sequence]:
     """The export's sequence of every (spec, frame folder) in a --work cache, its
     scene and its folders (new, or made with the same settings) checked with the
-    cache's remedies (:func:`cache_remedies`). Writes nothing."""
+    cache's remedies (:func:`cache_remedies`). ``files``: what the command
+    writes into the --work besides (the export's manifest always), which no
+    sequence's folder may be and which must not be a folder. Writes nothing."""
     with cache_remedies():  # the scenes, and no folder of one sequence another's
         sequences = sequences_into(folders)
+    own = {Path(f).parent / DATASET_RECORD for _, f in folders} | set(files)
+    for sequence in sequences:
+        for folder in (Path(sequence.target), sequence.reference):
+            if folder in own:
+                raise UsageError(f"{printable(folder)}: a sequence's folder would be the file the command writes "
+                                 f"there; rename the spec {printable(sequence.spec.source or sequence.name)}")
+    for path in own:
+        if path.is_dir():
+            raise UsageError(f"{printable(path)}: a folder where the command writes a file; remove it, "
+                             f"or give another --work")
     for sequence, (_, folder) in zip(sequences, folders):
         with cache_remedies(folder):
             check_folder(sequence)
@@ -215,6 +235,7 @@ def _main(argv: list[str] | None) -> int:
         check_frames(spec, loaded[spec].frames)
     check_sequence_fits(loaded)
     for spec in specs:  # the command never writes onto a spec, a weights file or a frame folder it reads
+        check_spec_name(spec)
         folder = args.work / spec.stem
         check_outside({"--work": args.work, "--json": args.json}, {"SPEC.json": spec})
         check_outside({"--json": args.json}, {f"frame folder (--work) of {spec.stem}": folder,

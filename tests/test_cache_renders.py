@@ -77,3 +77,36 @@ def test_a_sequence_whose_frames_are_another_ones_truth_is_refused_before_any_re
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "would be both tiny5's ground truth and tiny5_reference's frame folder" in err, err
     assert not (tmp_path / "work").exists()
+
+
+@pytest.mark.parametrize("command, name, words", [
+    ("denoise.validate", ".", "a sequence named '.' has no folder of its own in --work"),
+    ("denoise.fit", "..", "a sequence named '..' has no folder of its own in --work"),
+    ("denoise.train", ".", "a sequence named '.' has no folder of its own in --work"),
+    ("denoise.validate", "dataset.json", "a sequence's folder would be the file the command writes there"),
+    ("denoise.train", "out.checkpoint.npz", "a sequence's folder would be the file the command writes there"),
+])
+def test_a_spec_whose_folder_is_not_its_own_is_refused_before_any_render(command, name, words, tmp_path, capsys):
+    """A spec named "..json" rendered into --work itself (its truth beside it), "...json" into
+    --work's parent; one named as the manifest or the checkpoint was refused after the render."""
+    main = importlib.import_module(command).main
+    spec = tmp_path / "specs" / f"{name}.json"
+    spec.parent.mkdir()
+    spec.write_text(tiny_spec(tmp_path, 5).read_text())
+    argv = [str(spec), "--work", str(tmp_path / "a" / "work"), "--local"]
+    if command != "denoise.validate":
+        argv += ["--out", str(tmp_path / "out.json")]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and words in err, err
+    assert sorted(p.name for p in tmp_path.rglob("*")) == sorted(["specs", f"{name}.json", "tiny5.json"])
+
+
+def test_a_folder_where_the_manifest_goes_is_refused_before_any_render(tmp_path, capsys):
+    from denoise.validate import main
+
+    (tmp_path / "work" / "dataset.json").mkdir(parents=True)
+    assert main([str(tiny_spec(tmp_path, 5)), "--work", str(tmp_path / "work"), "--local"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "dataset.json: a folder where the command writes a file" in err, err
+    assert [p.name for p in (tmp_path / "work").iterdir()] == ["dataset.json"]
