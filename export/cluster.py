@@ -17,9 +17,7 @@ cluster start one single-threaded worker per core:
 from __future__ import annotations
 
 import argparse
-import ast
 import atexit
-import functools
 import ipaddress
 import logging
 import multiprocessing
@@ -38,7 +36,6 @@ from tqdm import tqdm
 
 from core.entry import own_cleanup
 from core.errors import ClusterError, UsageError
-from core.libllvm import prepare_libllvm
 from core.numbers import ascii_int
 
 from .recorder import Recorder, progress_bar
@@ -68,41 +65,10 @@ def dask_setup(worker) -> None:
     export through its future, and what a worker logs otherwise comes from
     losing its scheduler, which happens only as the export ends (its
     heartbeat's traceback after a Ctrl-C)."""
+    from .dask_worker import serialize_ast_parse  # noqa: PLC0415  it loads Dask: only in a worker
+
     os.setpgid(0, 0)
     silence_dask()
-    serialize_ast_parse()
-
-
-#: held by ``ast.parse`` in a worker process (:func:`serialize_ast_parse`)
-AST_LOCK = threading.RLock()
-
-
-def serialize_ast_parse() -> None:
-    """Makes ``ast.parse`` in this process one call at a time. CPython 3.11
-    keeps the AST constructor's recursion depth per interpreter, not per
-    thread: a Dask worker's event loop parses a signature (``inspect``) for
-    each task it receives while the task thread's first Mitsuba import parses
-    its integrators (``dr.syntax``), and a task failed with "AST constructor
-    recursion depth mismatch" (docs/reliability.md). Reentrant: a finalizer
-    run inside a parse may parse."""
-    parse = ast.parse
-    if getattr(parse, "serialized", False):
-        return
-
-    @functools.wraps(parse)
-    def serialized(*args, **kwargs):
-        with AST_LOCK:
-            return parse(*args, **kwargs)
-
-    serialized.serialized = True
-    ast.parse = serialized
-
-
-def prepare_worker() -> None:
-    """What a worker of a cluster we did not start needs before its first task
-    (:func:`dask_setup` does it for our LocalCluster's): its libLLVM chosen, its
-    ``ast.parse`` serialized."""
-    prepare_libllvm()
     serialize_ast_parse()
 
 
@@ -221,9 +187,12 @@ def dask_client(scheduler: str | None = None, workers: int | None = None) -> Ite
         except (OSError, TimeoutError) as error:
             raise UsageError(f"--scheduler {scheduler}: cannot reach a Dask scheduler there ({error})") from None
         # its workers ran no entry point of ours: each chooses its libLLVM before a task (whose
-        # module imports Dr.Jit) reaches it; our LocalCluster's workers inherit this process's choice
+        # module imports Dr.Jit) reaches it, a worker that joins later too (a plugin, not a call);
+        # our LocalCluster's workers inherit this process's choice
+        from .dask_worker import PreparedWorker  # noqa: PLC0415  it loads Dask, as above
+
         try:
-            client.run(prepare_worker)
+            client.register_plugin(PreparedWorker())
         except Exception as error:  # noqa: BLE001  whatever a worker's Python made of our code: one line
             client.close()
             raise ClusterError(f"--scheduler {scheduler}: a worker cannot run the export's code "

@@ -198,15 +198,20 @@ def own_cluster(tmp_path: Path, worker_python: str | None = sys.executable):
     processes = [subprocess.Popen([Path(sys.executable).with_name("dask"), "scheduler", "--host", "127.0.0.1",
                                    "--port", address.rsplit(":", 1)[1], "--no-dashboard"], **quiet)]
     if worker_python is not None:
-        processes.append(subprocess.Popen([worker_python, "-m", "distributed.cli.dask_worker", address,
-                                           "--nthreads", "1", "--no-dashboard"], cwd=tmp_path, env=worker_env(),
-                                          **quiet))
+        processes.append(start_worker(tmp_path, address, worker_python))
     try:
         yield address, processes[0]
     finally:
         for process in processes:
             process.kill()
             process.wait()
+
+
+def start_worker(tmp_path: Path, address: str, worker_python: str = sys.executable) -> subprocess.Popen:
+    """One Dask worker of ``worker_python`` on the scheduler at ``address``, as a user starts one."""
+    return subprocess.Popen([worker_python, "-m", "distributed.cli.dask_worker", address, "--nthreads", "1",
+                             "--no-dashboard"], cwd=tmp_path, env=worker_env(), stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL)
 
 
 def start_export(tmp_path: Path, address: str) -> tuple[subprocess.Popen, Path]:
@@ -230,7 +235,8 @@ def test_every_worker_parses_python_one_call_at_a_time(tmp_path, cluster):
     first Mitsuba import parsed its integrators failed the task ("AST
     constructor recursion depth mismatch", 1 of 22 runs of the killed-worker
     test under load). Our LocalCluster's workers (by their preload) and those
-    of a user's cluster (by the export's first call) serialize ast.parse."""
+    of a user's cluster (by the plugin the export registers, a worker that joins
+    later too) serialize ast.parse."""
     from distributed import Client
 
     from export.cluster import dask_client
@@ -245,6 +251,13 @@ def test_every_worker_parses_python_one_call_at_a_time(tmp_path, cluster):
             assert list(client.run(parse_is_serialized).values()) == [False]  # a user's worker as it starts
         with dask_client(address) as (client, _):
             assert list(client.run(parse_is_serialized).values()) == [True]
+            late = start_worker(tmp_path, address)  # a worker that joins after the export started
+            try:
+                client.wait_for_workers(2, timeout=60)
+                assert list(client.run(parse_is_serialized).values()) == [True, True]
+            finally:
+                late.kill()
+                late.wait()
 
 
 def test_a_scheduler_that_goes_away_is_one_line(tmp_path):
