@@ -15,7 +15,7 @@ from renderer.checks import check_memory
 
 from .cluster import cluster_description, dask_client, run_futures
 from .files import locked, remove_staging
-from .ground_truth import DATASET_RECORD
+from .ground_truth import DATASET_RECORD, SEQUENCE_RECORD
 from .recorder import Recorder, progress_bar
 from .sequence import DEFAULT_BATCH_SPP, Sequence
 from .spec import MAX_SAMPLES_PER_RENDER, MAX_SPP, Spec
@@ -117,16 +117,51 @@ def export_sequences(sequences: list[Sequence], force: bool = False, scheduler: 
             check_folder(sequence)
     if client is None and not scheduler:  # renders on this machine: this process, or a LocalCluster's workers
         check_renders_fit(sequences, 1 if local else workers or os.cpu_count() or 1)
-    with locked([folder for s in sequences for folder in (Path(s.target), s.reference)]):
-        for sequence in sequences:
-            claim_folder(sequence, force)
-            recover(sequence)
-        if manifest is not None:
-            remove_staging(manifest.parent)
-        if local or client is not None or not any(plan(s) for s in sequences):  # no cluster for nothing to do
-            return _run(sequences, manifest, after_task, client, threads)
-        with dask_client(scheduler, workers) as (client, threads):
-            return _run(sequences, manifest, after_task, client, threads, scheduler or "LocalCluster")
+    folders = [folder for s in sequences for folder in (Path(s.target), s.reference)]
+    made = made_by_claim(folders)
+    started = False
+    try:
+        with locked(folders):
+            for sequence in sequences:
+                claim_folder(sequence, force)
+                recover(sequence)
+            if manifest is not None:
+                remove_staging(manifest.parent)
+            if local or client is not None or not any(plan(s) for s in sequences):  # no cluster for nothing to do
+                return _run(sequences, manifest, after_task, client, threads)
+            with dask_client(scheduler, workers) as (client, threads):
+                started = True
+                return _run(sequences, manifest, after_task, client, threads, scheduler or "LocalCluster")
+    except BaseException:
+        if not started:  # no cluster to render on (unreachable, interrupted as it started): no claims left behind
+            remove_claims(made)
+        raise
+
+
+def made_by_claim(folders: list[Path]) -> list[Path]:
+    """The outermost of ``folders`` and their parents that do not exist yet: what claiming them makes."""
+    made = set()
+    for folder in folders:
+        folder = Path(folder).absolute()
+        while not folder.parent.exists():
+            folder = folder.parent
+        if not folder.exists():
+            made.add(folder)
+    return sorted(made)
+
+
+def remove_claims(made: list[Path]) -> None:
+    """Removes the folders of ``made`` (:func:`made_by_claim`) where they hold nothing but
+    sequence records and empty folders; anything else in one keeps it."""
+    for top in made:
+        for folder in sorted((p for p in [top, *top.rglob("*")] if p.is_dir()), key=lambda p: -len(p.parts)):
+            for path in folder.iterdir():
+                if path.is_file() and path.name == SEQUENCE_RECORD:
+                    path.unlink()
+            try:
+                folder.rmdir()
+            except OSError:  # something else is in it
+                pass
 
 
 def _run(sequences: list[Sequence], manifest: Path | None, after_task, client, threads,

@@ -278,6 +278,28 @@ def test_a_scheduler_that_goes_away_is_one_line(tmp_path):
     assert "Traceback" not in err
 
 
+def test_an_unreachable_scheduler_leaves_no_folder(tmp_path, capsys):
+    """``--scheduler`` where no scheduler listens: one line, exit 2, and nothing of the
+    folders the export made before it looked for the cluster (their claim named a
+    sequence that never rendered); a folder that was there before keeps its claim."""
+    from export.cli import main
+
+    spec = tmp_path / "seq.json"
+    spec.write_text(json.dumps(dict(TINY, frames=1)))
+    address = f"127.0.0.1:{free_port()}"
+    assert main([str(spec), str(tmp_path / "set" / "seq"), "--scheduler", address]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "cannot reach a Dask scheduler" in err, err
+    assert not (tmp_path / "set").exists()
+    kept = tmp_path / "kept" / "seq"
+    assert main([str(spec), str(kept), "--local"]) == 0
+    (kept / "beauty_0.exr").unlink()  # a frame to render again
+    capsys.readouterr()
+    assert main([str(spec), str(kept), "--scheduler", address]) == 2
+    assert "cannot reach a Dask scheduler" in capsys.readouterr().err
+    assert (kept / "sequence.json").is_file() and (kept / "depth_0.exr").is_file()
+
+
 def test_a_worker_without_the_project_is_one_line(tmp_path):
     """A worker whose Python has Dask and Mitsuba but not this project (a venv of
     its own that sees the packages, started outside the checkout): the export's
