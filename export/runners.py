@@ -128,6 +128,7 @@ def export_sequences(sequences: list[Sequence], force: bool = False, scheduler: 
             if manifest is not None:
                 remove_staging(manifest.parent)
             if local or client is not None or not any(plan(s) for s in sequences):  # no cluster for nothing to do
+                started = True
                 return _run(sequences, manifest, after_task, client, threads)
             with dask_client(scheduler, workers) as (client, threads):
                 started = True
@@ -151,17 +152,17 @@ def made_by_claim(folders: list[Path]) -> list[Path]:
 
 
 def remove_claims(made: list[Path]) -> None:
-    """Removes the folders of ``made`` (:func:`made_by_claim`) where they hold nothing but
-    sequence records and empty folders; anything else in one keeps it."""
+    """Removes each folder of ``made`` (:func:`made_by_claim`) that holds nothing but
+    folders and sequence records; one that holds anything else stays whole."""
     for top in made:
-        for folder in sorted((p for p in [top, *top.rglob("*")] if p.is_dir()), key=lambda p: -len(p.parts)):
-            for path in folder.iterdir():
-                if path.is_file() and path.name == SEQUENCE_RECORD:
-                    path.unlink()
-            try:
-                folder.rmdir()
-            except OSError:  # something else is in it
-                pass
+        inside = [top, *top.rglob("*")]
+        if not all(p.is_dir() or (p.is_file() and p.name == SEQUENCE_RECORD) for p in inside):
+            continue
+        for path in sorted(inside, key=lambda p: -len(p.parts)):
+            if path.is_dir():
+                path.rmdir()
+            else:
+                path.unlink()
 
 
 def _run(sequences: list[Sequence], manifest: Path | None, after_task, client, threads,
