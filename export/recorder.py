@@ -11,7 +11,8 @@ from tqdm import tqdm
 
 from core.json_input import JSONInputError, read_json
 
-from .sequence import EXPORT_FORMAT, Sequence, seed
+from .ground_truth import SEQUENCE_RECORD
+from .sequence import EXPORT_FORMAT, Sequence, seed, settings_key
 from .store import (
     MAX_RECORD_BYTES,
     assemble_reference,
@@ -37,6 +38,8 @@ class Recorder:
         self.record_s: list[float] = []  # this process's time writing each result
         self.complete = {(s.name, i) for s in sequences for i in range(s.spec.frames)
                          if frame_done(Path(s.target), i) and reference_done(Path(s.target), i)}
+        #: the earlier runs' entries of the sequences this run leaves alone, whose folders still hold them
+        self.earlier: list[dict] = []
         if manifest is not None and manifest.exists():  # keep the timings of an interrupted run
             try:
                 old = read_json(manifest, MAX_RECORD_BYTES)
@@ -44,6 +47,8 @@ class Recorder:
                     if entry.get("name") in self.sequences and entry.get("key") == self.sequences[entry["name"]].key:
                         for frame in entry.get("frames", []):
                             self.timings[(entry["name"], frame["index"])] = frame.get("tasks", [])
+                    elif entry.get("name") not in self.sequences and still_there(entry):
+                        self.earlier.append(entry)
             except (JSONInputError, KeyError, TypeError, AttributeError):
                 pass
 
@@ -86,7 +91,19 @@ class Recorder:
                             "reference": str(sequence.reference), "settings": sequence.settings(), "frames": frames})
         if self.record_s:
             extra = dict(extra, writing_s_per_task=round(float(np.median(self.record_s)), 4))
-        write_record(self.manifest, dict(extra, format=EXPORT_FORMAT, sequences=entries))
+        write_record(self.manifest, dict(extra, format=EXPORT_FORMAT, sequences=self.earlier + entries))
+
+
+def still_there(entry: dict) -> bool:
+    """Whether the folder of an earlier manifest's ``entry`` still holds that sequence (its key)."""
+    folder = entry.get("folder")
+    if not isinstance(folder, str):
+        return False
+    try:
+        record = read_json(Path(folder) / SEQUENCE_RECORD, MAX_RECORD_BYTES)
+    except JSONInputError:
+        return False
+    return isinstance(record, dict) and settings_key(record) == entry.get("key")
 
 
 def progress_bar(total: int, frames: int):

@@ -344,6 +344,33 @@ def test_a_scheduler_without_workers_says_so(tmp_path):
     assert "interrupted" in said.splitlines()[-1]
 
 
+def test_the_manifest_keeps_the_sequences_of_earlier_exports(tmp_path):
+    """Sequences exported into one set one at a time (as train and validate add
+    what is missing to their --work): dataset.json lists them all, each entry as
+    the run that made it recorded it, until its folder no longer holds that sequence."""
+    import shutil
+
+    from export import Spec
+    from export.runners import export_sequences, sequences_into
+    from renderer import variants
+
+    variants.set_variant(None, quiet=True)
+    out = tmp_path / "set"
+    specs = {"first": Spec.from_dict(dict(SPEC, frames=1)),
+             "second": Spec.from_dict(dict(SPEC, frames=1, camera={"pan": [0.3, 0, 0]}))}
+
+    def export_one(name):
+        sequences = sequences_into([(specs[name], out / name)])
+        export_sequences(sequences, local=True, manifest=out / "dataset.json")
+        return [s["name"] for s in json.loads((out / "dataset.json").read_text())["sequences"]]
+
+    assert export_one("first") == ["first"]
+    assert export_one("second") == ["first", "second"]
+    assert export_one("second") == ["first", "second"]  # nothing to do
+    shutil.rmtree(out / "first")
+    assert export_one("second") == ["second"]
+
+
 def test_dataset_of_two_specs_and_the_cli(tmp_path, capsys):
     """Two specs -> OUT/<name> and OUT/<name>_reference each, and one manifest
     (the layout does not depend on where tasks run: here in this process)."""
