@@ -140,7 +140,6 @@ def render(folders: list[tuple[Spec, Path]], **where) -> None:
     export's manifest is written into the folders' parent, the --work."""
     if not folders:
         return
-    where.setdefault("local", not where.get("scheduler") and not where.get("workers"))
     sequences = check_folders(folders)
     parents = {Path(folder).parent for _, folder in folders}
     if len(parents) != 1:

@@ -103,15 +103,19 @@ def check_renders_fit(sequences: list[Sequence], processes: int, memory: int | N
 
 
 def export_sequences(sequences: list[Sequence], force: bool = False, scheduler: str | None = None,
-                     workers: int | None = None, local: bool = False, manifest: Path | None = None,
+                     workers: int | None = None, local: bool | None = None, manifest: Path | None = None,
                      after_task: Callable[[Task], None] | None = None, client=None,
                      threads: int | None = None) -> dict[str, list[int]]:
     """Renders what is missing of ``sequences`` (in this process with ``local``,
     else on Dask: ``client``, a scheduler address or a new LocalCluster of
-    ``workers``); returns the indices of the frames that had work done, per
+    ``workers``; ``local`` None: in this process unless one of those is given, and
+    False with none of them a LocalCluster of one worker per core, as the CLI's
+    default); returns the indices of the frames that had work done, per
     sequence name. ``threads``: Dr.Jit threads per process that runs tasks.
     Folders that refuse the sequences are refused before anything is written;
     while it runs the export holds every folder's lock."""
+    if local is None:
+        local = client is None and not scheduler and not workers
     if not force:
         for sequence in sequences:
             check_folder(sequence)
@@ -190,7 +194,6 @@ def export(spec: Spec, target: Path, data: Path | None = None, whitted: bool = F
            batch_spp: int = DEFAULT_BATCH_SPP, **where) -> list[int]:
     """Renders the missing frames of one sequence into ``target`` in this
     process (``where``: ``scheduler=``/``workers=`` for Dask); returns their indices."""
-    where.setdefault("local", not where.get("scheduler") and not where.get("workers"))
     target = Path(target)
     sequences = sequences_for([(target.name, spec)], target, data, whitted, batch_spp)
     done = export_sequences(sequences, force, manifest=target / DATASET_RECORD, **where)
