@@ -227,8 +227,9 @@ def deferred_signals() -> Iterator[Callable[[], None]]:
     """Within it, SIGINT and SIGTERM are only noted; the function it yields
     raises a noted one (through its previous handler: KeyboardInterrupt for
     Ctrl-C) where it is called. Raised wherever the main thread happened to
-    be, the exception could land in one of Dask's finalizers, which swallow it,
-    and the export would go on."""
+    be, the exception could land in code that swallows it (one of Dask's
+    finalizers; native code rendering a task in this process), and the export
+    would go on to the end and exit 0."""
     noted: list[int] = []
     previous = {}
     if threading.current_thread() is threading.main_thread():

@@ -13,7 +13,7 @@ from core.errors import NEED_SMALLER_RENDER, SceneError, SpecError, UsageError
 from course import data_dir, resolve_scene
 from renderer.checks import check_memory
 
-from .cluster import cluster_description, dask_client, run_futures
+from .cluster import cluster_description, dask_client, deferred_signals, run_futures
 from .files import locked, remove_staging
 from .ground_truth import DATASET_RECORD, SEQUENCE_RECORD
 from .recorder import Recorder, progress_bar
@@ -25,15 +25,19 @@ from .tasks import Task, course_scene, run_task
 
 def run_local(tasks: list[Task], recorder: Recorder, after_task: Callable[[Task], None] | None = None,
               total_frames: int = 0) -> None:
-    """Runs ``tasks`` one after the other in this process (no Dask)."""
-    with progress_bar(len(tasks), total_frames) as bar:
+    """Runs ``tasks`` one after the other in this process (no Dask). A signal
+    during a task is acted on once its result is recorded (a task is native
+    code that no signal interrupts, and one raised inside it could be lost)."""
+    with deferred_signals() as raise_noted, progress_bar(len(tasks), total_frames) as bar:
         for task in tasks:
+            raise_noted()
             result, timing = run_task(task)
             recorder.record(task, result, timing)
             bar.update()
             bar.set_postfix(frames=f"{recorder.frames_done()}/{total_frames}", refresh=False)
             if after_task:
                 after_task(task)
+            raise_noted()
 
 
 def sequences_for(specs: list[tuple[str, Spec]], out: Path, data: Path | None = None, whitted: bool = False,

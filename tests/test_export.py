@@ -248,6 +248,34 @@ def test_interrupted_export_resumes_with_only_the_missing_tasks(tmp_path, uninte
     assert sum(len(f["tasks"]) for f in frames) == 10  # the first run's timings are kept
 
 
+def test_a_ctrl_c_that_a_task_swallows_still_stops_the_export(tmp_path, monkeypatch, uninterrupted):
+    """SIGINT while a task renders in this process, where the task's own code
+    swallows the KeyboardInterrupt (an export ran to the end and exited 0 after
+    a Ctrl-C, 3 runs in 30): the export records that task and stops."""
+    import os
+    import signal
+    import time
+
+    import export.runners as runners
+
+    real, calls = runners.run_task, []
+
+    def swallowing(task):
+        calls.append(task)
+        if len(calls) == 2:
+            try:  # a handler that raises does so in here
+                os.kill(os.getpid(), signal.SIGINT)
+                time.sleep(0.5)
+            except KeyboardInterrupt:
+                pass
+        return real(task)
+
+    monkeypatch.setattr(runners, "run_task", swallowing)
+    with pytest.raises(KeyboardInterrupt):
+        export_tiny(tmp_path / "seq")
+    assert len(calls) == 2
+
+
 def test_resume_check_fails_when_finished_batches_are_ignored(tmp_path, monkeypatch):
     """The resume test's count on purpose-broken resuming (every batch redone):
     more than the missing tasks are planned."""
