@@ -173,6 +173,38 @@ WORKER_REMEDY = ("every worker needs this project installed (./dev setup) and th
                  "and is started with its .venv/bin/dask worker")
 
 
+#: seconds a scheduler has to answer; Dask's own timeout, and this much more for the whole connection
+CONNECT_S, CONNECT_GRACE_S = 15, 3
+
+
+def connect(scheduler: str):
+    """A Dask client of the scheduler at ``scheduler``; one line (a UsageError)
+    where nothing there answers as one. Dask's timeout bounds reaching the
+    port, not the handshake: a server of another kind that accepts and stays
+    silent held the export forever, and one that answered with other bytes
+    ended it in a traceback, so the attempt runs in a thread the export waits
+    for a bounded time, and whatever it raises is the line's reason."""
+    from distributed import Client  # noqa: PLC0415  Dask loads only for cluster exports
+
+    outcome = {}
+
+    def attempt() -> None:
+        try:
+            outcome["client"] = Client(scheduler, timeout=f"{CONNECT_S}s")
+        except BaseException as error:  # noqa: BLE001  whatever the other end made of the handshake: the reason
+            outcome["error"] = error
+
+    thread = threading.Thread(target=attempt, name="dask-connect", daemon=True)
+    thread.start()
+    thread.join(CONNECT_S + CONNECT_GRACE_S)
+    if "client" in outcome:
+        return outcome["client"]
+    error = outcome.get("error")
+    reason = (f"nothing answered as a Dask scheduler within {CONNECT_S + CONNECT_GRACE_S} s" if error is None
+              else f"{type(error).__name__}: {error}" if not isinstance(error, (OSError, TimeoutError)) else str(error))
+    raise UsageError(f"--scheduler {scheduler}: cannot reach a Dask scheduler there ({reason})")
+
+
 @contextmanager
 def dask_client(scheduler: str | None = None, workers: int | None = None) -> Iterator[tuple[object, int | None]]:
     """(a Dask client, the Dr.Jit thread count each worker should use)."""
@@ -182,10 +214,7 @@ def dask_client(scheduler: str | None = None, workers: int | None = None) -> Ite
     silence_dask()
     cluster = None
     if scheduler:
-        try:
-            client = Client(scheduler, timeout="15s")
-        except (OSError, TimeoutError) as error:
-            raise UsageError(f"--scheduler {scheduler}: cannot reach a Dask scheduler there ({error})") from None
+        client = connect(scheduler)
         # its workers ran no entry point of ours: each chooses its libLLVM before a task (whose
         # module imports Dr.Jit) reaches it, a worker that joins later too (a plugin, not a call);
         # our LocalCluster's workers inherit this process's choice

@@ -300,6 +300,57 @@ def test_an_unreachable_scheduler_leaves_no_folder(tmp_path, capsys):
     assert (kept / "sequence.json").is_file() and (kept / "depth_0.exr").is_file()
 
 
+@contextmanager
+def not_a_scheduler(answer: bytes | None):
+    """A TCP server on a free port that accepts and sends ``answer`` (None: stays
+    silent), as a web server or another service at a mistyped address would; yields its address."""
+    server = socket.socket()
+    server.bind(("127.0.0.1", 0))
+    server.listen()
+    held = []
+
+    def serve():
+        while True:
+            try:
+                connection, _ = server.accept()
+            except OSError:  # closed
+                return
+            held.append(connection)
+            if answer is not None:
+                connection.sendall(answer)
+
+    threading.Thread(target=serve, daemon=True).start()
+    try:
+        yield f"tcp://127.0.0.1:{server.getsockname()[1]}"
+    finally:
+        server.close()
+        for connection in held:
+            connection.close()
+
+
+@pytest.mark.parametrize("answer", [None, b"\xff" * 4096, b"HTTP/1.0 400 Bad Request\r\n\r\n"],
+                         ids=["silent", "other-bytes", "http"])
+def test_an_address_that_is_no_dask_scheduler_is_one_line(tmp_path, capsys, monkeypatch, answer):
+    """--scheduler at a server of another kind: one line and exit 2 within the
+    connection's bound (a silent one held the export forever; other bytes ended it in
+    a traceback, or in an "out of memory" line), and no folder left behind."""
+    import export.cluster
+    from export.cli import main
+
+    monkeypatch.setattr(export.cluster, "CONNECT_S", 2)
+    spec = tmp_path / "seq.json"
+    spec.write_text(json.dumps(dict(TINY, frames=1)))
+    with not_a_scheduler(answer) as address:
+        start = time.monotonic()
+        status = main([str(spec), str(tmp_path / "set" / "seq"), "--scheduler", address])
+        took = time.monotonic() - start
+    err = capsys.readouterr().err
+    assert status == 2 and err.count("\n") == 1 and "cannot reach a Dask scheduler" in err, err
+    assert "Traceback" not in err and "memory" not in err, err
+    assert took < 2 + export.cluster.CONNECT_GRACE_S + 2, took
+    assert not (tmp_path / "set").exists()
+
+
 def test_a_worker_without_the_project_is_one_line(tmp_path):
     """A worker whose Python has Dask and Mitsuba but not this project (a venv of
     its own that sees the packages, started outside the checkout): the export's
