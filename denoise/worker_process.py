@@ -4,9 +4,10 @@ the command waits for.
 A step is one native backward pass of up to minutes, which no signal
 interrupts; so the steps run in a spawned worker (no fork after Dr.Jit
 started its threads) and Ctrl-C and SIGTERM reach the command, which ends
-the worker. The worker is started with the signals a terminal sends its
-group blocked (a blocked mask is inherited through spawn), and its target
-ignores them (:func:`ignore_group_signals`): it prints nothing of its own.
+the worker. The worker's Python is started with the signals a terminal sends
+its group ignored (:func:`export.cluster.workers_ignoring_sigint`) and
+blocked, and its target ignores them too (:func:`ignore_group_signals`): it
+prints nothing of its own, not even while it imports.
 
 The target is called as ``target(connection, *arguments)`` and sends tuples
 on the connection: ``("done", ...)`` with the result, ``("error", line)``
@@ -21,6 +22,7 @@ from collections.abc import Callable
 
 from core.entry import hold_signals
 from core.errors import UsageError
+from export.cluster import workers_ignoring_sigint
 from renderer.bands import GROUP_SIGNALS
 
 
@@ -44,7 +46,8 @@ def run_in_worker(target: Callable, arguments: tuple, what: str,
         with hold_signals():  # a signal waits until the worker exists, then ends it below
             signal.pthread_sigmask(signal.SIG_BLOCK, GROUP_SIGNALS)  # what a terminal sends the group
             try:
-                worker.start()
+                with workers_ignoring_sigint():
+                    worker.start()
             finally:
                 signal.pthread_sigmask(signal.SIG_UNBLOCK, GROUP_SIGNALS)
         sender.close()

@@ -72,14 +72,17 @@ def dask_setup(worker) -> None:
     serialize_ast_parse()
 
 
-#: the workers' interpreter: this process's Python started with SIGINT ignored (a script)
+#: the workers' interpreter: this process's Python started with SIGINT and SIGHUP ignored (a script)
 WORKER_PYTHON = Path(__file__).with_name("worker_python")
 
 
 @contextmanager
 def workers_ignoring_sigint() -> Iterator[None]:
-    """Within it, the processes multiprocessing spawns (Dask's workers) start
-    through :data:`WORKER_PYTHON`; as before where the script cannot run."""
+    """Within it, the processes multiprocessing spawns (Dask's workers, a
+    training's) start through :data:`WORKER_PYTHON`, the signals a terminal
+    sends its group ignored from their first instruction (a blocked signal
+    mask is not enough: a native library's thread may run with them
+    unblocked while the worker imports); as before where the script cannot run."""
     if not os.access(WORKER_PYTHON, os.X_OK) or not os.access("/bin/sh", os.X_OK):
         yield
         return
