@@ -20,6 +20,7 @@ import pytest
 from denoise.live.app import is_loopback
 from denoise.live.frame_loop import IN_FLIGHT
 from denoise.live.methods import METHOD_NAMES, SLIDERS
+from denoise.live.server import HEARTBEAT_S
 from denoise.live.session import MESSAGE_LIMIT, MessageError, parse_message
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -282,6 +283,35 @@ def test_second_viewer_is_refused_with_a_message(server):
                 await _receive_frame(first, 60)
 
     run(two())
+
+
+def test_a_silent_viewer_does_not_hold_the_place(server):
+    """A client that opens the socket and then never reads or answers (an outside
+    tester's raw socket held the one viewer's place for good): the server's ping goes
+    unanswered, it closes that socket, and the next viewer is served."""
+    import base64
+
+    import aiohttp
+
+    host, port = "127.0.0.1", port_of(server)
+    silent = socket.create_connection((host, port))
+    key = base64.b64encode(os.urandom(16)).decode()
+    silent.sendall((f"GET /ws HTTP/1.1\r\nHost: {host}:{port}\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
+                    f"Sec-WebSocket-Key: {key}\r\nSec-WebSocket-Version: 13\r\nOrigin: {server.rstrip('/')}\r\n\r\n"
+                    ).encode())
+    assert b" 101 " in silent.recv(1024).split(b"\r\n", 1)[0]
+
+    async def next_viewer():
+        async with aiohttp.ClientSession() as session:
+            async with session.ws_connect(server + "ws", headers={"Origin": server.rstrip("/")}) as ws:
+                return json.loads((await asyncio.wait_for(ws.receive(), 30)).data)["type"]
+
+    try:
+        assert run(next_viewer()) == "refused"  # the silent one has the place, for now
+        time.sleep(HEARTBEAT_S * 1.5 + 2)
+        assert run(next_viewer()) == "hello"
+    finally:
+        silent.close()
 
 
 def test_port_in_use_is_one_line_exit_2(server):

@@ -34,6 +34,9 @@ PATHS = ("/", "/ws")
 SOCKET_LIMIT = 1 << 20
 #: seconds :meth:`LiveServer.publish` waits at most for the event loop to hand a frame to the socket
 SEND_WAIT_S = 0.05
+#: seconds between the server's pings; a viewer that has not answered one within half of it is closed, so a
+#: client that connects and goes silent (never reads, never answers) does not hold the one viewer's place
+HEARTBEAT_S = 15.0
 LOOPBACK = ("127.0.0.1", "localhost", "::1")
 
 
@@ -95,7 +98,7 @@ class LiveServer:
             raise web.HTTPForbidden(text=f"WebSocket from origin {origin!r} refused\n")
         # no permessage-deflate: frames are JPEGs already, and aiohttp compresses a message over
         # 16 KiB in an executor thread, a hop (and the GIL) between the frame loop and the socket
-        ws = web.WebSocketResponse(max_msg_size=SOCKET_LIMIT, heartbeat=None, compress=False)
+        ws = web.WebSocketResponse(max_msg_size=SOCKET_LIMIT, heartbeat=HEARTBEAT_S, compress=False)
         await ws.prepare(request)
         if self.viewer is not None and not self.viewer.closed:
             await ws.send_json({"type": "refused", "message": "another viewer is already connected; close that "
