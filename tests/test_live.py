@@ -314,6 +314,31 @@ def test_a_silent_viewer_does_not_hold_the_place(server):
         silent.close()
 
 
+def test_the_next_viewer_is_greeted_with_the_size_now(server):
+    """A viewer changes the size and leaves: the next one's hello gives the size
+    the frames now have (it gave the size the server started with)."""
+    import aiohttp
+
+    async def viewer(size: str | None) -> dict:
+        async with aiohttp.ClientSession() as session:
+            async with session.ws_connect(server + "ws", headers={"Origin": server.rstrip("/")}) as ws:
+                hello = json.loads((await asyncio.wait_for(ws.receive(), 30)).data)
+                if size is not None:
+                    await ws.send_json({"type": "size", "name": size})
+                    while True:  # applied once the state that answers it comes
+                        message = await asyncio.wait_for(ws.receive(), 60)
+                        if message.type == aiohttp.WSMsgType.TEXT and json.loads(message.data).get("size") == size:
+                            break
+                return hello
+
+    started = "x".join(SIZE)
+    assert "{width}x{height}".format(**run(viewer("320x180"))) == started
+    try:
+        assert "{width}x{height}".format(**run(viewer(started))) == "320x180"
+    finally:
+        assert "{width}x{height}".format(**run(viewer(None))) == started
+
+
 def test_port_in_use_is_one_line_exit_2(server):
     result = subprocess.run([sys.executable, "-m", "denoise.live", "showcase", "--port", str(port_of(server))],
                             cwd=ROOT, capture_output=True, text=True, timeout=120)

@@ -107,7 +107,8 @@ class LiveServer:
             return ws
         self.viewer = ws
         self.session.connect(True)
-        await ws.send_json(dict(self.hello, type="hello", methods=list(METHOD_NAMES)))
+        width, height = self.session.view().size  # the size now: an earlier viewer may have changed it
+        await ws.send_json(dict(self.hello, type="hello", width=width, height=height, methods=list(METHOD_NAMES)))
         await ws.send_json(self.state())
         try:
             async for message in ws:
