@@ -116,13 +116,24 @@ def damaged(tmp_path: Path, case: str) -> Path:
         path.write_text(json.dumps(data))
     elif case == "a folder":
         return tmp_path
+    elif case == "a pipe":
+        os.mkfifo(path)
+    elif case == "a link to nothing":
+        path.symlink_to(path)  # a loop
+    elif case == "an empty path":
+        return Path("")
     elif case == "not finite":
         path.write_text(text.replace(str(data["b2"][0]), "NaN", 1) if str(data["b2"][0]) in text else "x")
     return path
 
 
 BAD = ("missing", "truncated", "corrupted", "not an object", "other shape", "other hidden", "other features",
-       "unknown feature", "other outputs", "not finite", "a string", "true", "null", "a folder")
+       "unknown feature", "other outputs", "not finite", "a string", "true", "null", "a folder", "a pipe",
+       "a link to nothing", "an empty path")
+#: the reason each of these cases' line gives (where one is worth stating)
+REASONS = {"a folder": "a folder, not a weights file", "a pipe": "not a regular file",
+           "a link to nothing": "a symbolic link that leads to no file", "an empty path": "an empty path",
+           "missing": "no such weights file"}
 
 
 @pytest.mark.parametrize("case", BAD)
@@ -131,14 +142,16 @@ def test_a_bad_weights_file_is_one_line_naming_it(case, tmp_path):
     from denoise.methods import make
 
     path = damaged(tmp_path, case)
+    given = "" if case == "an empty path" else str(path)
     with pytest.raises(UsageError) as error:
-        make("learned-asvgf", network=str(path))
+        make("learned-asvgf", network=given)
     message = str(error.value)
-    assert "\n" not in message and message.startswith(f"{path}: ") and "python -m denoise.train" in message
+    assert "\n" not in message and message.startswith(f"{given or repr(given)}: ")
+    assert "python -m denoise.train" in message
     if case in ("a string", "true", "null"):  # NumPy had read "0.5" and true as numbers
         assert "w1[0][0] is " in message and "not a number" in message, message
-    if case == "a folder":
-        assert "a folder, not a weights file" in message, message
+    if case in REASONS:  # a pipe, a loop and "" were each "no such weights file" or ".: a folder"
+        assert REASONS[case] in message, message
 
 
 def test_a_bad_weights_file_stops_the_denoiser_with_exit_2(exported, tmp_path, capsys):

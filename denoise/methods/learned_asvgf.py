@@ -125,13 +125,19 @@ def not_a_number(value, place: str) -> str | None:
     return f"{place} is {shown if len(shown) <= 40 else shown[:37] + '...'}, not a number"
 
 
-def load_network(path: Path) -> Network:
+def load_network(path: Path | str) -> Network:
     """The network of weights file ``path``; a missing, truncated or damaged
     file, or one of other shapes or another feature list, is one line naming
     the file and the training command."""
+    if str(path) == "":
+        raise bad_weights("''", "an empty path, not a weights file")
     path = Path(path)
     if path.is_dir():
         raise bad_weights(path, "a folder, not a weights file")
+    if path.is_symlink() and not path.exists():
+        raise bad_weights(path, "a symbolic link that leads to no file")
+    if path.exists() and not path.is_file():
+        raise bad_weights(path, "not a regular file (a pipe, a device or a socket)")
     if not path.is_file():
         raise bad_weights(path, "no such weights file")
     try:
@@ -301,7 +307,7 @@ class LearnedASVGF(DenoisingMethod):
 
     def __init__(self, **props):
         super().__init__(**props)
-        self.network = load_network(Path(self.props["network"]))
+        self.network = load_network(self.props["network"])  # a string: "" is no path, not "."
         self.params = fitted()
 
     def filter(self, arrays, frame, index, valid):
