@@ -186,7 +186,10 @@ def connect(scheduler: str):
     port, not the handshake: a server of another kind that accepts and stays
     silent held the export forever, and one that answered with other bytes
     ended it in a traceback, so the attempt runs in a thread the export waits
-    for a bounded time, and whatever it raises is the line's reason."""
+    for a bounded time, and whatever it raises is the line's reason. An
+    attempt given up on stays in its thread, where it holds Dask's event loop:
+    the command ends after the line; a process that goes on has no other
+    Dask client."""
     from distributed import Client  # noqa: PLC0415  Dask loads only for cluster exports
 
     outcome = {}
