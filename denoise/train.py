@@ -51,6 +51,7 @@ from export.frames import frame_indices, read_frame, same_size
 from export.ground_truth import check_outside_exports, check_work_folder
 from imaging.image_io import atomic_path, check_writable, read_exr_rgb
 from renderer.variants import set_variant
+from scenes.procedural import SEED as PROCEDURAL_SEED, write_sequences
 
 from . import training
 from .methods import data_files
@@ -65,12 +66,19 @@ from .worker_process import ignore_group_signals, run_in_worker
 DOCS = ROOT / "docs"
 #: the committed network's steps and learning rate: the command without flags makes its weights
 STEPS, RATE = 80, 0.02
+#: procedural scenes trained on beside the default specs, and the folder of --work they are written into
+PROCEDURAL, PROCEDURAL_FOLDER = 48, "procedural"
+PROCEDURAL_MAX = 1000
 
 
 def _parser() -> argparse.ArgumentParser:
     parser = ArgumentParser(prog="python -m denoise.train", description=__doc__.split("\n\n")[0])
     parser.add_argument("specs", type=Path, nargs="*", metavar="SPEC.json",
                         help="training sequences (default: scenes/sequences/training/network/*.json)")
+    parser.add_argument("--procedural", type=ascii_int, metavar="N",
+                        help=f"also train on N procedurally generated scenes' sequences (scenes/procedural.py, "
+                             f"written into WORK/{PROCEDURAL_FOLDER}/; default {PROCEDURAL} with the default "
+                             f"specs, 0 with specs given)")
     parser.add_argument("--work", type=Path, default=ROOT / "out" / "train",
                         help="where they are rendered, and the checkpoint (out/train)")
     parser.add_argument("--steps", type=ascii_int, default=STEPS, help=f"gradient steps ({STEPS})")
@@ -123,6 +131,11 @@ def _main(argv: list[str] | None) -> int:
     for spec in specs:  # a run never writes onto a spec it reads
         check_outside({"--out": args.out, "--work": args.work, "--plot": plot}, {"SPEC.json": spec})
     check_work_folder(args.work)  # after: a --work that is a spec is told so, not merely that it is a file
+    procedural = args.procedural if args.procedural is not None else (0 if args.specs else PROCEDURAL)
+    if not 0 <= procedural <= PROCEDURAL_MAX:
+        raise UsageError(f"--procedural must be from 0 to {PROCEDURAL_MAX}, got {procedural}")
+    generated = write_sequences(args.work / PROCEDURAL_FOLDER, procedural) if procedural else []
+    specs = [*specs, *generated]
     # every refusal before any work; in name order: a training is of a set of sequences, whatever order they came in
     loaded = sorted(check_specs(specs), key=lambda item: item[0].stem)
     check_frames_fit(loaded)
@@ -169,8 +182,8 @@ def _main(argv: list[str] | None) -> int:
             check_frames(folder, [i for i in frame_indices(folder) if i not in checked[folder]])
         theta, curve, seconds = train_interruptibly(folders, settings, checkpoint, args.quiet, args.restart)
         given = argv if argv is not None else sys.argv[1:]
-        write_weights(args, settings, [p for p, _ in loaded], theta, curve, seconds,
-                      "python -m denoise.train " + " ".join(shlex.quote(a) for a in given))
+        write_weights(args, settings, [p for p, _ in loaded if p not in generated], procedural, theta, curve,
+                      seconds, "python -m denoise.train " + " ".join(shlex.quote(a) for a in given))
     plot_curve(plot, curve, f"{printable(args.out.name)}: {settings.hidden} hidden units, "
                                      f"{len(settings.features)} inputs")
     if not args.quiet:
@@ -180,11 +193,13 @@ def _main(argv: list[str] | None) -> int:
     return 0
 
 
-def write_weights(args: argparse.Namespace, settings: Settings, specs: list[Path], theta: np.ndarray,
-                  curve: list, seconds: float, command: str) -> None:
-    """The weights file ``args.out``: the network of ``theta`` and the record of the run."""
+def write_weights(args: argparse.Namespace, settings: Settings, specs: list[Path], procedural: int,
+                  theta: np.ndarray, curve: list, seconds: float, command: str) -> None:
+    """The weights file ``args.out``: the network of ``theta`` and the record of the run
+    (``specs``: the spec files; ``procedural``: how many procedural sequences beside them)."""
     record = {"command": command.strip(), "training": [display_path(p) for p in specs if p.stem not in HELD_OUT],
               "held_out": [display_path(p) for p in specs if p.stem in HELD_OUT],
+              "procedural": {"count": procedural, "seed": PROCEDURAL_SEED, "generator": "scenes/procedural.py"},
               "steps": len(curve), "seconds": round(seconds, 1), "seed": args.seed, "rate": args.rate,
               "batch": training.BATCH, "crop": list(training.CROP), "exposure": list(training.EXPOSURE),
               "first_train_loss": curve[0][1], "first_held_out_loss": curve[0][2],
@@ -201,15 +216,19 @@ def write_weights(args: argparse.Namespace, settings: Settings, specs: list[Path
 
 def scene_file(name: str) -> str:
     """A spec's scene as the export resolves it, by its content (SHA-256 of its
-    words, comments left out and numbers read as numbers), so that every
-    spelling of one scene, a copy of its file, and a copy with other comments,
-    spacing or number formats compare equal; a scene not found stays its name
-    (the check of the folders says so, before any work)."""
+    words, comments left out, numbers read as numbers and meshes and cube maps
+    by their file names), so that every spelling of one scene, a copy of its
+    file, and a copy with other comments, spacing, number formats or paths to
+    its meshes compare equal; a scene not found stays its name (the check of the folders
+    says so, before any work)."""
     try:
         text = resolve_scene(name, data_dir()).read_text(errors="replace")
     except (UsageError, OSError):
         return name
     words = re.findall(r"[{}]|[^\s{}]+", re.sub(r"#[^\n]*", " ", text))
+    for k in range(1, len(words)):  # a mesh or cube map by its name, wherever its path leads
+        if words[k - 1] in ("obj_file", "cubeMap"):
+            words[k] = Path(words[k]).name
     return hashlib.sha256(" ".join(number_or_word(w) for w in words).encode()).hexdigest()
 
 

@@ -62,12 +62,14 @@ def test_the_committed_networks_are_what_the_benchmark_runs():
     assert ablation.temporal and "gradient" not in ablation.network.features
 
 
-def test_no_benchmark_scene_or_sequence_is_trained_on():
-    """The training specs, and the ones each committed network records, use
-    no benchmark sequence and none of the benchmark's scenes."""
+def test_no_benchmark_scene_or_sequence_is_trained_on(tmp_path):
+    """The training specs, and the ones each committed network records (its spec
+    files and its procedural scenes, written again from the record), use no
+    benchmark sequence and none of the benchmark's scenes."""
     from denoise.train import check_specs
     from denoise.training import BENCHMARK, HELD_OUT, TRAINING
     from export import Spec
+    from scenes.procedural import write_sequences
 
     benchmark_scenes = {Spec.load(p).scene for p in BENCHMARK}
     benchmark_names = {p.stem for p in BENCHMARK}
@@ -81,6 +83,12 @@ def test_no_benchmark_scene_or_sequence_is_trained_on():
             assert (ROOT / spec).resolve() in {p.resolve() for p in TRAINING}, spec
             assert Spec.load(ROOT / spec).scene not in benchmark_scenes
         assert not set(record["training"]) & set(record["held_out"])
+        procedural = record["procedural"]
+        generated = write_sequences(tmp_path / weights.stem, procedural["count"], procedural["seed"])
+        assert len(check_specs(generated)) == procedural["count"] > 0
+        for path in generated:
+            assert Spec.load(path).scene not in benchmark_scenes
+            assert path.stem not in benchmark_names and path.stem not in HELD_OUT
 
 
 def damaged(tmp_path: Path, case: str) -> Path:

@@ -205,17 +205,21 @@ def test_outputs_inside_an_input_folder_are_refused(setup, capfd, flag, where):
 
 
 @pytest.mark.parametrize("spelling", ["absolute", "relative", "dotted", "a copy",
-                                      "a copy with comments, blank lines and 1.0 for 1"])
+                                      "a copy with comments, blank lines and 1.0 for 1",
+                                      "a copy whose mesh path is absolute"])
 def test_a_benchmark_scene_by_any_spelling_is_refused(tmp_path, capfd, spelling):
     shutil.copy(ROOT / "scenes" / "lamps.txt", tmp_path / "my_lamps.txt")
     lines = (ROOT / "scenes" / "lamps.txt").read_text().splitlines()
     (tmp_path / "my_lamps_edited.txt").write_text("# my own scene\n" + "\n\n".join(
         line.replace(" 1 ", " 1.0 ", 1) + "   # mine" for line in lines) + "\n")
+    (tmp_path / "my_lamps_meshes.txt").write_text((ROOT / "scenes" / "lamps.txt").read_text().replace(
+        "meshes/torus.obj", str(ROOT / "scenes" / "meshes" / "torus.obj")))  # as the procedural scenes spell it
     scene = {"absolute": str(ROOT / "scenes" / "lamps.txt"),
              "relative": os.path.relpath(ROOT / "scenes" / "glossy_shadow.txt"),
              "dotted": os.path.join(os.path.relpath(ROOT.parent), ROOT.name, "scenes", ".", "transforms.txt"),
              "a copy": str(tmp_path / "my_lamps.txt"),
-             "a copy with comments, blank lines and 1.0 for 1": str(tmp_path / "my_lamps_edited.txt")}[spelling]
+             "a copy with comments, blank lines and 1.0 for 1": str(tmp_path / "my_lamps_edited.txt"),
+             "a copy whose mesh path is absolute": str(tmp_path / "my_lamps_meshes.txt")}[spelling]
     spec = tmp_path / "by_path.json"
     spec.write_text(json.dumps({**TINY, "scene": scene}))
     refused(capfd, train(spec, tmp_path / "work", tmp_path / "w.json"), "is the benchmark's")
