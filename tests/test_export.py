@@ -271,8 +271,14 @@ def test_a_ctrl_c_that_a_task_swallows_still_stops_the_export(tmp_path, monkeypa
         return real(task)
 
     monkeypatch.setattr(runners, "run_task", swallowing)
-    with pytest.raises(KeyboardInterrupt):
-        export_tiny(tmp_path / "seq")
+    # Python's own Ctrl-C handler, whatever this process inherited (started in the background, a
+    # shell's job has SIGINT ignored)
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            export_tiny(tmp_path / "seq")
+    finally:
+        signal.signal(signal.SIGINT, previous)
     assert len(calls) == 2
 
 
