@@ -1,9 +1,11 @@
 """Training ``learned-asvgf``'s network (the library: :mod:`denoise.training`).
 
-    python -m denoise.train [SPEC.json ...] [--work DIR] [--steps N] [--rate R] [--hidden H]
+    python -m denoise.train [SPEC.json ...] [--procedural N] [--work DIR] [--steps N] [--rate R] [--hidden H]
                             [--no-temporal-inputs] [--seed S] [--out FILE] [--plot FILE] [--restart] [--quiet]
 
-The training sequences (default ``scenes/sequences/training/network/*.json``)
+The training sequences (default ``scenes/sequences/training/network/*.json``
+and the sequences of 48 procedurally generated scenes, ``scenes/procedural.py``,
+written into ``WORK/procedural/``)
 are exported into ``--work`` once (a rerun renders nothing); a benchmark
 sequence or scene, or a sequence without ground truth, is refused in one
 line before any work. Each step prints the training loss and the held-out

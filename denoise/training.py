@@ -3,7 +3,8 @@
 The data: sequences the project renders itself (``python -m export``), by
 default ``scenes/sequences/training/network/*.json`` (18 sequences of 320×180,
 the benchmark's size, on the showcase and mirrors scenes and the course's
-arch and bunny, which no benchmark sequence uses), each with an independently seeded
+arch and bunny, which no benchmark sequence uses) and 48 sequences of
+procedurally generated scenes (:mod:`scenes.procedural`), each with an independently seeded
 ground truth of 128 samples per pixel: an unbiased (Noise2Noise) target, its
 noise averaging out over pixels and steps.
 :func:`denoise.train.check_specs` refuses a sequence without ground truth and any benchmark
