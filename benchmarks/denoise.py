@@ -101,9 +101,9 @@ RESPONSE_FACTOR = 1.5
 TIMING = dict(size=(1280, 720), frames=9, reference_spp=2)
 QUICK_TIMING = dict(size=(160, 90), frames=3, reference_spp=2)
 #: per-frame time at most this fraction of another's (OIDN by its execute time): the speed bars
-#: of the filters and of the learned method against OIDN 2 fast, and the assignment's against high
+#: of the filters and of the learned methods against OIDN 2 fast, and the assignment's against high
 SPEED_BARS = (("atrous+temporal", "oidn-fast", 0.15), ("svgf", "oidn-fast", 0.15), ("asvgf", "oidn-fast", 0.3),
-              ("learned-asvgf", "oidn-fast", 1.0), ("bilateral", BASELINE, 2.0))
+              ("learned-asvgf", "oidn-fast", 1.0), ("learned-mixture", "oidn-fast", 1.0), ("bilateral", BASELINE, 2.0))
 #: every method is timed (the error-against-time front), OIDN's modes first
 TIMED = OIDN_ALONE + tuple(m for m in METHODS if m not in OIDN_ALONE and m != "raw")
 

@@ -1,7 +1,9 @@
-"""Training ``learned-asvgf``'s network (the library: :mod:`denoise.training`).
+"""Training ``learned-asvgf``'s or ``learned-mixture``'s network (the libraries:
+:mod:`denoise.training`, :mod:`denoise.mixture_training`).
 
-    python -m denoise.train [SPEC.json ...] [--procedural N] [--work DIR] [--steps N] [--rate R] [--hidden H]
-                            [--no-temporal-inputs] [--seed S] [--out FILE] [--plot FILE] [--restart] [--quiet]
+    python -m denoise.train [SPEC.json ...] [--method M] [--procedural N] [--work DIR] [--steps N] [--rate R]
+                            [--hidden H] [--no-temporal-inputs] [--seed S] [--out FILE] [--plot FILE]
+                            [--restart] [--quiet]
 
 The training sequences (default ``scenes/sequences/training/network/*.json``
 and the sequences of 48 procedurally generated scenes, ``scenes/procedural.py``,
@@ -14,7 +16,8 @@ is asvgf, below 1 better; the final line goes to stdout), and writes a checkpoin
 (``WORK/OUT-NAME.checkpoint.npz``): Ctrl-C stops at once (exit 130) with
 the last step's checkpoint kept, and a rerun with the same settings resumes
 from it (``--restart`` starts over). After the last step the weights file
-(``--out``, default ``denoise/learned_asvgf.json``) gets the weights and a
+(``--out``, default the method's ``denoise/learned_asvgf.json`` or
+``denoise/learned_mixture.json``) gets the weights and a
 record of the run, and ``--plot`` the loss curves. A loss that is not
 finite stops the run with one line (exit 2), the weights file untouched.
 One training at a time in a ``--work`` and into an ``--out``: a second is refused in one line.
@@ -58,16 +61,17 @@ from scenes.procedural import SEED as PROCEDURAL_SEED, write_sequences
 from . import training
 from .methods import data_files
 from .methods.base import RADIANCE_LIMIT
-from .methods.learned_asvgf import ABLATIONS, WEIGHT_LIMIT, WEIGHTS_FILE
+from .methods.weights_file import WEIGHT_LIMIT
 from .pipeline import check_sequences_fit
+from .trainers import TRAINED, WEIGHTS_FILES
 from .training import BENCHMARK, HELD_OUT, ROOT, TRAINING
 from .training_state import Settings, check_checkpoint_place, feature_set, load_checkpoint
 from .validate import check_folders, check_spec_name, render
 from .worker_process import ignore_group_signals, run_in_worker
 
 DOCS = ROOT / "docs"
-#: the committed network's steps and learning rate: the command without flags makes its weights
-STEPS, RATE = 80, 0.02
+
+
 #: procedural scenes trained on beside the default specs, and the folder of --work they are written into
 PROCEDURAL, PROCEDURAL_FOLDER = 48, "procedural"
 PROCEDURAL_MAX = 1000
@@ -77,19 +81,25 @@ def _parser() -> argparse.ArgumentParser:
     parser = ArgumentParser(prog="python -m denoise.train", description=__doc__.split("\n\n")[0])
     parser.add_argument("specs", type=Path, nargs="*", metavar="SPEC.json",
                         help="training sequences (default: scenes/sequences/training/network/*.json)")
+    parser.add_argument("--method", choices=tuple(TRAINED), default="learned-asvgf",
+                        help="the method whose network is trained (learned-asvgf)")
     parser.add_argument("--procedural", type=ascii_int, metavar="N",
                         help=f"also train on N procedurally generated scenes' sequences (scenes/procedural.py, "
                              f"written into WORK/{PROCEDURAL_FOLDER}/; default {PROCEDURAL} with the default "
                              f"specs, 0 with specs given)")
     parser.add_argument("--work", type=Path, default=ROOT / "out" / "train",
                         help="where they are rendered, and the checkpoint (out/train)")
-    parser.add_argument("--steps", type=ascii_int, default=STEPS, help=f"gradient steps ({STEPS})")
-    parser.add_argument("--rate", type=ascii_float, default=RATE, help=f"Adam's learning rate ({RATE})")
-    parser.add_argument("--hidden", type=ascii_int, default=12, help="hidden units (12)")
+    defaults = {key: ", ".join(f"{getattr(t, key)} for {name}" for name, t in TRAINED.items())
+                for key in ("steps", "rate", "hidden")}
+    parser.add_argument("--steps", type=ascii_int, help=f"gradient steps ({defaults['steps']})")
+    parser.add_argument("--rate", type=ascii_float, help=f"Adam's learning rate ({defaults['rate']})")
+    parser.add_argument("--hidden", type=ascii_int,
+                        help=f"hidden units, or learned-mixture's channels ({defaults['hidden']})")
     parser.add_argument("--no-temporal-inputs", dest="temporal_inputs", action="store_false",
-                        help="the ablation: the network reads the noise alone")
+                        help="the ablation: the network reads none of asvgf's temporal statistics")
     parser.add_argument("--seed", type=ascii_int, default=0, help="the first layer's draw and every step's (0)")
-    parser.add_argument("--out", type=Path, default=WEIGHTS_FILE, help="the weights file (denoise/learned_asvgf.json)")
+    parser.add_argument("--out", type=Path, help="the weights file (denoise/learned_asvgf.json or "
+                        "denoise/learned_mixture.json)")
     parser.add_argument("--plot", type=Path, help="the loss curves' PNG (default: docs/OUT-NAME_loss.png for "
                         "the committed weights files, else OUT-NAME_loss.png beside --out)")
     parser.add_argument("--restart", action="store_true", help="start over instead of resuming the checkpoint")
@@ -106,7 +116,7 @@ def default_plot(out: Path) -> Path:
     """The loss curves' PNG without --plot: docs/OUT-NAME_loss.png for a committed weights
     file (its page shows it), else OUT-NAME_loss.png beside ``out`` (a scratch run writes
     nothing into the repository)."""
-    committed = {p.resolve() for p in (WEIGHTS_FILE, *ABLATIONS.values())}
+    committed = {p.resolve() for p in WEIGHTS_FILES}
     folder = DOCS if out.resolve() in committed else out.parent
     return folder / f"{out.stem}_loss.png"
 
@@ -114,12 +124,18 @@ def default_plot(out: Path) -> Path:
 def _main(argv: list[str] | None) -> int:
     args = _parser().parse_args(argv)
     where = cluster_options(args)
+    trained = TRAINED[args.method]
+    for key in ("steps", "rate", "hidden"):
+        if getattr(args, key) is None:
+            setattr(args, key, getattr(trained, key))
+    if args.out is None:
+        args.out = trained.weights
     if not 1 <= args.steps <= 100000:
         raise UsageError(f"--steps must be from 1 to 100000, got {args.steps}")
     if not 0.0 < args.rate <= 1.0:
         raise UsageError(f"--rate must be in (0, 1], got {args.rate}")
-    if not 1 <= args.hidden <= 256:
-        raise UsageError(f"--hidden must be from 1 to 256, got {args.hidden}")
+    if not 1 <= args.hidden <= trained.max_hidden:
+        raise UsageError(f"--hidden must be from 1 to {trained.max_hidden} for {args.method}, got {args.hidden}")
     if not 0 <= args.seed <= SEED_MAX:  # NumPy's generator takes no negative seed (it failed in the worker)
         raise UsageError(f"--seed must be from 0 to {SEED_MAX}, got {args.seed}")
     if args.plot is not None and args.plot.suffix.lower() != ".png":
@@ -140,7 +156,7 @@ def _main(argv: list[str] | None) -> int:
     specs = [*specs, *generated]
     # every refusal before any work; in name order: a training is of a set of sequences, whatever order they came in
     loaded = sorted(check_specs(specs), key=lambda item: item[0].stem)
-    check_frames_fit(loaded)
+    check_frames_fit(loaded, method=args.method)
     names = [path.stem for path, _ in loaded]
     if len(set(names)) != len(names):
         twice = sorted({str(p) for p, _ in loaded if names.count(p.stem) > 1})
@@ -155,10 +171,11 @@ def _main(argv: list[str] | None) -> int:
                       {f"frame folder (--work) of {path.name}": frames,
                        f"ground truth (--work) of {path.name}": reference_folder(frames)})
     check_outside_exports({"--out": args.out, "--plot": plot})
-    check_outside({"--out": args.out}, data_files(keep=(WEIGHTS_FILE, *ABLATIONS.values())))  # weights, no parameters
+    check_outside({"--out": args.out}, data_files(keep=WEIGHTS_FILES))  # weights, no parameters
     check_writable("--out", args.out)
     check_writable("--plot", plot)
-    settings = Settings(feature_set(args.temporal_inputs), args.hidden, args.seed, args.rate, args.steps)
+    settings = Settings(feature_set(args.temporal_inputs, args.method), args.hidden, args.seed, args.rate, args.steps,
+                        args.method)
     checkpoint = args.work / f"{args.out.stem}.checkpoint.npz"
     if args.restart:  # the checkpoint is overwritten at the first step, not before: a refused run leaves it
         check_checkpoint_place(checkpoint)
@@ -186,8 +203,8 @@ def _main(argv: list[str] | None) -> int:
         given = argv if argv is not None else sys.argv[1:]
         write_weights(args, settings, [p for p, _ in loaded if p not in generated], procedural, theta, curve,
                       seconds, "python -m denoise.train " + " ".join(shlex.quote(a) for a in given))
-    plot_curve(plot, curve, f"{printable(args.out.name)}: {settings.hidden} hidden units, "
-                                     f"{len(settings.features)} inputs")
+    plot_curve(plot, curve, f"{printable(args.out.name)}: {settings.hidden} {trained.hidden_name}, "
+                            f"{len(settings.features)} inputs")
     if not args.quiet:
         held = "no sequence held out" if curve[-1][2] is None else f"held out {curve[-1][2]:.6f}"
         print(f"final loss {curve[-1][1]:.6f} ({held}); weights written to {printable(args.out)}, "
@@ -203,7 +220,8 @@ def write_weights(args: argparse.Namespace, settings: Settings, specs: list[Path
               "held_out": [display_path(p) for p in specs if p.stem in HELD_OUT],
               "procedural": {"count": procedural, "seed": PROCEDURAL_SEED, "generator": "scenes/procedural.py"},
               "steps": len(curve), "seconds": round(seconds, 1), "seed": args.seed, "rate": args.rate,
-              "batch": training.BATCH, "crop": list(training.CROP), "exposure": list(training.EXPOSURE),
+              "method": settings.method, "batch": TRAINED[settings.method].batch,
+              "crop": list(TRAINED[settings.method].crop), "exposure": list(training.EXPOSURE),
               "first_train_loss": curve[0][1], "first_held_out_loss": curve[0][2],
               "final_train_loss": curve[-1][1], "final_held_out_loss": curve[-1][2],
               "machine": machine(), "date": datetime.date.today().isoformat(),
@@ -211,7 +229,7 @@ def write_weights(args: argparse.Namespace, settings: Settings, specs: list[Path
     if not (np.isfinite(theta).all() and (np.abs(theta) <= WEIGHT_LIMIT).all()):
         raise UsageError(f"the training ended with weights beyond {WEIGHT_LIMIT:g}, which no weights file may hold "
                          f"(a diverging run: a lower --rate); {printable(args.out)} left as it was")
-    network = training.network_of(theta, settings.features, settings.hidden)
+    network = TRAINED[settings.method].network_of(theta, settings.features, settings.hidden)
     with atomic_path(args.out, ".json") as temporary:
         Path(temporary).write_text(json.dumps({**network.to_json(), "record": record}, indent=1) + "\n")
 
@@ -273,13 +291,15 @@ def check_specs(paths: list[Path]) -> list[tuple[Path, Spec]]:
     return loaded
 
 
-def check_frames_fit(loaded: list[tuple[Path, Spec]], memory: int | None = None) -> None:
+def check_frames_fit(loaded: list[tuple[Path, Spec]], memory: int | None = None,
+                     method: str = "learned-asvgf") -> None:
     """Every frame of ``loaded`` held at once within the memory available (``memory``:
-    bytes; measured if None; :func:`denoise.training.training_memory`), else a
+    bytes; measured if None; the method's ``training_memory``), else a
     :class:`LimitError` before anything is rendered."""
-    check_sequences_fit("training", loaded, training.training_memory([(p.stem, s) for p, s in loaded]),
-                        f"train on smaller frames or fewer of them (a step reads {training.CROP[0]}x"
-                        f"{training.CROP[1]} crops)", memory)
+    trained = TRAINED[method]
+    check_sequences_fit("training", loaded, trained.memory([(p.stem, s) for p, s in loaded]),
+                        f"train on smaller frames or fewer of them (a step reads {trained.crop[0]}x"
+                        f"{trained.crop[1]} crops)", memory)
 
 
 def rerender(folder: Path) -> str:
@@ -331,8 +351,9 @@ def train_worker(connection, folders: list[Path], settings: Settings, checkpoint
     ignore_group_signals()
     set_variant("llvm_ad_rgb", quiet=True)
     try:
-        connection.send(("done", *training.train(folders, settings, checkpoint,
-                                                 lambda *report: connection.send(("step", *report)), restart)))
+        connection.send(("done", *TRAINED[settings.method].train(
+            folders, settings, checkpoint, lambda *report: connection.send(("step", *report)), restart,
+            progress=lambda *done: connection.send(("loaded", *done)))))
     except Exception as error:  # noqa: BLE001  one line in the parent, never the worker's traceback
         connection.send(("error", worker_error(error)))
 
@@ -355,6 +376,10 @@ def train_interruptibly(folders: list[Path], settings: Settings, checkpoint: Pat
     started = time.monotonic()
 
     def report(message: tuple) -> None:
+        if message[0] == "loaded":
+            if not quiet:
+                print(f"loaded {message[1]}/{message[2]}: {message[3]}", file=sys.stderr, flush=True)
+            return
         _, step, loss, held, seconds = message
         if not quiet:
             held = "none" if held is None else f"{held:.6f}"

@@ -327,15 +327,20 @@ def held_out_loss(theta: np.ndarray, settings: Settings, held: list[list[Frame]]
 
 
 def train(folders: list[Path], settings: Settings, checkpoint: Path, report,
-          restart: bool = False) -> tuple[np.ndarray, list, float]:
+          restart: bool = False, progress=None) -> tuple[np.ndarray, list, float]:
     """The steps on the exported ``folders`` (those of :data:`HELD_OUT` held
     out), resumed from ``checkpoint`` where it exists (``restart``: overwritten
     at the first step instead) and written there after every step;
     ``report(step, loss, held-out loss, seconds)`` after each. Both losses
     are those of the weights before the step. Returns (the weights, the
-    curve [(step, loss, held-out loss)], the seconds of all steps)."""
+    curve [(step, loss, held-out loss)], the seconds of all steps). ``progress(done, total,
+    name)`` follows the loading of each sequence."""
     names = [f.name for f in folders]
-    data = {f.name: load_sequence(f) for f in folders}
+    data = {}
+    for number, folder in enumerate(folders):
+        data[folder.name] = load_sequence(folder)
+        if progress is not None:
+            progress(number + 1, len(folders), folder.name)
     train_set = [data[n] for n in names if n not in HELD_OUT]
     held = [data[n] for n in names if n in HELD_OUT]
     state = None if restart else load_checkpoint(checkpoint, settings, names, any(n in HELD_OUT for n in names))

@@ -18,7 +18,9 @@ import numpy as np
 from core.errors import UsageError
 from imaging.image_io import atomic_path
 
-from .methods.learned_asvgf import FEATURES, OUTPUTS, TEMPORAL_FEATURES, WEIGHT_LIMIT
+from .methods import learned_mixture
+from .methods.learned_asvgf import FEATURES, OUTPUTS, TEMPORAL_FEATURES
+from .methods.weights_file import WEIGHT_LIMIT
 
 
 class Adam:
@@ -39,19 +41,29 @@ class Adam:
 
 @dataclass
 class Settings:
-    """What a run trains: its features, hidden units, seed, rate, steps (a checkpoint must match all but steps)."""
+    """What a run trains: its method, features, hidden units (``learned-mixture``: channels), seed, rate,
+    steps (a checkpoint must match all but steps)."""
     features: tuple[str, ...]
     hidden: int
     seed: int
     rate: float
     steps: int
+    method: str = "learned-asvgf"
 
     def key(self) -> str:
-        return json.dumps({"features": list(self.features), "hidden": self.hidden, "seed": self.seed,
-                           "rate": self.rate})
+        return json.dumps({"method": self.method, "features": list(self.features), "hidden": self.hidden,
+                           "seed": self.seed, "rate": self.rate})
+
+    def parameter_count(self) -> int:
+        if self.method == "learned-mixture":
+            return learned_mixture.parameter_count(len(self.features), self.hidden)
+        f, h, o = len(self.features), self.hidden, len(OUTPUTS)
+        return h * f + h + o * h + o
 
 
-def feature_set(temporal_inputs: bool) -> tuple[str, ...]:
+def feature_set(temporal_inputs: bool, method: str = "learned-asvgf") -> tuple[str, ...]:
+    if method == "learned-mixture":
+        return learned_mixture.feature_set(temporal_inputs)
     return FEATURES if temporal_inputs else tuple(f for f in FEATURES if f not in TEMPORAL_FEATURES)
 
 
@@ -112,8 +124,7 @@ def checkpoint_problem(state: dict, settings: Settings, names: list[str], held_o
         sequences = None
     if str(state["settings"]) != settings.key() or sequences != names:
         return "a checkpoint of other settings or sequences"
-    f, h, o = len(settings.features), settings.hidden, len(OUTPUTS)
-    count = h * f + h + o * h + o
+    count = settings.parameter_count()
     for k in ("theta", "m", "v"):
         if state[k].dtype.kind != "f" or state[k].shape != (count,):
             return f"{k} holds {state[k].dtype} of shape {state[k].shape}, not the {count} parameters' values"

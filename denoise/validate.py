@@ -33,6 +33,7 @@ import numpy as np
 from core.entry import ArgumentParser, finish, printable, run
 from core.errors import NEED_COURSE, NEED_OWN_FOLDER, NEED_SMALLER_RENDER, ToolkitError, UsageError
 from core.inputs import check_outside
+from core.json_input import JSONInputError, read_json
 from core.numbers import ascii_int
 from course import ENVIRONMENT
 from export import Sequence, Spec, export_sequences, reference_folder, sequences_into
@@ -47,12 +48,16 @@ from renderer.variants import set_variant
 
 from .methods import check_method_names, data_files, from_name, resolve
 from .methods.learned_asvgf import LearnedASVGF
+from .methods.learned_mixture import FORMAT as MIXTURE_FORMAT, LearnedMixture
+from .methods.weights_file import MAX_WEIGHTS_BYTES
 from .pipeline import BASE_BYTES as FRAME_BASE_BYTES, BYTES_PER_PIXEL as FRAME_BYTES_PER_PIXEL
 from .temporal_metrics import QUALITY_FROM
 from .training import HELD_OUT, LOADED_BYTES, ROOT, TRAINING
 
 #: the methods judged when --methods is not given
-METHODS = ("asvgf", "learned-asvgf", "learned-asvgf-no-temporal-inputs", "learned-asvgf-half-hidden")
+METHODS = ("asvgf", *LearnedASVGF.benchmark, *LearnedMixture.benchmark)
+#: the methods whose weights files --network judges
+TRAINED = (LearnedASVGF, LearnedMixture)
 #: the training sequences a network learned from (the held-out ones it never did), by name
 TRAINED_ON = {p.stem: p for p in TRAINING if p.stem not in HELD_OUT}
 #: the ground truth's samples per pixel when --reference-spp is not given
@@ -70,7 +75,8 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--methods", nargs="+", default=list(METHODS), metavar="NAME",
                         help=f"methods of python -m denoise --method (default: {' '.join(METHODS)})")
     parser.add_argument("--network", nargs="+", type=Path, default=[], metavar="FILE",
-                        help="weights files of learned-asvgf to judge besides, each named by its file name")
+                        help="weights files of learned-asvgf or learned-mixture (by their format) to judge "
+                             "besides, each named by its file name")
     parser.add_argument("--json", type=Path, help="write every number as JSON")
     add_cluster_options(parser)
     return parser
@@ -180,6 +186,19 @@ def training_sequences(loaded: dict[Path, Spec], reference_spp: int) -> list[str
             and Spec.load(TRAINED_ON[path.stem], reference_spp=reference_spp) == spec]
 
 
+def network_method(path: Path) -> str:
+    """The method weights file ``path`` is for, by its ``"format"`` (learned-asvgf where it
+    names none: loading it then says what is wrong in one line)."""
+    if not Path(path).is_file():  # a pipe would block the read; the loading refuses it
+        return LearnedASVGF.name
+    try:
+        data = read_json(path, MAX_WEIGHTS_BYTES)
+    except (JSONInputError, OSError):
+        return LearnedASVGF.name
+    is_mixture = isinstance(data, dict) and data.get("format") == MIXTURE_FORMAT
+    return LearnedMixture.name if is_mixture else LearnedASVGF.name
+
+
 def judge(folder: Path, runners: dict) -> dict[str, list[float]]:
     """Per method (a factory of a fresh method), its relMSE per frame of ``folder`` against its ground truth."""
     indices = frame_indices(folder)
@@ -248,10 +267,10 @@ def _main(argv: list[str] | None) -> int:
         check_writable("--json", args.json)
     set_variant(None, jit=True)  # the methods have no scalar form: an unusable libLLVM is one line naming it
     runners = {m: (lambda m=m: from_name(m)) for m in args.methods}
-    runners.update({name: (lambda p=p: from_name("learned-asvgf", network=str(p))) for name, p in named.items()})
+    runners.update({name: (lambda p=p: from_name(network_method(p), network=str(p))) for name, p in named.items()})
     for name in list(runners):  # a bad weights file is one line before any rendering
         runners[name]()
-    networks = [n for n in runners if n in named or resolve(n)[0] is LearnedASVGF]
+    networks = [n for n in runners if n in named or resolve(n)[0] in TRAINED]
     trained_on = training_sequences(loaded, args.reference_spp)
     if networks and trained_on:  # judged all the same, but its numbers are not held-out ones
         print(f"note: the networks were trained on {', '.join(map(printable, trained_on))}: "

@@ -63,10 +63,10 @@ def test_the_committed_networks_are_what_the_benchmark_runs():
 
 
 def test_no_benchmark_scene_or_sequence_is_trained_on(tmp_path):
-    """The training specs, and the ones each committed network records (its spec
+    """The training specs, and the ones each committed network of either method records (its spec
     files and its procedural scenes, written again from the record), use no
     benchmark sequence and none of the benchmark's scenes."""
-    from denoise.train import check_specs
+    from denoise.train import WEIGHTS_FILES, check_specs
     from denoise.training import BENCHMARK, HELD_OUT, TRAINING
     from export import Spec
     from scenes.procedural import write_sequences
@@ -77,7 +77,8 @@ def test_no_benchmark_scene_or_sequence_is_trained_on(tmp_path):
     assert check_specs(TRAINING)
     for path in TRAINING:
         assert Spec.load(path).scene not in benchmark_scenes and path.stem not in benchmark_names, path
-    for weights in WEIGHTS.values():
+    assert set(WEIGHTS.values()) < set(WEIGHTS_FILES)  # learned-mixture's too
+    for weights in WEIGHTS_FILES:
         record = json.loads(weights.read_text())["record"]
         for spec in record["training"] + record["held_out"]:
             assert (ROOT / spec).resolve() in {p.resolve() for p in TRAINING}, spec
@@ -290,6 +291,8 @@ def test_ctrl_c_keeps_the_checkpoint_and_a_rerun_resumes(tiny, tmp_path):
                "--plot", str(plot), "--hidden", "4", "--steps", "1000"]
     process = subprocess.Popen(command, cwd=ROOT, stderr=subprocess.PIPE, text=True, env={**os.environ})
     first = process.stderr.readline()
+    assert first == "loaded 1/1: tiny_showcase\n", first  # the sequences' loading, then the steps
+    first = process.stderr.readline()
     assert first.startswith("step 1/1000: loss "), first
     process.send_signal(signal.SIGINT)
     start = time.monotonic()
@@ -299,7 +302,7 @@ def test_ctrl_c_keeps_the_checkpoint_and_a_rerun_resumes(tiny, tmp_path):
     steps = int(np.load(work / "w.checkpoint.npz")["t"])
     resumed = subprocess.run(command[:-1] + [str(steps + 1)], cwd=ROOT, capture_output=True, text=True)
     assert resumed.returncode == 0, resumed.stderr
-    assert resumed.stderr.startswith(f"step {steps + 1}/{steps + 1}: ")
+    assert resumed.stderr.startswith(f"loaded 1/1: tiny_showcase\nstep {steps + 1}/{steps + 1}: ")
     data = json.loads(out.read_text())
     assert data["record"]["steps"] == steps + 1 and len(data["record"]["curve"]) == steps + 1
     assert plot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
@@ -320,7 +323,7 @@ def test_quiet_training_prints_nothing(tiny, tmp_path):
     done = subprocess.run([sys.executable, "-m", "denoise.train", str(spec), "--work", str(work), "--out", str(out),
                            "--plot", str(tmp_path / "q.png"), "--hidden", "4", "--steps", "1", "--restart"],
                           cwd=ROOT, capture_output=True, text=True, timeout=600)
-    assert done.returncode == 0 and done.stderr.startswith("step 1/1: loss "), done.stderr
+    assert done.returncode == 0 and done.stderr.startswith("loaded 1/1: tiny_showcase\nstep 1/1: loss "), done.stderr
     assert done.stdout.startswith("final loss ") and f"weights written to {out}" in done.stdout, done.stdout
     (work / "q.checkpoint.npz").unlink(missing_ok=True)
 

@@ -24,6 +24,7 @@ from .atrous import Atrous
 from .base import DeclarationError, DenoisingMethod, MethodError, Option, SpatialFilterMethod, temporal_options
 from .bilateral import Bilateral
 from .learned_asvgf import LearnedASVGF
+from .learned_mixture import LearnedMixture
 from .oidn import OIDNMethod
 from .oidn_guided import OIDNGuided
 from .svgf import SVGF
@@ -198,5 +199,5 @@ def benchmark_names() -> tuple[str, ...]:
 
 
 #: the methods of this package, in the order of ``--help``
-for method in (Bilateral, Atrous, SVGF, ASVGF, LearnedASVGF, OIDNMethod, OIDNGuided):
+for method in (Bilateral, Atrous, SVGF, ASVGF, LearnedASVGF, LearnedMixture, OIDNMethod, OIDNGuided):
     register(method)

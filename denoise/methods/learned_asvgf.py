@@ -36,7 +36,6 @@ through the frames after.
 """
 from __future__ import annotations
 
-import json
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -45,16 +44,12 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from core.errors import UsageError
-from core.json_input import JSONInputError, read_json
-
 from ..filters import FrameArrays, luminance
 from ..svgf_common import atrous_level, levels_for
 from .asvgf import PARAMETER_FILE, ASVGFHistory, ASVGFParams, FilterValues, fitted, temporal_accumulation, variance
 from .base import DenoisingMethod, Option
+from .weights_file import bad_weights, check_count, check_names, open_weights, weight_arrays
 
-#: the largest magnitude of a weight a weights file (or a training's checkpoint) may hold
-WEIGHT_LIMIT = 1e6
 #: the network's inputs, in order: a weights file names the ones it was trained on
 FEATURES = ("inverse_length", "gradient", "disoccluded", "current_change", "fast_slow", "slow_clip", "noise")
 #: the inputs that come from the history (the "no temporal inputs" ablation drops them)
@@ -70,8 +65,6 @@ WEIGHTS_DIR = Path(__file__).resolve().parents[1]
 WEIGHTS_FILE = WEIGHTS_DIR / "learned_asvgf.json"
 ABLATIONS = {"no-temporal-inputs": WEIGHTS_DIR / "learned_asvgf_no_temporal.json",
              "half-hidden": WEIGHTS_DIR / "learned_asvgf_half_hidden.json"}
-#: the largest weights file read, in bytes
-MAX_WEIGHTS_BYTES = 2 << 20
 #: the most hidden units a weights file may have
 MAX_HIDDEN = 256
 #: added to luminances in the features' ratios: dark noise is not a change
@@ -103,77 +96,20 @@ class Network:
         return (self.w1.tolist(), self.b1.tolist(), self.w2.tolist(), self.b2.tolist())
 
 
-def bad_weights(path: Path, problem: str) -> UsageError:
-    return UsageError(f"{path}: {problem}; make it with {TRAIN_COMMAND}")
-
-
-def not_a_number(value, place: str) -> str | None:
-    """Where nested lists ``value`` hold something other than a number (a string,
-    ``true``, ``null``, an object), said as ``w1[0][2] is "0.5", not a number``; None if nowhere.
-    NumPy would read ``"0.5"`` and ``true`` as numbers."""
-    if isinstance(value, list):
-        for index, item in enumerate(value):
-            found = not_a_number(item, f"{place}[{index}]")
-            if found is not None:
-                return found
-        return None
-    if value is None and "[" not in place:
-        return None  # a missing key: the shape check says so
-    if isinstance(value, (int, float)) and not isinstance(value, bool):
-        return None
-    shown = json.dumps(value)
-    return f"{place} is {shown if len(shown) <= 40 else shown[:37] + '...'}, not a number"
-
-
 def load_network(path: Path | str) -> Network:
     """The network of weights file ``path``; a missing, truncated or damaged
     file, or one of other shapes or another feature list, is one line naming
     the file and the training command."""
-    if str(path) == "":
-        raise bad_weights("''", "an empty path, not a weights file")
+    data = open_weights(path, FORMAT, TRAIN_COMMAND)
     path = Path(path)
-    if path.is_dir():
-        raise bad_weights(path, "a folder, not a weights file")
-    if path.is_symlink() and not path.exists():
-        raise bad_weights(path, "a symbolic link that leads to no file")
-    if path.exists() and not path.is_file():
-        raise bad_weights(path, "not a regular file (a pipe, a device or a socket)")
-    if not path.is_file():
-        raise bad_weights(path, "no such weights file")
-    try:
-        data = read_json(path, MAX_WEIGHTS_BYTES)
-    except JSONInputError as error:
-        raise bad_weights(path, f"not a weights file ({str(error).removeprefix(f'{path}: ')})") from None
-    if not isinstance(data, dict) or data.get("format") != FORMAT:
-        raise bad_weights(path, f"not a {FORMAT} weights file (no \"format\": \"{FORMAT}\")")
-    features, outputs = data.get("features"), data.get("outputs")
-    if (not isinstance(features, list) or not features or len(set(map(str, features))) != len(features)
-            or [f for f in FEATURES if f in features] != features):
-        raise bad_weights(path, f"its features must be some of {', '.join(FEATURES)}, in that order, got {features!r}")
-    if outputs != list(OUTPUTS):
-        raise bad_weights(path, f"its outputs must be {', '.join(OUTPUTS)}, got {outputs!r}")
-    hidden = data.get("hidden")
-    if isinstance(hidden, bool) or not isinstance(hidden, int) or not 1 <= hidden <= MAX_HIDDEN:
-        raise bad_weights(path, f"hidden must be a whole number from 1 to {MAX_HIDDEN}, got {hidden!r}")
+    features = check_names(path, data, "features", FEATURES, TRAIN_COMMAND)
+    if data.get("outputs") != list(OUTPUTS):
+        raise bad_weights(path, f"its outputs must be {', '.join(OUTPUTS)}, got {data.get('outputs')!r}",
+                          TRAIN_COMMAND)
+    hidden = check_count(path, data, "hidden", MAX_HIDDEN, TRAIN_COMMAND)
     shapes = {"w1": (hidden, len(features)), "b1": (hidden,), "w2": (len(OUTPUTS), hidden), "b2": (len(OUTPUTS),)}
-    arrays = {}
-    for key, shape in shapes.items():
-        place = not_a_number(data.get(key), key)
-        if place is not None:
-            raise bad_weights(path, place)
-        try:
-            array = np.array(data.get(key), dtype=np.float64)
-        except (TypeError, ValueError):
-            array = None
-        if array is None or array.shape != shape:
-            found = "missing" if data.get(key) is None else (
-                "not a numeric array" if array is None else f"it has shape {array.shape}")
-            raise bad_weights(path, f"{key} must have shape {shape} for {len(features)} features and {hidden} hidden "
-                              f"units, {found}")
-        if not np.all(np.isfinite(array)) or np.any(np.abs(array) > WEIGHT_LIMIT):
-            raise bad_weights(path, f"{key} has a value that is not finite or beyond {WEIGHT_LIMIT:g}")
-        arrays[key] = array.astype(np.float32)
-    return Network(tuple(features), **arrays)
+    arrays = weight_arrays(path, data, shapes, f"{len(features)} features and {hidden} hidden units", TRAIN_COMMAND)
+    return Network(features, **arrays)
 
 
 def mlp(inputs: list, w1, b1, w2, b2) -> list:
@@ -282,8 +218,9 @@ def learned_asvgf(frame: FrameArrays, p: ASVGFParams, network: Callable[[dict], 
 
 
 def weights_option(default: Path) -> Option:
+    """The ``--network`` option of the trained methods (one declaration: its default is each one's file)."""
     return Option("network", str(default), "the weights file (JSON, written by python -m denoise.train)", kind=str,
-                  group="learned-asvgf", default_text="denoise/learned_asvgf.json", metavar="FILE")
+                  group="trained networks", default_text=f"denoise/{default.name}", metavar="FILE")
 
 
 class LearnedASVGF(DenoisingMethod):

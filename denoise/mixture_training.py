@@ -1,0 +1,293 @@
+"""Training ``learned-mixture``'s network (``python -m denoise.train --method learned-mixture``).
+
+The data are :mod:`denoise.training`'s: the project's own exported
+sequences with their independent (Noise2Noise) targets, :data:`HELD_OUT`
+held out. The blend changes no later frame (asvgf's history is its own), so
+each frame's images and inputs are computed once, by the method's own Dr.Jit
+code (:func:`denoise.methods.learned_mixture.candidate_images`, in sequence,
+the history carried), and kept in ``WORK/mixture-inputs/NAME.npz`` (made anew
+when the frames or asvgf's parameters change). The network then trains in
+NumPy (its chain rule written out below): a step is :data:`BATCH` random
+crops of :data:`CROP` pixels of frames from :data:`LOSS_FROM` on, flipped at
+random and scaled by a random exposure, the loss each crop's relMSE over
+asvgf's output's on it. The held-out loss (whole frames) is measured every
+:data:`HELD_OUT_EVERY` steps and at the last; the steps between report the
+last measured. Draws come from ``numpy.random.default_rng((seed, step))``: a
+resumed run draws what an uninterrupted one would.
+"""
+from __future__ import annotations
+
+import hashlib
+import math
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import drjit as dr
+import numpy as np
+
+from core.errors import UsageError
+from export import reference_folder
+from export.frames import frame_indices
+from imaging.image_io import atomic_path
+from imaging.metrics import RELMSE_EPSILON, relmse
+
+from .filters import remodulate
+from .methods.asvgf import PARAMETER_FILE, fitted
+from .methods.learned_mixture import (
+    CANDIDATES,
+    FEATURES,
+    START_LOGIT,
+    MixtureNetwork,
+    candidate_images,
+    flatten,
+    network_of,
+    shapes,
+)
+from .training import EXPOSURE, HELD_OUT, augmented, load_sequence
+from .training_state import Adam, Settings, load_checkpoint, save_checkpoint
+
+#: the committed network's steps, learning rate and channels: the command without flags makes its weights
+STEPS, RATE, CHANNELS = 2000, 0.003, 16
+#: crops per step and their size in pixels
+BATCH, CROP = 8, 64
+#: the loss counts the frames from this one on (a first frame has no history)
+LOSS_FROM = 1
+#: the held-out loss is measured at every this many steps
+HELD_OUT_EVERY = 50
+#: the least denominator of a crop's loss: a crop asvgf gets exactly right counts 0, not NaN
+BASE_LOSS_FLOOR = 1e-12
+#: the folder of ``--work`` that keeps each sequence's images and inputs
+INPUTS_FOLDER = "mixture-inputs"
+#: changes whenever what :func:`sequence_inputs` stores changes
+INPUTS_VERSION = 2
+
+
+#: bytes per pixel of a loaded frame (inputs, images, target as float32), and what the process holds besides
+LOADED_BYTES, BASE_BYTES = 4 * (len(FEATURES) + 3 * len(CANDIDATES) + 3), 1 << 30
+
+
+def training_memory(specs: list[tuple[str, object]]) -> int:
+    """Bytes a training holds at its peak for sequences ``(name, spec)``: every
+    frame's inputs at once, and one frame's held-out pass (its convolutions' taps)."""
+    pixels = [spec.frames * spec.size[0] * spec.size[1] for _, spec in specs]
+    largest = max((spec.size[0] * spec.size[1] for _, spec in specs), default=0)
+    return BASE_BYTES + LOADED_BYTES * sum(pixels) + 8 * 9 * (len(FEATURES) + 2 * CHANNELS) * largest
+
+
+def stamp(folder: Path) -> str:
+    """What a sequence's stored inputs were made from: its frames' and targets'
+    files (name, size, time) and asvgf's fitted parameters."""
+    digest = hashlib.sha256(f"{INPUTS_VERSION} {CANDIDATES} {FEATURES}".encode())
+    digest.update(PARAMETER_FILE.read_bytes() if PARAMETER_FILE.is_file() else b"")
+    for place in (folder, reference_folder(folder)):
+        for path in sorted(place.glob("*.exr")):
+            info = path.stat()
+            digest.update(f"{path.name} {info.st_size} {info.st_mtime_ns}".encode())
+    return digest.hexdigest()
+
+
+def compute_inputs(folder: Path) -> dict[str, np.ndarray]:
+    """Every frame's inputs (frame, feature, y, x), images remodulated as the
+    method's output is (frame, image, y, x, rgb) and target, by the method's Dr.Jit code."""
+    frames = augmented(load_sequence(folder), None, 0, 0, False, False, 1.0)
+    params = fitted()
+    params = params if params.levels is not None else replace(params, levels=frames[0].levels)
+    history, xs, images_all, targets = None, [], [], []
+    for f in frames:
+        images, inputs, history = candidate_images(f.buffers, params, history if f.index is not None else None,
+                                                   f.index, f.valid)
+        height, width = f.buffers.height, f.buffers.width
+        images_all.append(np.stack([np.array(f.buffers.tensor(i) if f.albedo is None
+                                             else remodulate(f.buffers.tensor(i), f.albedo), np.float32)
+                                    for i in images]))
+        xs.append(np.stack([np.array(inputs[name], np.float32).reshape(height, width) for name in FEATURES]))
+        targets.append(np.array(f.target, np.float32))
+        dr.flush_malloc_cache()
+    return {"x": np.stack(xs), "images": np.stack(images_all), "target": np.stack(targets)}
+
+
+def sequence_inputs(folder: Path, store: Path) -> dict[str, np.ndarray]:
+    """:func:`compute_inputs` of ``folder``, from ``store`` where it holds them
+    for the same frames and parameters, else computed and kept there."""
+    path, expected = store / f"{folder.name}.npz", stamp(folder)
+    if path.is_file():
+        try:
+            with np.load(path, allow_pickle=False) as data:
+                if str(data["stamp"]) == expected and data["x"].shape[1] == len(FEATURES):
+                    return {k: data[k] for k in ("x", "images", "target")}
+        except (OSError, ValueError, KeyError, EOFError):
+            pass  # a damaged store is made anew
+    data = compute_inputs(folder)
+    store.mkdir(parents=True, exist_ok=True)
+    with atomic_path(path, ".npz") as temporary:
+        with open(temporary, "wb") as file:
+            np.savez(file, stamp=expected, **data)
+    return data
+
+
+def convolution(x: np.ndarray, w: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """3×3 convolution of ``x`` (channels, y, x), the border pixel repeated;
+    returns (output, the taps as columns for :func:`convolution_gradient`)."""
+    c, h, width = x.shape
+    padded = np.pad(x, ((0, 0), (1, 1), (1, 1)), mode="edge")
+    columns = np.stack([padded[:, dy:dy + h, dx:dx + width] for dy in range(3) for dx in range(3)], 1)
+    columns = columns.reshape(c * 9, h * width)
+    return (w.reshape(w.shape[0], -1) @ columns + b[:, None]).reshape(-1, h, width), columns
+
+
+def convolution_gradient(d_out: np.ndarray, columns: np.ndarray, w: np.ndarray, shape: tuple
+                         ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(d w, d b, d x) of :func:`convolution` for the output's gradient ``d_out``."""
+    c, h, width = shape
+    d2 = d_out.reshape(w.shape[0], -1)
+    d_columns = (w.reshape(w.shape[0], -1).T @ d2).reshape(c, 3, 3, h, width)
+    d_padded = np.zeros((c, h + 2, width + 2), d_out.dtype)
+    for dy in range(3):
+        for dx in range(3):
+            d_padded[:, dy:dy + h, dx:dx + width] += d_columns[:, dy, dx]
+    # the repeated border pixels' gradients go to the pixel they repeat
+    d_padded[:, 1, :] += d_padded[:, 0, :]
+    d_padded[:, -2, :] += d_padded[:, -1, :]
+    d_padded[:, :, 1] += d_padded[:, :, 0]
+    d_padded[:, :, -2] += d_padded[:, :, -1]
+    return (d2 @ columns.T).reshape(w.shape), d2.sum(1), d_padded[:, 1:-1, 1:-1]
+
+
+def forward(net: MixtureNetwork, x: np.ndarray, images: np.ndarray) -> tuple[np.ndarray, tuple]:
+    """The blend of ``images`` (image, y, x, rgb) for inputs ``x`` (feature, y, x), and what the gradient needs."""
+    p1, c1 = convolution(x, net.w1, net.b1)
+    h1 = np.maximum(p1, 0)
+    p2, c2 = convolution(h1, net.w2, net.b2)
+    h2 = np.maximum(p2, 0)
+    logits = np.einsum("kc,chw->khw", net.w3, h2) + net.b3[:, None, None]
+    weights = np.exp(logits - logits.max(0, keepdims=True))
+    weights /= weights.sum(0, keepdims=True)
+    return np.einsum("khw,khwc->hwc", weights, images), (x, c1, p1, h1, c2, p2, h2, weights, images)
+
+
+def backward(net: MixtureNetwork, d_out: np.ndarray, kept: tuple) -> np.ndarray:
+    """d loss / d theta (the order of :func:`flatten`) for the blend's gradient ``d_out``."""
+    x, c1, p1, h1, c2, p2, h2, weights, images = kept
+    g = np.einsum("hwc,khwc->khw", d_out, images)
+    d_logits = weights * (g - (weights * g).sum(0, keepdims=True))
+    d_w3, d_b3 = np.einsum("khw,chw->kc", d_logits, h2), d_logits.sum((1, 2))
+    d_h2 = np.einsum("kc,khw->chw", net.w3, d_logits) * (p2 > 0)
+    d_w2, d_b2, d_h1 = convolution_gradient(d_h2, c2, net.w2, h1.shape)
+    d_w1, d_b1, _ = convolution_gradient(d_h1 * (p1 > 0), c1, net.w1, x.shape)
+    return np.concatenate([a.ravel() for a in (d_w1, d_b1, d_w2, d_b2, d_w3, d_b3)]).astype(np.float64)
+
+
+def initial(features: tuple[str, ...], channels: int, seed: int) -> np.ndarray:
+    """He-initialised convolutions, the output layer 0 but asvgf's logit (:data:`START_LOGIT`)."""
+    rng = np.random.default_rng(seed)
+    s = shapes(len(features), channels)
+    w1 = rng.normal(0.0, math.sqrt(2.0 / (len(features) * 9)), s["w1"])
+    w2 = rng.normal(0.0, math.sqrt(2.0 / (channels * 9)), s["w2"])
+    b3 = np.zeros(s["b3"])
+    b3[CANDIDATES.index("asvgf")] = START_LOGIT
+    return flatten(MixtureNetwork(tuple(features), w1.astype(np.float32), np.zeros(channels, np.float32),
+                                  w2.astype(np.float32), np.zeros(channels, np.float32),
+                                  np.zeros(s["w3"], np.float32), b3.astype(np.float32))).astype(np.float64)
+
+
+def selected(data: dict, features: tuple[str, ...]) -> dict:
+    """``data`` with the inputs ``features`` alone (an ablation's)."""
+    rows = [FEATURES.index(name) for name in features]
+    return {**data, "x": data["x"][:, rows]}
+
+
+def train_step(adam: Adam, settings: Settings, train: list[dict], step: int) -> float:
+    """One step on :data:`BATCH` augmented crops; returns the loss before it.
+    A loss or gradient that is not finite is a UsageError, the weights left as they were."""
+    rng = np.random.default_rng((settings.seed, step))
+    net = network_of(adam.theta, settings.features, settings.hidden)
+    asvgf = CANDIDATES.index("asvgf")
+    gradient, losses = np.zeros_like(adam.theta), []
+    for _ in range(BATCH):
+        data = train[int(rng.integers(len(train)))]
+        frames, _, height, width = data["x"].shape
+        f = int(rng.integers(min(LOSS_FROM, frames - 1), frames))
+        h, w = min(CROP, height), min(CROP, width)
+        y0, x0 = int(rng.integers(0, height - h + 1)), int(rng.integers(0, width - w + 1))
+        ys, xs = slice(y0, y0 + h), slice(x0, x0 + w)
+        x, images, target = data["x"][f][:, ys, xs], data["images"][f][:, ys, xs], data["target"][f][ys, xs]
+        if rng.integers(2):
+            x, images, target = x[:, :, ::-1], images[:, :, ::-1], target[:, ::-1]
+        if rng.integers(2):
+            x, images, target = x[:, ::-1], images[:, ::-1], target[::-1]
+        exposure = np.float32(np.exp(rng.uniform(*np.log(EXPOSURE))))
+        x, images, target = np.ascontiguousarray(x), images * exposure, target * exposure
+        out, kept = forward(net, x, images)
+        base = max(relmse(images[asvgf], target), BASE_LOSS_FLOOR)
+        losses.append(relmse(out, target) / base)
+        d_out = (2.0 * (out - target) / (target ** 2 + RELMSE_EPSILON) / out.size / base).astype(np.float32)
+        gradient += backward(net, d_out, kept)
+    loss = float(np.mean(losses))
+    if not math.isfinite(loss):
+        raise UsageError(f"the training loss is {loss} at step {step} (a diverging step); the weights file "
+                         f"was not written")
+    gradient /= BATCH
+    if not np.all(np.isfinite(gradient)):
+        raise UsageError(f"the gradient is not finite at step {step}; the weights file was not written")
+    adam.step(gradient)
+    return loss
+
+
+def held_out_loss(theta: np.ndarray, settings: Settings, held: list[dict]) -> float | None:
+    """Mean over the held-out sequences (None: none) of their relMSE over asvgf's,
+    whole frames from :data:`LOSS_FROM` on, no augmentation; 1 is asvgf, below 1 better."""
+    if not held:
+        return None
+    net = network_of(theta, settings.features, settings.hidden)
+    asvgf = CANDIDATES.index("asvgf")
+    ratios = []
+    for data in held:
+        frames = range(min(LOSS_FROM, len(data["x"]) - 1), len(data["x"]))
+        ours = np.mean([relmse(forward(net, data["x"][f], data["images"][f])[0], data["target"][f]) for f in frames])
+        base = np.mean([relmse(data["images"][f][asvgf], data["target"][f]) for f in frames])
+        ratios.append(float(ours) / max(float(base), BASE_LOSS_FLOOR))
+    return float(np.mean(ratios))
+
+
+def train(folders: list[Path], settings: Settings, checkpoint: Path, report, restart: bool = False,
+          progress=None) -> tuple[np.ndarray, list, float]:
+    """As :func:`denoise.training.train`, for ``learned-mixture``: the steps on the
+    exported ``folders`` (:data:`HELD_OUT` held out), resumed from ``checkpoint``
+    where it exists and written there after every step; ``report(step, loss,
+    held-out loss, seconds)`` after each, ``progress(done, total, name)`` after
+    each sequence's inputs. Returns (the weights, the curve, the seconds)."""
+    names = [f.name for f in folders]
+    store = checkpoint.parent / INPUTS_FOLDER
+    data = {}
+    for number, folder in enumerate(folders):
+        if not frame_indices(folder):
+            raise UsageError(f"{folder}: no frames")
+        data[folder.name] = selected(sequence_inputs(folder, store), settings.features)
+        if progress is not None:
+            progress(number + 1, len(folders), folder.name)
+    train_set = [data[n] for n in names if n not in HELD_OUT]
+    held = [data[n] for n in names if n in HELD_OUT]
+    state = None if restart else load_checkpoint(checkpoint, settings, names, any(n in HELD_OUT for n in names))
+    if state is None:
+        adam, curve, seconds = Adam(initial(settings.features, settings.hidden, settings.seed), settings.rate), [], 0.0
+    else:
+        adam = Adam(state["theta"], settings.rate, state["m"], state["v"], int(state["t"]))
+        curve = [(int(s), a, None if math.isnan(b) else b) for s, a, b in state["curve"].tolist()]
+        seconds = float(state["seconds"])
+    held_loss = curve[-1][2] if curve else None
+    for step in range(adam.t, settings.steps):
+        start = time.perf_counter()
+        if step % HELD_OUT_EVERY == 0 or step == settings.steps - 1 or held_loss is None:
+            held_loss = held_out_loss(adam.theta, settings, held)
+            if held_loss is not None and not math.isfinite(held_loss):
+                raise UsageError(f"the held-out loss is {held_loss} at step {step}; the weights file was not written")
+        loss = train_step(adam, settings, train_set, step)
+        seconds += time.perf_counter() - start
+        curve.append((step, loss, held_loss))
+        save_checkpoint(checkpoint, settings, names, adam, curve, seconds)
+        report(step, loss, held_loss, seconds)
+    if not curve:
+        raise UsageError(f"{checkpoint}: the checkpoint has no steps; --restart starts over")
+    return adam.theta, curve, seconds
+
