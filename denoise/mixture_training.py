@@ -48,7 +48,7 @@ from .training import EXPOSURE, HELD_OUT, augmented, load_sequence
 from .training_state import Adam, Settings, load_checkpoint, save_checkpoint
 
 #: the committed network's steps, learning rate and channels: the command without flags makes its weights
-STEPS, RATE, CHANNELS = 2000, 0.003, 16
+STEPS, RATE, CHANNELS = 2000, 0.003, 8
 #: crops per step and their size in pixels
 BATCH, CROP = 8, 64
 #: the loss counts the frames from this one on (a first frame has no history)

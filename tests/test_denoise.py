@@ -330,8 +330,9 @@ def test_reprojection_of_the_ground_truth(variant_llvm_ad_rgb, tmp_path, motion)
 #: what ``python -m benchmarks.denoise`` compares (its METHODS, from the registry)
 BENCHMARK_METHODS = ("raw", "bilateral", "atrous", "bilateral+temporal", "atrous+temporal",
                      "demod+outliers+atrous+temporal", "svgf", "asvgf", "learned-asvgf",
-                     "learned-asvgf-no-temporal-inputs", "learned-asvgf-half-hidden", "oidn-fast", "oidn-balanced",
-                     "oidn-high", "oidn+temporal", "oidn-guided")
+                     "learned-asvgf-no-temporal-inputs", "learned-asvgf-half-hidden", "learned-mixture",
+                     "learned-mixture-no-temporal-inputs", "learned-mixture-half-channels", "oidn-fast",
+                     "oidn-balanced", "oidn-high", "oidn+temporal", "oidn-guided")
 #: every method but raw is timed (its TIMED: the error-against-time front)
 TIMED_METHODS = tuple(m for m in BENCHMARK_METHODS if m != "raw")
 

@@ -12,8 +12,8 @@ softmax): the per-pixel filter is a blend of kernels of three footprints,
 three edge stops and the temporal history alone.
 
 The network: two 3×3 convolutions of ``channels`` ReLU units (edges
-repeat the border pixel) and a 1×1 layer of one logit per image; with 16
-channels and 20 inputs about 5.4k multiply-adds a pixel. Inference is
+repeat the border pixel) and a 1×1 layer of one logit per image; with 8
+channels (the committed network's) and 20 inputs about 2.1k multiply-adds a pixel. Inference is
 Dr.Jit arithmetic of the active variant: each 3×3 layer is one kernel that
 reads the previous layer's channels at the 9 taps (shifted planes on the
 CPU, gathers elsewhere: :class:`Taps`), the weights constants in it.
