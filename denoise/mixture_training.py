@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import hashlib
 import math
-import time
 from dataclasses import replace
 from pathlib import Path
 
@@ -44,8 +43,8 @@ from .methods.learned_mixture import (
     network_of,
     shapes,
 )
-from .training import EXPOSURE, HELD_OUT, augmented, load_sequence
-from .training_state import Adam, Settings, load_checkpoint, save_checkpoint
+from .training import EXPOSURE, HELD_OUT, augmented, load_sequence, split_loaded
+from .training_state import Adam, Settings, resume, run_steps
 
 #: the committed network's steps, learning rate and channels: the command without flags makes its weights
 STEPS, RATE, CHANNELS = 2000, 0.003, 8
@@ -259,35 +258,21 @@ def train(folders: list[Path], settings: Settings, checkpoint: Path, report, res
     each sequence's inputs. Returns (the weights, the curve, the seconds)."""
     names = [f.name for f in folders]
     store = checkpoint.parent / INPUTS_FOLDER
-    data = {}
-    for number, folder in enumerate(folders):
+
+    def load(folder: Path) -> dict:
         if not frame_indices(folder):
             raise UsageError(f"{folder}: no frames")
-        data[folder.name] = selected(sequence_inputs(folder, store), settings.features)
-        if progress is not None:
-            progress(number + 1, len(folders), folder.name)
-    train_set = [data[n] for n in names if n not in HELD_OUT]
-    held = [data[n] for n in names if n in HELD_OUT]
-    state = None if restart else load_checkpoint(checkpoint, settings, names, any(n in HELD_OUT for n in names))
-    if state is None:
-        adam, curve, seconds = Adam(initial(settings.features, settings.hidden, settings.seed), settings.rate), [], 0.0
-    else:
-        adam = Adam(state["theta"], settings.rate, state["m"], state["v"], int(state["t"]))
-        curve = [(int(s), a, None if math.isnan(b) else b) for s, a, b in state["curve"].tolist()]
-        seconds = float(state["seconds"])
-    held_loss = curve[-1][2] if curve else None
-    for step in range(adam.t, settings.steps):
-        start = time.perf_counter()
-        if step % HELD_OUT_EVERY == 0 or step == settings.steps - 1 or held_loss is None:
-            held_loss = held_out_loss(adam.theta, settings, held)
-            if held_loss is not None and not math.isfinite(held_loss):
-                raise UsageError(f"the held-out loss is {held_loss} at step {step}; the weights file was not written")
-        loss = train_step(adam, settings, train_set, step)
-        seconds += time.perf_counter() - start
-        curve.append((step, loss, held_loss))
-        save_checkpoint(checkpoint, settings, names, adam, curve, seconds)
-        report(step, loss, held_loss, seconds)
-    if not curve:
-        raise UsageError(f"{checkpoint}: the checkpoint has no steps; --restart starts over")
-    return adam.theta, curve, seconds
+        return selected(sequence_inputs(folder, store), settings.features)
 
+    train_set, held = split_loaded(folders, load, progress)
+    adam, curve, seconds = resume(checkpoint, settings, names, any(n in HELD_OUT for n in names),
+                                  initial(settings.features, settings.hidden, settings.seed), restart)
+    measured = {"loss": curve[-1][2] if curve else None, "fresh": not curve}
+
+    def held_out(number: int) -> float | None:
+        if number % HELD_OUT_EVERY == 0 or number == settings.steps - 1 or measured["fresh"]:
+            measured["loss"], measured["fresh"] = held_out_loss(adam.theta, settings, held), False
+        return measured["loss"]
+
+    return run_steps(adam, curve, seconds, settings, names, checkpoint, report,
+                     lambda adam, number: train_step(adam, settings, train_set, number), held_out)

@@ -27,7 +27,6 @@ draws what an uninterrupted one would.
 from __future__ import annotations
 
 import math
-import time
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -45,7 +44,7 @@ from .methods import make
 from .methods.asvgf import fitted
 from .methods.learned_asvgf import OUTPUTS, Network, learned_asvgf
 from .svgf_common import levels_for
-from .training_state import Adam, Settings, load_checkpoint, save_checkpoint
+from .training_state import Adam, Settings, resume, run_steps
 
 ROOT = Path(__file__).resolve().parent.parent
 TRAINING = sorted((ROOT / "scenes" / "sequences" / "training" / "network").glob("*.json"))
@@ -326,6 +325,18 @@ def held_out_loss(theta: np.ndarray, settings: Settings, held: list[list[Frame]]
     return sum(losses) / len(losses)
 
 
+def split_loaded(folders: list[Path], load, progress=None) -> tuple[list, list]:
+    """(the training sequences, the held-out ones: :data:`HELD_OUT`), each ``load(folder)``;
+    ``progress(done, total, name)`` after each."""
+    data = {}
+    for number, folder in enumerate(folders):
+        data[folder.name] = load(folder)
+        if progress is not None:
+            progress(number + 1, len(folders), folder.name)
+    return ([data[f.name] for f in folders if f.name not in HELD_OUT],
+            [data[f.name] for f in folders if f.name in HELD_OUT])
+
+
 def train(folders: list[Path], settings: Settings, checkpoint: Path, report,
           restart: bool = False, progress=None) -> tuple[np.ndarray, list, float]:
     """The steps on the exported ``folders`` (those of :data:`HELD_OUT` held
@@ -336,31 +347,10 @@ def train(folders: list[Path], settings: Settings, checkpoint: Path, report,
     curve [(step, loss, held-out loss)], the seconds of all steps). ``progress(done, total,
     name)`` follows the loading of each sequence."""
     names = [f.name for f in folders]
-    data = {}
-    for number, folder in enumerate(folders):
-        data[folder.name] = load_sequence(folder)
-        if progress is not None:
-            progress(number + 1, len(folders), folder.name)
-    train_set = [data[n] for n in names if n not in HELD_OUT]
-    held = [data[n] for n in names if n in HELD_OUT]
-    state = None if restart else load_checkpoint(checkpoint, settings, names, any(n in HELD_OUT for n in names))
-    if state is None:
-        adam, curve, seconds = Adam(initial(settings.features, settings.hidden, settings.seed), settings.rate), [], 0.0
-    else:
-        adam = Adam(state["theta"], settings.rate, state["m"], state["v"], int(state["t"]))
-        curve = [(int(s), a, None if math.isnan(b) else b) for s, a, b in state["curve"].tolist()]
-        seconds = float(state["seconds"])
+    train_set, held = split_loaded(folders, load_sequence, progress)
+    adam, curve, seconds = resume(checkpoint, settings, names, any(n in HELD_OUT for n in names),
+                                  initial(settings.features, settings.hidden, settings.seed), restart)
     bases = held_out_bases(settings, held)
-    for step in range(adam.t, settings.steps):
-        start = time.perf_counter()
-        held_loss = held_out_loss(adam.theta, settings, held, bases)
-        if held_loss is not None and not math.isfinite(held_loss):
-            raise UsageError(f"the held-out loss is {held_loss} at step {step}; the weights file was not written")
-        loss = train_step(adam, settings, train_set, step)
-        seconds += time.perf_counter() - start
-        curve.append((step, loss, held_loss))
-        save_checkpoint(checkpoint, settings, names, adam, curve, seconds)
-        report(step, loss, held_loss, seconds)
-    if not curve:
-        raise UsageError(f"{checkpoint}: the checkpoint has no steps; --restart starts over")
-    return adam.theta, curve, seconds
+    return run_steps(adam, curve, seconds, settings, names, checkpoint, report,
+                     lambda adam, number: train_step(adam, settings, train_set, number),
+                     lambda number: held_out_loss(adam.theta, settings, held, bases))

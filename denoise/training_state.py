@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import math
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -158,3 +159,36 @@ def save_checkpoint(path: Path, settings: Settings, names: list[str], adam: Adam
         with open(temporary, "wb") as file:
             np.savez(file, settings=settings.key(), sequences=json.dumps(names), theta=adam.theta, m=adam.m,
                      v=adam.v, t=adam.t, curve=rows, seconds=seconds)
+
+
+def resume(checkpoint: Path, settings: Settings, names: list[str], held_out: bool, start: np.ndarray,
+           restart: bool) -> tuple[Adam, list, float]:
+    """(Adam, the curve [(step, loss, held-out loss)], the seconds so far): from
+    ``checkpoint`` where it exists and not ``restart``, else from weights ``start``."""
+    state = None if restart else load_checkpoint(checkpoint, settings, names, held_out)
+    if state is None:
+        return Adam(start, settings.rate), [], 0.0
+    curve = [(int(s), a, None if math.isnan(b) else b) for s, a, b in state["curve"].tolist()]
+    return (Adam(state["theta"], settings.rate, state["m"], state["v"], int(state["t"])), curve,
+            float(state["seconds"]))
+
+
+def run_steps(adam: Adam, curve: list, seconds: float, settings: Settings, names: list[str], checkpoint: Path,
+              report, step, held_out) -> tuple[np.ndarray, list, float]:
+    """The steps from ``adam.t`` to ``settings.steps``: each measures ``held_out(number)``
+    (None: no held-out sequences), takes ``step(adam, number)`` (the loss before it),
+    extends the curve, writes the checkpoint and calls ``report(number, loss, held-out
+    loss, seconds)``. Returns (the weights, the curve, the seconds of all steps)."""
+    for number in range(adam.t, settings.steps):
+        start = time.perf_counter()
+        held_loss = held_out(number)
+        if held_loss is not None and not math.isfinite(held_loss):
+            raise UsageError(f"the held-out loss is {held_loss} at step {number}; the weights file was not written")
+        loss = step(adam, number)
+        seconds += time.perf_counter() - start
+        curve.append((number, loss, held_loss))
+        save_checkpoint(checkpoint, settings, names, adam, curve, seconds)
+        report(number, loss, held_loss, seconds)
+    if not curve:
+        raise UsageError(f"{checkpoint}: the checkpoint has no steps; --restart starts over")
+    return adam.theta, curve, seconds

@@ -46,8 +46,8 @@ import numpy as np
 
 from ..filters import FrameArrays, luminance
 from ..svgf_common import atrous_level, levels_for
-from .asvgf import PARAMETER_FILE, ASVGFHistory, ASVGFParams, FilterValues, fitted, temporal_accumulation, variance
-from .base import DenoisingMethod, Option
+from .asvgf import ASVGFHistory, ASVGFParams, FilterValues, temporal_accumulation, variance
+from .trained import TrainedMethod
 from .weights_file import bad_weights, check_count, check_names, open_weights, weight_arrays
 
 #: the network's inputs, in order: a weights file names the ones it was trained on
@@ -217,13 +217,7 @@ def learned_asvgf(frame: FrameArrays, p: ASVGFParams, network: Callable[[dict], 
     return frame.tensor(color), ASVGFHistory(fast, feedback, moments, length)
 
 
-def weights_option(default: Path) -> Option:
-    """The ``--network`` option of the trained methods (one declaration: its default is each one's file)."""
-    return Option("network", str(default), "the weights file (JSON, written by python -m denoise.train)", kind=str,
-                  group="trained networks", default_text=f"denoise/{default.name}", metavar="FILE")
-
-
-class LearnedASVGF(DenoisingMethod):
+class LearnedASVGF(TrainedMethod):
     """asvgf's temporal step, then a per-pixel perceptron trained end to end
     through the temporal and spatial pipeline (``python -m denoise.train``)
     that sets, from asvgf's temporal statistics, the luminance weight of the
@@ -235,19 +229,10 @@ class LearnedASVGF(DenoisingMethod):
     """
     name = "learned-asvgf"
     description = "asvgf whose filter a trained per-pixel network steers (kernel sigmas, wide blend)"
-    temporal_by_nature = True
-    demodulates = True
-    options = (weights_option(WEIGHTS_FILE),)
-    presets = {name: {"network": str(path)} for name, path in ABLATIONS.items()}
-    benchmark = ("learned-asvgf",) + tuple(f"learned-asvgf-{name}" for name in ABLATIONS)
-    data_files = (WEIGHTS_FILE, *ABLATIONS.values(), PARAMETER_FILE)
+    weights_file = WEIGHTS_FILE
+    ablations = ABLATIONS
+    load_network = staticmethod(load_network)
 
-    def __init__(self, **props):
-        super().__init__(**props)
-        self.network = load_network(self.props["network"])  # a string: "" is no path, not "."
-        self.params = fitted()
-
-    def filter(self, arrays, frame, index, valid):
-        result, self.history = learned_asvgf(arrays, self.params, constant_network(self.network),
-                                             self.history if index is not None else None, index, valid)
-        return result
+    @staticmethod
+    def denoise(frame, params, network, history, index, valid):
+        return learned_asvgf(frame, params, constant_network(network), history, index, valid)

@@ -35,9 +35,9 @@ import numpy as np
 from ..filters import FrameArrays, luminance
 from ..neighbours import ShiftedPlanes, margin_for, usable
 from ..svgf_common import atrous_level, levels_for
-from .asvgf import PARAMETER_FILE, ASVGFHistory, ASVGFParams, FilterValues, fitted, temporal_accumulation, variance
-from .base import DenoisingMethod
-from .learned_asvgf import FEATURES as STATISTICS, FLOOR, TEMPORAL_FEATURES, features, weights_option
+from .asvgf import ASVGFHistory, ASVGFParams, FilterValues, temporal_accumulation, variance
+from .learned_asvgf import FEATURES as STATISTICS, FLOOR, TEMPORAL_FEATURES, features
+from .trained import TrainedMethod
 from .weights_file import bad_weights, check_count, check_names, open_weights, weight_arrays
 
 #: the luminance σ factors of the three À-Trous chains, and their names
@@ -265,7 +265,7 @@ def learned_mixture(frame: FrameArrays, p: ASVGFParams, network: MixtureNetwork,
     return frame.tensor(mixture(network, inputs, images, frame.width, frame.height)), history
 
 
-class LearnedMixture(DenoisingMethod):
+class LearnedMixture(TrainedMethod):
     """asvgf's images (its slow history; its last three À-Trous levels and
     wide level at its fitted luminance σ times ½, 1 and 2; its output),
     blended per pixel by a small convolutional network (two 3×3 layers)
@@ -278,19 +278,7 @@ class LearnedMixture(DenoisingMethod):
     """
     name = "learned-mixture"
     description = "asvgf's levels at three edge stops, blended per pixel by a trained convolutional network"
-    temporal_by_nature = True
-    demodulates = True
-    options = (weights_option(WEIGHTS_FILE),)
-    presets = {name: {"network": str(path)} for name, path in ABLATIONS.items()}
-    benchmark = ("learned-mixture",) + tuple(f"learned-mixture-{name}" for name in ABLATIONS)
-    data_files = (WEIGHTS_FILE, *ABLATIONS.values(), PARAMETER_FILE)
-
-    def __init__(self, **props):
-        super().__init__(**props)
-        self.network = load_network(self.props["network"])
-        self.params = fitted()
-
-    def filter(self, arrays, frame, index, valid):
-        result, self.history = learned_mixture(arrays, self.params, self.network,
-                                               self.history if index is not None else None, index, valid)
-        return result
+    weights_file = WEIGHTS_FILE
+    ablations = ABLATIONS
+    load_network = staticmethod(load_network)
+    denoise = staticmethod(learned_mixture)
