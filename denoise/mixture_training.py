@@ -106,19 +106,41 @@ def compute_inputs(folder: Path) -> dict[str, np.ndarray]:
     return {"x": np.stack(xs), "images": np.stack(images_all), "target": np.stack(targets)}
 
 
+def stored_inputs(path: Path, expected: str, frames: int) -> dict[str, np.ndarray] | None:
+    """The inputs kept at ``path`` if they are whole, of the same stamp and
+    frame count, of consistent shapes and finite; else None (made anew)."""
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            if str(data["stamp"]) != expected:
+                return None
+            kept = {k: data[k] for k in ("x", "images", "target")}
+    except Exception:  # noqa: BLE001  a cut, damaged or foreign file (BadZipFile, CRC, a missing key) is made anew
+        return None
+    x, images, target = kept["x"], kept["images"], kept["target"]
+    if (x.ndim != 4 or x.shape[:2] != (frames, len(FEATURES))
+            or images.shape != (frames, len(CANDIDATES), *x.shape[2:], 3) or target.shape != (frames, *x.shape[2:], 3)
+            or not all(a.dtype == np.float32 and np.isfinite(a).all() for a in kept.values())):
+        return None
+    return kept
+
+
 def sequence_inputs(folder: Path, store: Path) -> dict[str, np.ndarray]:
     """:func:`compute_inputs` of ``folder``, from ``store`` where it holds them
-    for the same frames and parameters, else computed and kept there."""
+    whole for the same frames and parameters, else computed and kept there
+    (a write a stop cut short is removed then)."""
+    if store.exists() and not store.is_dir():
+        raise UsageError(f"{store}: not a folder, where the training keeps each sequence's inputs; remove it")
     path, expected = store / f"{folder.name}.npz", stamp(folder)
+    if path.exists() and not path.is_file():
+        raise UsageError(f"{path}: not a file, where the training keeps {folder.name}'s inputs; remove it")
     if path.is_file():
-        try:
-            with np.load(path, allow_pickle=False) as data:
-                if str(data["stamp"]) == expected and data["x"].shape[1] == len(FEATURES):
-                    return {k: data[k] for k in ("x", "images", "target")}
-        except (OSError, ValueError, KeyError, EOFError):
-            pass  # a damaged store is made anew
+        kept = stored_inputs(path, expected, len(frame_indices(folder)))
+        if kept is not None:
+            return kept
     data = compute_inputs(folder)
     store.mkdir(parents=True, exist_ok=True)
+    for partial in store.glob(f".{folder.name}.npz.*"):  # atomic_path's temporary, left by a killed worker
+        partial.unlink(missing_ok=True)
     with atomic_path(path, ".npz") as temporary:
         with open(temporary, "wb") as file:
             np.savez(file, stamp=expected, **data)

@@ -96,7 +96,8 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--hidden", type=ascii_int,
                         help=f"hidden units, or learned-mixture's channels ({defaults['hidden']})")
     parser.add_argument("--no-temporal-inputs", dest="temporal_inputs", action="store_false",
-                        help="the ablation: the network reads none of asvgf's temporal statistics")
+                        help="the ablation: the network reads none of the history's statistics (the noise "
+                             "estimate stays, and learned-mixture's image ratios)")
     parser.add_argument("--seed", type=ascii_int, default=0, help="the first layer's draw and every step's (0)")
     parser.add_argument("--out", type=Path, help="the weights file (denoise/learned_asvgf.json or "
                         "denoise/learned_mixture.json)")
@@ -142,6 +143,11 @@ def _main(argv: list[str] | None) -> int:
         raise UsageError(f"--plot writes PNG: name it .png, got {printable(args.plot)}")
     if args.out.suffix.lower() != ".json":
         raise UsageError(f"--out {args.out}: the weights file is JSON; give a name ending in .json")
+    for name, other in TRAINED.items():  # the other method's committed file would stop that method loading
+        committed = {p.resolve() for p in (other.weights, *other.ablations.values())}
+        if name != args.method and args.out.resolve() in committed:
+            raise UsageError(f"--out {printable(args.out)} is {name}'s committed weights file, not {args.method}'s; "
+                             f"give {args.method}'s ({display_path(trained.weights)} or an ablation's) or another name")
     plot = args.plot if args.plot is not None else default_plot(args.out)
     specs = args.specs or TRAINING
     if not specs:
@@ -175,7 +181,7 @@ def _main(argv: list[str] | None) -> int:
     check_writable("--out", args.out)
     check_writable("--plot", plot)
     settings = Settings(feature_set(args.temporal_inputs, args.method), args.hidden, args.seed, args.rate, args.steps,
-                        args.method)
+                        args.method, str(args.out.resolve()))
     checkpoint = args.work / f"{args.out.stem}.checkpoint.npz"
     if args.restart:  # the checkpoint is overwritten at the first step, not before: a refused run leaves it
         check_checkpoint_place(checkpoint)
@@ -335,12 +341,12 @@ def check_frames(folder: Path, indices: list[int]) -> None:
             bad = 0 if image is None else int((~np.isfinite(image).all(axis=-1)).sum())
             if bad:
                 raise FrameError(f"{path}: {bad} pixels of {image.shape[0] * image.shape[1]} are not finite "
-                                 f"(NaN or infinite); the training needs finite frames and targets")
+                                 f"(NaN or infinite); the training needs finite frames and targets: {rerender(folder)}")
         for path, image in ((folder / f"beauty_{i}.exr", frame.beauty), (truth_path, truth)):
             bad = int(((image < 0) | (image > RADIANCE_LIMIT)).any(axis=-1).sum())
             if bad:  # a render's radiance is never negative
                 raise FrameError(f"{path}: {bad} pixels of {image.shape[0] * image.shape[1]} have a negative "
-                                 f"radiance or one beyond {RADIANCE_LIMIT:g}; not a render's")
+                                 f"radiance or one beyond {RADIANCE_LIMIT:g}; not a render's: {rerender(folder)}")
 
 
 def train_worker(connection, folders: list[Path], settings: Settings, checkpoint: Path, restart: bool) -> None:

@@ -50,10 +50,12 @@ class Settings:
     rate: float
     steps: int
     method: str = "learned-asvgf"
+    #: the weights file the run writes (resolved): a checkpoint of another's is not resumed
+    out: str = ""
 
     def key(self) -> str:
         return json.dumps({"method": self.method, "features": list(self.features), "hidden": self.hidden,
-                           "seed": self.seed, "rate": self.rate})
+                           "seed": self.seed, "rate": self.rate, "out": self.out})
 
     def parameter_count(self) -> int:
         if self.method == "learned-mixture":
@@ -123,8 +125,20 @@ def checkpoint_problem(state: dict, settings: Settings, names: list[str], held_o
         sequences = json.loads(str(state["sequences"]))
     except ValueError:
         sequences = None
-    if str(state["settings"]) != settings.key() or sequences != names:
-        return "a checkpoint of other settings or sequences"
+    try:
+        stored = json.loads(str(state["settings"]))
+    except ValueError:
+        stored = None
+    current = json.loads(settings.key())
+    if isinstance(stored, dict) and stored.get("out") and current["out"] and stored["out"] != current["out"]:
+        return (f"the checkpoint of another training, into {stored['out']}; give this one another --out file "
+                f"name or another --work (--restart would discard that training's steps)")
+    if not isinstance(stored, dict) or {k: v for k, v in stored.items() if k != "out"} != {
+            k: v for k, v in current.items() if k != "out"}:
+        differing = sorted(k for k in current if k != "out" and (stored or {}).get(k) != current[k])
+        return f"a checkpoint of other settings ({', '.join(differing) or 'unreadable'})"
+    if sequences != names:
+        return "a checkpoint of other sequences"
     count = settings.parameter_count()
     for k in ("theta", "m", "v"):
         if state[k].dtype.kind != "f" or state[k].shape != (count,):

@@ -47,7 +47,7 @@ from renderer.checks import check_memory
 from renderer.variants import set_variant
 
 from .methods import check_method_names, data_files, from_name, resolve
-from .methods.learned_asvgf import LearnedASVGF
+from .methods.learned_asvgf import FORMAT as ASVGF_FORMAT, LearnedASVGF
 from .methods.learned_mixture import FORMAT as MIXTURE_FORMAT, LearnedMixture
 from .methods.weights_file import MAX_WEIGHTS_BYTES
 from .pipeline import BASE_BYTES as FRAME_BASE_BYTES, BYTES_PER_PIXEL as FRAME_BYTES_PER_PIXEL
@@ -187,16 +187,23 @@ def training_sequences(loaded: dict[Path, Spec], reference_spp: int) -> list[str
 
 
 def network_method(path: Path) -> str:
-    """The method weights file ``path`` is for, by its ``"format"`` (learned-asvgf where it
-    names none: loading it then says what is wrong in one line)."""
-    if not Path(path).is_file():  # a pipe would block the read; the loading refuses it
+    """The method weights file ``path`` is for, by its ``"format"``; a file that names
+    neither method's is one line naming both and the training command."""
+    if not Path(path).is_file():  # a pipe would block the read; the loading says what it is in one line
         return LearnedASVGF.name
+    commands = f"python -m denoise.train [--method {LearnedMixture.name}]"
     try:
         data = read_json(path, MAX_WEIGHTS_BYTES)
-    except (JSONInputError, OSError):
-        return LearnedASVGF.name
-    is_mixture = isinstance(data, dict) and data.get("format") == MIXTURE_FORMAT
-    return LearnedMixture.name if is_mixture else LearnedASVGF.name
+    except (JSONInputError, OSError) as error:
+        raise UsageError(f"{path}: not a weights file ({str(error).removeprefix(f'{path}: ')}); make one with "
+                         f"{commands}") from None
+    found = {ASVGF_FORMAT: LearnedASVGF.name, MIXTURE_FORMAT: LearnedMixture.name}
+    file_format = data.get("format") if isinstance(data, dict) else None
+    name = found.get(file_format) if isinstance(file_format, str) else None
+    if name is None:
+        raise UsageError(f"{path}: not a weights file of {LearnedASVGF.name} (\"format\": \"{ASVGF_FORMAT}\") or "
+                         f"{LearnedMixture.name} (\"{MIXTURE_FORMAT}\"); make one with {commands}")
+    return name
 
 
 def judge(folder: Path, runners: dict) -> dict[str, list[float]]:

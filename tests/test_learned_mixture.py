@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -288,3 +289,105 @@ def test_ctrl_c_keeps_the_checkpoint_and_a_rerun_resumes(tiny, tmp_path):
     assert f"step {steps + 1}/{steps + 1}: " in resumed.stderr and "step 1/" not in resumed.stderr
     assert json.loads(out.read_text())["record"]["steps"] == steps + 1
     (work / "m.checkpoint.npz").unlink()
+
+
+@pytest.mark.parametrize("damage", ["truncated", "garbage", "fewer frames", "a NaN", "a stop's partial write"])
+def test_a_damaged_inputs_file_is_made_anew(tiny, tmp_path, damage):
+    """A kept inputs file that is cut, foreign, of other shapes or not finite is computed
+    again (the training runs as with none); a partial write a stop left is removed."""
+    from denoise.train import main
+
+    spec, work = tiny
+    out = tmp_path / "d.json"
+    common = [str(spec), "--method", "learned-mixture", "--work", str(work), "--out", str(out), "--plot",
+              str(tmp_path / "d.png"), "--hidden", "2", "--steps", "1", "--quiet", "--local", "--restart"]
+    assert main(common) == 0
+    stored = work / "mixture-inputs" / "tiny_showcase.npz"
+    good = dict(np.load(stored))
+    partial = stored.parent / ".tiny_showcase.npz.0badc0de.npz"
+    if damage == "truncated":
+        stored.write_bytes(stored.read_bytes()[:stored.stat().st_size // 2])
+    elif damage == "garbage":
+        stored.write_bytes(b"\x00" * 1000)
+    elif damage == "fewer frames":
+        np.savez(stored, **{**good, "x": good["x"][:-1], "images": good["images"][:-1], "target": good["target"][:-1]})
+    elif damage == "a NaN":
+        good["target"][1, 0, 0, 0] = np.nan
+        np.savez(stored, **good)
+    else:
+        stored.unlink()
+        partial.write_bytes(b"PK\x03\x04 cut short")
+    assert main(common) == 0
+    again = np.load(stored)
+    assert again["x"].shape == good["x"].shape and np.isfinite(again["target"]).all()
+    assert not partial.exists()
+    (work / "d.checkpoint.npz").unlink()
+
+
+def test_a_folder_where_the_inputs_go_is_one_line(tiny, tmp_path, capsys):
+    from denoise.train import main
+
+    spec, work = tiny
+    store = tmp_path / "work"
+    shutil.copytree(work, store, ignore=shutil.ignore_patterns("*.checkpoint.npz", "mixture-inputs"))
+    (store / "mixture-inputs" / "tiny_showcase.npz").mkdir(parents=True)
+    assert main([str(spec), "--method", "learned-mixture", "--work", str(store), "--out", str(tmp_path / "f.json"),
+                 "--plot", str(tmp_path / "f.png"), "--hidden", "2", "--steps", "1", "--local"]) == 2
+    err = capsys.readouterr().err.splitlines()
+    assert err[-1].endswith("tiny_showcase.npz: not a file, where the training keeps tiny_showcase's inputs; "
+                            "remove it"), err
+
+
+def test_another_trainings_checkpoint_is_not_resumed(tiny, tmp_path, capsys):
+    """Two --out files of one name in two folders share the checkpoint's name in --work: the
+    second training is refused in one line naming the first's file, not resumed from its steps."""
+    from denoise.train import main
+
+    spec, work = tiny
+    (tmp_path / "a").mkdir()
+    (tmp_path / "b").mkdir()
+    common = [str(spec), "--method", "learned-mixture", "--work", str(work), "--hidden", "2", "--local", "--quiet"]
+    assert main([*common, "--out", str(tmp_path / "a" / "x.json"), "--plot", str(tmp_path / "a.png"),
+                 "--steps", "2"]) == 0
+    capsys.readouterr()
+    assert main([*common, "--out", str(tmp_path / "b" / "x.json"), "--plot", str(tmp_path / "b.png"),
+                 "--steps", "3"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"the checkpoint of another training, into {tmp_path / 'a' / 'x.json'}" in err
+    assert not (tmp_path / "b" / "x.json").exists()
+    (work / "x.checkpoint.npz").unlink()
+
+
+@pytest.mark.parametrize("method, other", [("learned-mixture", "learned_asvgf.json"),
+                                           ("learned-asvgf", "learned_mixture_half_channels.json")])
+def test_one_methods_network_never_replaces_the_others(method, other, tmp_path, capsys):
+    from denoise.train import main
+
+    target = ROOT / "denoise" / other
+    before = target.read_bytes()
+    assert main([str(tmp_path / "none.json"), "--method", method, "--out", str(target),
+                 "--work", str(tmp_path / "w")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "committed weights file, not " + method in err
+    assert target.read_bytes() == before and not (tmp_path / "w").exists()
+
+
+@pytest.mark.parametrize("content, words", [
+    ('{"format": "something-else"}', 'not a weights file of learned-asvgf ("format": "learned-asvgf-mlp") or '
+                                     'learned-mixture ("learned-mixture-cnn")'),
+    ('{"format": ["learned-mixture-cnn"]}', "not a weights file of learned-asvgf"),
+    ('{"format": "learned-mixture-c', "not a weights file ("),
+])
+def test_validate_names_both_methods_for_a_file_of_neither(content, words, tmp_path):
+    from core.errors import UsageError
+    from denoise.validate import network_method
+
+    path = tmp_path / "n.json"
+    path.write_text(content)
+    with pytest.raises(UsageError) as error:
+        network_method(path)
+    message = str(error.value)
+    assert "\n" not in message and message.startswith(f"{path}: ") and words in message, message
+    assert message.endswith("python -m denoise.train [--method learned-mixture]")
+    path.write_text(WEIGHTS["learned-mixture"].read_text())
+    assert network_method(path) == "learned-mixture"
