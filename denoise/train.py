@@ -70,8 +70,6 @@ from .validate import check_folders, check_spec_name, render
 from .worker_process import ignore_group_signals, run_in_worker
 
 DOCS = ROOT / "docs"
-
-
 #: procedural scenes trained on beside the default specs, and the folder of --work they are written into
 PROCEDURAL, PROCEDURAL_FOLDER = 48, "procedural"
 PROCEDURAL_MAX = 1000
