@@ -179,7 +179,9 @@ def _main(argv: list[str] | None) -> int:
     check_writable("--out", args.out)
     check_writable("--plot", plot)
     settings = Settings(feature_set(args.temporal_inputs, args.method), args.hidden, args.seed, args.rate, args.steps,
-                        args.method, str(args.out.resolve()))
+                        args.method, str(args.out.resolve()),
+                        tuple((path.stem, hashlib.sha256(json.dumps(spec.as_json(), sort_keys=True).encode())
+                               .hexdigest()[:16]) for path, spec in loaded))
     checkpoint = args.work / f"{args.out.stem}.checkpoint.npz"
     if args.restart:  # the checkpoint is overwritten at the first step, not before: a refused run leaves it
         check_checkpoint_place(checkpoint)

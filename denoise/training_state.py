@@ -52,16 +52,24 @@ class Settings:
     method: str = "learned-asvgf"
     #: the weights file the run writes (resolved): a checkpoint of another's is not resumed
     out: str = ""
+    #: each sequence's spec by name, as a digest: a checkpoint of a sequence since changed is not resumed
+    specs: tuple[tuple[str, str], ...] = ()
 
     def key(self) -> str:
         return json.dumps({"method": self.method, "features": list(self.features), "hidden": self.hidden,
-                           "seed": self.seed, "rate": self.rate, "out": self.out})
+                           "seed": self.seed, "rate": self.rate, "out": self.out,
+                           "specs": {name: digest for name, digest in self.specs}})
 
     def parameter_count(self) -> int:
         if self.method == "learned-mixture":
             return learned_mixture.parameter_count(len(self.features), self.hidden)
         f, h, o = len(self.features), self.hidden, len(OUTPUTS)
         return h * f + h + o * h + o
+
+
+#: what a checkpoint records of its run beside the settings proper: compared each on its own (one that
+#: records none, written before, matches any)
+RUN_KEYS = ("out", "specs")
 
 
 def feature_set(temporal_inputs: bool, method: str = "learned-asvgf") -> tuple[str, ...]:
@@ -133,10 +141,14 @@ def checkpoint_problem(state: dict, settings: Settings, names: list[str], held_o
     if isinstance(stored, dict) and stored.get("out") and current["out"] and stored["out"] != current["out"]:
         return (f"the checkpoint of another training, into {stored['out']}; give this one another --out file "
                 f"name or another --work (--restart would discard that training's steps)")
-    if not isinstance(stored, dict) or {k: v for k, v in stored.items() if k != "out"} != {
-            k: v for k, v in current.items() if k != "out"}:
-        differing = sorted(k for k in current if k != "out" and (stored or {}).get(k) != current[k])
+    if not isinstance(stored, dict) or {k: v for k, v in stored.items() if k not in RUN_KEYS} != {
+            k: v for k, v in current.items() if k not in RUN_KEYS}:
+        differing = sorted(k for k in current if k not in RUN_KEYS and (stored or {}).get(k) != current[k])
         return f"a checkpoint of other settings ({', '.join(differing) or 'unreadable'})"
+    before, now = stored.get("specs") or {}, current["specs"]
+    changed = sorted(name for name in now if isinstance(before, dict) and name in before and before[name] != now[name])
+    if changed:
+        return f"a checkpoint of other sequences ({', '.join(changed)}: its spec changed since)"
     if sequences != names:
         return "a checkpoint of other sequences"
     count = settings.parameter_count()

@@ -391,3 +391,25 @@ def test_validate_names_both_methods_for_a_file_of_neither(content, words, tmp_p
     assert message.endswith("python -m denoise.train [--method learned-mixture]")
     path.write_text(WEIGHTS["learned-mixture"].read_text())
     assert network_method(path) == "learned-mixture"
+
+
+def test_a_checkpoint_of_a_sequence_since_changed_is_not_resumed(tiny, tmp_path, capsys):
+    """A spec of the same name that now says something else (another frame count) is
+    another training: one line naming the sequence, before any rendering; --restart trains it."""
+    from denoise.train import main
+
+    spec, work = tiny
+    out = tmp_path / "c.json"
+    common = ["--method", "learned-mixture", "--work", str(work), "--out", str(out), "--plot", str(tmp_path / "c.png"),
+              "--hidden", "2", "--local", "--quiet"]
+    assert main([str(spec), *common, "--steps", "2"]) == 0
+    changed = tmp_path / "other" / spec.name
+    changed.parent.mkdir()
+    changed.write_text(json.dumps({**TINY, "frames": 4}))
+    capsys.readouterr()
+    assert main([str(changed), *common, "--steps", "3"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "a checkpoint of other sequences (tiny_showcase: its spec changed since)" in err
+    assert main([str(spec), *common, "--steps", "3"]) == 0  # the same spec again resumes
+    assert json.loads(out.read_text())["record"]["steps"] == 3
+    (work / "c.checkpoint.npz").unlink()
