@@ -19,8 +19,7 @@ import numpy as np
 from core.errors import UsageError
 from imaging.image_io import atomic_path
 
-from .methods import learned_mixture
-from .methods.learned_asvgf import FEATURES, OUTPUTS, TEMPORAL_FEATURES
+from .methods import learned_asvgf, learned_mixture
 from .methods.weights_file import WEIGHT_LIMIT
 
 
@@ -61,10 +60,11 @@ class Settings:
                            "specs": {name: digest for name, digest in self.specs}})
 
     def parameter_count(self) -> int:
-        if self.method == "learned-mixture":
-            return learned_mixture.parameter_count(len(self.features), self.hidden)
-        f, h, o = len(self.features), self.hidden, len(OUTPUTS)
-        return h * f + h + o * h + o
+        return NETWORKS[self.method].parameter_count(len(self.features), self.hidden)
+
+
+#: each trained method's network module: its feature sets and parameter count
+NETWORKS = {"learned-asvgf": learned_asvgf, "learned-mixture": learned_mixture}
 
 
 #: what a checkpoint records of its run beside the settings proper: compared each on its own (one that
@@ -73,9 +73,7 @@ RUN_KEYS = ("out", "specs")
 
 
 def feature_set(temporal_inputs: bool, method: str = "learned-asvgf") -> tuple[str, ...]:
-    if method == "learned-mixture":
-        return learned_mixture.feature_set(temporal_inputs)
-    return FEATURES if temporal_inputs else tuple(f for f in FEATURES if f not in TEMPORAL_FEATURES)
+    return NETWORKS[method].feature_set(temporal_inputs)
 
 
 #: what a checkpoint holds (:func:`save_checkpoint`)

@@ -253,6 +253,12 @@ def variance(frame: FrameArrays, moments: mi.Vector2f, length: mi.Float, p: ASVG
     return dr.select(detached < p.variance_frames, spatial * (detached / length), temporal)
 
 
+def wide_blend(wide: mi.Vector3f, regular: mi.Vector3f, length: mi.Float, v: FilterValues) -> mi.Vector3f:
+    """The output: the wide level where the history is short, the last regular one once it
+    is ``wide_frames`` frames long."""
+    return dr.lerp(wide, regular, dr.clip((length - 1.0) / v.wide_frames, 0.0, 1.0))
+
+
 def asvgf(frame: FrameArrays, p: ASVGFParams, history: ASVGFHistory | None = None, index: mi.UInt32 | None = None,
           valid: mi.Bool | None = None, values: FilterValues | None = None, gradient: mi.Float | None = None,
           images: list | None = None) -> tuple[mi.TensorXf, ASVGFHistory]:
@@ -286,7 +292,7 @@ def asvgf(frame: FrameArrays, p: ASVGFParams, history: ASVGFHistory | None = Non
             dr.eval(wide, var)
             if images is not None:
                 images.append(frame.tensor(wide))
-        color = dr.lerp(wide, color, dr.clip((length - 1.0) / v.wide_frames, 0.0, 1.0))
+        color = wide_blend(wide, color, length, v)
     return frame.tensor(color), ASVGFHistory(fast, feedback, moments, length)
 
 

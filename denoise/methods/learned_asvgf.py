@@ -96,6 +96,15 @@ class Network:
         return (self.w1.tolist(), self.b1.tolist(), self.w2.tolist(), self.b2.tolist())
 
 
+def feature_set(temporal_inputs: bool) -> tuple[str, ...]:
+    """The inputs of a network trained with or without the history's statistics (the ablation)."""
+    return FEATURES if temporal_inputs else tuple(f for f in FEATURES if f not in TEMPORAL_FEATURES)
+
+
+def parameter_count(inputs: int, hidden: int) -> int:
+    return hidden * inputs + hidden + len(OUTPUTS) * hidden + len(OUTPUTS)
+
+
 def load_network(path: Path | str) -> Network:
     """The network of weights file ``path``; a missing, truncated or damaged
     file, or one of other shapes or another feature list, is one line naming

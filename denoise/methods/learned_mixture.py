@@ -35,7 +35,7 @@ import numpy as np
 from ..filters import FrameArrays, luminance
 from ..neighbours import ShiftedPlanes, margin_for, usable
 from ..svgf_common import atrous_level, levels_for
-from .asvgf import ASVGFHistory, ASVGFParams, FilterValues, temporal_accumulation, variance
+from .asvgf import ASVGFHistory, ASVGFParams, FilterValues, temporal_accumulation, variance, wide_blend
 from .learned_asvgf import FEATURES as STATISTICS, FLOOR, TEMPORAL_FEATURES, features
 from .trained import TrainedMethod
 from .weights_file import bad_weights, check_count, check_names, open_weights, weight_arrays
@@ -65,6 +65,7 @@ START_LOGIT = 4.0
 
 
 def feature_set(temporal_inputs: bool) -> tuple[str, ...]:
+    """The inputs of a network trained with or without the history's statistics (the ablation)."""
     return FEATURES if temporal_inputs else tuple(f for f in FEATURES if f not in TEMPORAL_FEATURES)
 
 
@@ -170,8 +171,7 @@ def candidate_images(frame: FrameArrays, p: ASVGFParams, history: ASVGFHistory |
         chain[factor] = regular[-3:] if len(regular) >= 3 else [regular[0]] * (3 - len(regular)) + regular
         chain[factor] = [*chain[factor], wide]
         if factor == 1.0:
-            output = dr.lerp(wide, color, dr.clip((length - 1.0) / v.wide_frames, 0.0, 1.0)) if p.wide_levels \
-                else color
+            output = wide_blend(wide, color, length, v) if p.wide_levels else color
     for factor in SIGMA_FACTORS.values():
         images += chain[factor]
     images.append(output)
