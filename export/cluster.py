@@ -30,6 +30,7 @@ import threading
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
+from multiprocessing import resource_tracker
 from pathlib import Path
 
 from tqdm import tqdm
@@ -236,6 +237,7 @@ def dask_client(scheduler: str | None = None, workers: int | None = None) -> Ite
     else:
         cores = os.cpu_count() or 1
         workers = workers or cores
+        quiet_resource_tracker()
         try:  # a start cut short by a signal unwinds in Dask's own time: core.entry's watchdog waits for it
             with own_cleanup("starting the Dask cluster"), workers_ignoring_sigint():
                 cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
@@ -255,6 +257,24 @@ def dask_client(scheduler: str | None = None, workers: int | None = None) -> Ite
             client.close()
             if cluster is not None:
                 cluster.close()
+
+
+def quiet_resource_tracker() -> None:
+    """Starts :mod:`multiprocessing`'s resource tracker (where it is not running yet)
+    with its stderr on the null device. A run that a signal ends leaves the exit
+    to :func:`core.entry.end_now`, which terminates the workers and skips the
+    teardown; the tracker then removes the semaphores of the cluster's workers,
+    as it should, but would also warn of them on the terminal after the run's one
+    line, once the shell's prompt is back."""
+    saved = os.dup(2)
+    try:
+        null = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(null, 2)
+        os.close(null)
+        resource_tracker.ensure_running()
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
 
 
 @contextmanager

@@ -22,15 +22,23 @@ psutil = pytest.importorskip("psutil")
 ROOT = Path(__file__).resolve().parent.parent
 
 
-def export_interrupted(tmp_path, flags: list[str], ready) -> tuple[list, str]:
-    """Starts an export of a small sequence in a session of its own and sends
-    SIGINT to its process group (what a terminal's Ctrl-C sends) once
-    ``ready(pid, target)`` gives its worker processes (None: not yet); checks
-    the one line and exit 130; returns (the workers, stderr)."""
+def export_interrupted(tmp_path, flags: list[str], ready, command: str = "export") -> tuple[list, str]:
+    """Starts an export of a small sequence (``command``: ``export``, or
+    ``denoise.train``, which renders its sequence first) in a session of its
+    own and sends SIGINT to its process group (what a terminal's Ctrl-C sends)
+    once ``ready(pid, target)`` gives its worker processes (None: not yet);
+    checks the one line and exit 130; returns (the workers, stderr). stderr is
+    read until every process that holds it has ended, multiprocessing's
+    resource tracker included."""
     spec = tmp_path / "seq.json"
-    spec.write_text(json.dumps(dict(TINY, size=[64, 48], frames=3, reference_spp=256)))
+    tiny = dict(TINY, size=[64, 48], frames=3, reference_spp=256)
+    if command != "export":  # a training takes no benchmark scene
+        tiny = {k: v for k, v in tiny.items() if k != "objects"} | {"scene": "showcase"}
+    spec.write_text(json.dumps(tiny))
     target = tmp_path / "out" / "seq"
-    export = subprocess.Popen([sys.executable, "-m", "export", str(spec), str(target), *flags], cwd=ROOT,
+    where = [str(target)] if command == "export" else ["--work", str(target.parent), "--out",
+                                                        str(tmp_path / "w.json")]
+    export = subprocess.Popen([sys.executable, "-m", command, str(spec), *where, *flags], cwd=ROOT,
                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
     try:
         deadline = time.monotonic() + 300
@@ -46,7 +54,7 @@ def export_interrupted(tmp_path, flags: list[str], ready) -> tuple[list, str]:
             os.killpg(export.pid, signal.SIGKILL)
     assert export.returncode == 130, err
     assert out == ""
-    assert err.count("\n") == 1 and err.startswith("python -m export: interrupted"), err
+    assert err.count("\n") == 1 and err.startswith(f"python -m {command}: interrupted"), err
     gone, alive = psutil.wait_procs(workers, timeout=10)
     assert not alive, alive
     assert not (target / ".export.lock").exists()
@@ -61,6 +69,18 @@ def test_ctrl_c_during_an_export_is_one_line_and_leaves_no_worker(tmp_path, wher
 
     workers, _ = export_interrupted(tmp_path, [*where, "--batch-spp", "4"], rendering)
     assert len(workers) >= (2 if "--workers" in where else 0), workers
+
+
+def test_ctrl_c_during_a_trainings_render_is_one_line(tmp_path):
+    """The training renders its sequences on a cluster and ends at once on a
+    signal (the workers terminated, no teardown): one line, exit 130, no worker
+    left, nothing after the line from multiprocessing's resource tracker."""
+    def rendering(pid, target):
+        batches = target.parent / "seq_reference" / ".batches"
+        return psutil.Process(pid).children(recursive=True) if list(batches.glob("*/*.npy")) else None
+
+    workers, _ = export_interrupted(tmp_path, ["--workers", "2"], rendering, command="denoise.train")
+    assert len(workers) >= 2, workers
 
 
 def test_ctrl_c_while_the_workers_start_is_one_line(tmp_path):
