@@ -171,8 +171,10 @@ def checkpoint_problem(state: dict, settings: Settings, names: list[str], held_o
     losses = curve[:, 1:] if held_out else curve[:, 1:2]  # else the held-out losses are NaN
     if not (np.isfinite(losses).all() and (losses >= 0).all()):
         return "its curve holds a loss that is not finite or is negative"
-    if seconds.shape != () or seconds.dtype.kind != "f" or not 0 <= float(seconds) < math.inf:
-        return f"seconds is {seconds!r}, not a finite time"
+    if seconds.shape != () or seconds.dtype.kind != "f":
+        return f"seconds is {seconds.dtype} of shape {seconds.shape}, not a time"
+    if not 0 <= float(seconds) < math.inf:
+        return f"seconds is {float(seconds)}, not a finite time"
     return None
 
 
