@@ -36,6 +36,8 @@ from .methods.asvgf import PARAMETER_FILE, fitted
 from .methods.learned_mixture import (
     CANDIDATES,
     FEATURES,
+    KERNEL_START_LOGIT,
+    KERNEL_TAPS,
     START_LOGIT,
     MixtureNetwork,
     candidate_images,
@@ -47,7 +49,7 @@ from .training import EXPOSURE, HELD_OUT, augmented, load_sequence, split_loaded
 from .training_state import Adam, Settings, resume, run_steps
 
 #: the committed network's steps, learning rate and channels: the command without flags makes its weights
-STEPS, RATE, CHANNELS = 2000, 0.003, 8
+STEPS, RATE, CHANNELS = 6000, 0.003, 8
 #: crops per step and their size in pixels
 BATCH, CROP = 8, 64
 #: the loss counts the frames from this one on (a first frame has no history)
@@ -71,7 +73,7 @@ def training_memory(specs: list[tuple[str, object]]) -> int:
     frame's inputs at once, and one frame's held-out pass (its convolutions' taps)."""
     pixels = [spec.frames * spec.size[0] * spec.size[1] for _, spec in specs]
     largest = max((spec.size[0] * spec.size[1] for _, spec in specs), default=0)
-    return BASE_BYTES + LOADED_BYTES * sum(pixels) + 8 * 9 * (len(FEATURES) + 2 * CHANNELS) * largest
+    return BASE_BYTES + LOADED_BYTES * sum(pixels) + 8 * 9 * (len(FEATURES) + 2 * CHANNELS + 3) * largest
 
 
 def stamp(folder: Path) -> str:
@@ -147,13 +149,33 @@ def sequence_inputs(folder: Path, store: Path) -> dict[str, np.ndarray]:
     return data
 
 
+def taps(x: np.ndarray) -> np.ndarray:
+    """The 3×3 neighbourhood of every pixel of ``x`` (channels, y, x), the border
+    pixel repeated: (channels, 9 taps row by row, y, x)."""
+    h, width = x.shape[1:]
+    padded = np.pad(x, ((0, 0), (1, 1), (1, 1)), mode="edge")
+    return np.stack([padded[:, dy:dy + h, dx:dx + width] for dy in range(3) for dx in range(3)], 1)
+
+
+def taps_adjoint(d_taps: np.ndarray) -> np.ndarray:
+    """d x of :func:`taps` for the taps' gradient ``d_taps`` (channels, 9, y, x)."""
+    c, _, h, width = d_taps.shape
+    d_padded = np.zeros((c, h + 2, width + 2), d_taps.dtype)
+    for t in range(9):
+        d_padded[:, t // 3:t // 3 + h, t % 3:t % 3 + width] += d_taps[:, t]
+    # the repeated border pixels' gradients go to the pixel they repeat
+    d_padded[:, 1, :] += d_padded[:, 0, :]
+    d_padded[:, -2, :] += d_padded[:, -1, :]
+    d_padded[:, :, 1] += d_padded[:, :, 0]
+    d_padded[:, :, -2] += d_padded[:, :, -1]
+    return d_padded[:, 1:-1, 1:-1]
+
+
 def convolution(x: np.ndarray, w: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """3×3 convolution of ``x`` (channels, y, x), the border pixel repeated;
     returns (output, the taps as columns for :func:`convolution_gradient`)."""
     c, h, width = x.shape
-    padded = np.pad(x, ((0, 0), (1, 1), (1, 1)), mode="edge")
-    columns = np.stack([padded[:, dy:dy + h, dx:dx + width] for dy in range(3) for dx in range(3)], 1)
-    columns = columns.reshape(c * 9, h * width)
+    columns = taps(x).reshape(c * 9, h * width)
     return (w.reshape(w.shape[0], -1) @ columns + b[:, None]).reshape(-1, h, width), columns
 
 
@@ -162,54 +184,66 @@ def convolution_gradient(d_out: np.ndarray, columns: np.ndarray, w: np.ndarray, 
     """(d w, d b, d x) of :func:`convolution` for the output's gradient ``d_out``."""
     c, h, width = shape
     d2 = d_out.reshape(w.shape[0], -1)
-    d_columns = (w.reshape(w.shape[0], -1).T @ d2).reshape(c, 3, 3, h, width)
-    d_padded = np.zeros((c, h + 2, width + 2), d_out.dtype)
-    for dy in range(3):
-        for dx in range(3):
-            d_padded[:, dy:dy + h, dx:dx + width] += d_columns[:, dy, dx]
-    # the repeated border pixels' gradients go to the pixel they repeat
-    d_padded[:, 1, :] += d_padded[:, 0, :]
-    d_padded[:, -2, :] += d_padded[:, -1, :]
-    d_padded[:, :, 1] += d_padded[:, :, 0]
-    d_padded[:, :, -2] += d_padded[:, :, -1]
-    return (d2 @ columns.T).reshape(w.shape), d2.sum(1), d_padded[:, 1:-1, 1:-1]
+    d_columns = (w.reshape(w.shape[0], -1).T @ d2).reshape(c, 9, h, width)
+    return (d2 @ columns.T).reshape(w.shape), d2.sum(1), taps_adjoint(d_columns)
+
+
+def softmax(w: np.ndarray, b: np.ndarray, hidden: np.ndarray) -> np.ndarray:
+    """Per pixel, the softmax over the rows of ``w @ hidden + b`` (row, y, x)."""
+    logits = np.einsum("kc,chw->khw", w, hidden) + b[:, None, None]
+    weights = np.exp(logits - logits.max(0, keepdims=True))
+    return weights / weights.sum(0, keepdims=True)
+
+
+def softmax_gradient(weights: np.ndarray, d_weights: np.ndarray, w: np.ndarray, hidden: np.ndarray
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(d w, d b, d hidden) of :func:`softmax` for its output's gradient ``d_weights``."""
+    d_logits = weights * (d_weights - (weights * d_weights).sum(0, keepdims=True))
+    return (np.einsum("khw,chw->kc", d_logits, hidden), d_logits.sum((1, 2)),
+            np.einsum("kc,khw->chw", w, d_logits))
 
 
 def forward(net: MixtureNetwork, x: np.ndarray, images: np.ndarray) -> tuple[np.ndarray, tuple]:
-    """The blend of ``images`` (image, y, x, rgb) for inputs ``x`` (feature, y, x), and what the gradient needs."""
+    """The blend of ``images`` (image, y, x, rgb) for inputs ``x`` (feature, y, x),
+    filtered by the predicted kernel, and what the gradient needs."""
     p1, c1 = convolution(x, net.w1, net.b1)
     h1 = np.maximum(p1, 0)
     p2, c2 = convolution(h1, net.w2, net.b2)
     h2 = np.maximum(p2, 0)
-    logits = np.einsum("kc,chw->khw", net.w3, h2) + net.b3[:, None, None]
-    weights = np.exp(logits - logits.max(0, keepdims=True))
-    weights /= weights.sum(0, keepdims=True)
-    return np.einsum("khw,khwc->hwc", weights, images), (x, c1, p1, h1, c2, p2, h2, weights, images)
+    weights, kernel = softmax(net.w3, net.b3, h2), softmax(net.w4, net.b4, h2)
+    blend = np.einsum("khw,khwc->chw", weights, images)
+    blend_taps = taps(blend)
+    out = np.einsum("thw,cthw->hwc", kernel, blend_taps)
+    return out, (x, c1, p1, h1, c2, p2, h2, weights, images, kernel, blend_taps)
 
 
 def backward(net: MixtureNetwork, d_out: np.ndarray, kept: tuple) -> np.ndarray:
-    """d loss / d theta (the order of :func:`flatten`) for the blend's gradient ``d_out``."""
-    x, c1, p1, h1, c2, p2, h2, weights, images = kept
-    g = np.einsum("hwc,khwc->khw", d_out, images)
-    d_logits = weights * (g - (weights * g).sum(0, keepdims=True))
-    d_w3, d_b3 = np.einsum("khw,chw->kc", d_logits, h2), d_logits.sum((1, 2))
-    d_h2 = np.einsum("kc,khw->chw", net.w3, d_logits) * (p2 > 0)
+    """d loss / d theta (the order of :func:`flatten`) for the output's gradient ``d_out``."""
+    x, c1, p1, h1, c2, p2, h2, weights, images, kernel, blend_taps = kept
+    d_w4, d_b4, d_h2_kernel = softmax_gradient(kernel, np.einsum("hwc,cthw->thw", d_out, blend_taps), net.w4, h2)
+    d_blend = taps_adjoint(np.einsum("thw,hwc->cthw", kernel, d_out))
+    d_w3, d_b3, d_h2 = softmax_gradient(weights, np.einsum("chw,khwc->khw", d_blend, images), net.w3, h2)
+    d_h2 = (d_h2 + d_h2_kernel) * (p2 > 0)
     d_w2, d_b2, d_h1 = convolution_gradient(d_h2, c2, net.w2, h1.shape)
     d_w1, d_b1, _ = convolution_gradient(d_h1 * (p1 > 0), c1, net.w1, x.shape)
-    return np.concatenate([a.ravel() for a in (d_w1, d_b1, d_w2, d_b2, d_w3, d_b3)]).astype(np.float64)
+    return np.concatenate([a.ravel() for a in (d_w1, d_b1, d_w2, d_b2, d_w3, d_b3, d_w4, d_b4)]).astype(np.float64)
 
 
 def initial(features: tuple[str, ...], channels: int, seed: int) -> np.ndarray:
-    """He-initialised convolutions, the output layer 0 but asvgf's logit (:data:`START_LOGIT`)."""
+    """He-initialised convolutions, the output layers 0 but asvgf's logit (:data:`START_LOGIT`)
+    and the kernel's centre's (:data:`KERNEL_START_LOGIT`)."""
     rng = np.random.default_rng(seed)
     s = shapes(len(features), channels)
     w1 = rng.normal(0.0, math.sqrt(2.0 / (len(features) * 9)), s["w1"])
     w2 = rng.normal(0.0, math.sqrt(2.0 / (channels * 9)), s["w2"])
     b3 = np.zeros(s["b3"])
     b3[CANDIDATES.index("asvgf")] = START_LOGIT
+    b4 = np.zeros(s["b4"])
+    b4[KERNEL_TAPS // 2] = KERNEL_START_LOGIT
     return flatten(MixtureNetwork(tuple(features), w1.astype(np.float32), np.zeros(channels, np.float32),
                                   w2.astype(np.float32), np.zeros(channels, np.float32),
-                                  np.zeros(s["w3"], np.float32), b3.astype(np.float32))).astype(np.float64)
+                                  np.zeros(s["w3"], np.float32), b3.astype(np.float32),
+                                  np.zeros(s["w4"], np.float32), b4.astype(np.float32))).astype(np.float64)
 
 
 def selected(data: dict, features: tuple[str, ...]) -> dict:

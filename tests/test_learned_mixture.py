@@ -27,7 +27,8 @@ TINY = {"scene": "showcase", "frames": 3, "size": [32, 18], "spp": 1, "reference
 def reference_blend(data: dict, x: np.ndarray, images: np.ndarray) -> np.ndarray:
     """The weights file's network written out in NumPy, float64: two 3×3
     convolutions with ReLU (the border pixel repeated), a 1×1 layer of
-    logits, the softmax blend of ``images`` (image, y, x, rgb)."""
+    logits, the softmax blend of ``images`` (image, y, x, rgb), then the blend
+    filtered by the 3×3 kernel of a second 1×1 layer's softmax."""
     def conv(a, w, b):
         padded = np.pad(a, ((0, 0), (1, 1), (1, 1)), mode="edge")
         h, width = a.shape[1:]
@@ -37,11 +38,18 @@ def reference_blend(data: dict, x: np.ndarray, images: np.ndarray) -> np.ndarray
                 out += np.einsum("oc,chw->ohw", w[:, :, ky, kx], padded[:, ky:ky + h, kx:kx + width])
         return np.maximum(out, 0.0)
 
-    w = {k: np.array(data[k], np.float64) for k in ("w1", "b1", "w2", "b2", "w3", "b3")}
+    def softmax(w, b, hidden):
+        logits = np.einsum("kc,chw->khw", w, hidden) + b[:, None, None]
+        weights = np.exp(logits - logits.max(0))
+        return weights / weights.sum(0)
+
+    w = {k: np.array(data[k], np.float64) for k in ("w1", "b1", "w2", "b2", "w3", "b3", "w4", "b4")}
     hidden = conv(conv(x, w["w1"], w["b1"]), w["w2"], w["b2"])
-    logits = np.einsum("kc,chw->khw", w["w3"], hidden) + w["b3"][:, None, None]
-    weights = np.exp(logits - logits.max(0))
-    return np.einsum("khw,khwc->hwc", weights / weights.sum(0), images)
+    blend = np.einsum("khw,khwc->hwc", softmax(w["w3"], w["b3"], hidden), images)
+    kernel = softmax(w["w4"], w["b4"], hidden)
+    padded = np.pad(blend, ((1, 1), (1, 1), (0, 0)), mode="edge")
+    h, width = blend.shape[:2]
+    return sum(kernel[3 * ky + kx][..., None] * padded[ky:ky + h, kx:kx + width] for ky in range(3) for kx in range(3))
 
 
 def random_inputs(features: int, height: int, width: int, seed: int = 7):
@@ -134,8 +142,9 @@ def test_the_trainers_gradient_is_the_losss():
     value, out, kept = loss(theta)
     net = network_of(theta, FEATURES, 3)
     gradient = backward(net, 2.0 * (out - target), kept)
+    kernel = 9 * 3 + 9  # the kernel layer's weights, the last in the vector: every one checked
     rng = np.random.default_rng(4)
-    for k in rng.choice(theta.size, 25, replace=False):
+    for k in [*rng.choice(theta.size - kernel, 25, replace=False), *range(theta.size - kernel, theta.size)]:
         step = np.zeros_like(theta)
         step[k] = 1e-3
         numeric = (loss(theta + step)[0] - loss(theta - step)[0]) / 2e-3
@@ -251,15 +260,18 @@ def test_a_loss_that_is_not_finite_stops_the_step():
 
 
 def test_the_loss_is_relative_to_asvgf():
-    """A network that gives asvgf's output all the weight scores 1 (training and held out)."""
-    from denoise.methods.learned_mixture import CANDIDATES, FEATURES
+    """A network that gives asvgf's output all the weight, and its kernel's centre
+    all of the kernel's, scores 1 (training and held out)."""
+    from denoise.methods.learned_mixture import CANDIDATES, FEATURES, KERNEL_TAPS, flatten, network_of
     from denoise.mixture_training import held_out_loss, initial, train_step
     from denoise.training_state import Adam, Settings
 
     x, images = random_inputs(len(FEATURES), 16, 16)
     data = {"x": np.stack([x, x]), "images": np.stack([images, images]), "target": np.ones((2, 16, 16, 3))}
-    theta = initial(FEATURES, 4, seed=0)
-    theta[-len(CANDIDATES) + CANDIDATES.index("asvgf")] = 60.0
+    network = network_of(initial(FEATURES, 4, seed=0), FEATURES, 4)
+    network.b3[CANDIDATES.index("asvgf")] = 60.0
+    network.b4[KERNEL_TAPS // 2] = 60.0
+    theta = flatten(network).astype(np.float64)
     settings = Settings(FEATURES, 4, 0, 0.01, 1, "learned-mixture")
     assert held_out_loss(theta, settings, [data]) == pytest.approx(1.0, abs=1e-6)
     assert train_step(Adam(theta, 0.01), settings, [data], 0) == pytest.approx(1.0, abs=1e-6)

@@ -9,14 +9,18 @@ statistics (:data:`denoise.methods.learned_asvgf.FEATURES`) and how far each
 image's luminance lies from the slow history's (:data:`RATIOS`, so it sees
 what each level and σ would change), and gives one weight per image (a
 softmax): the per-pixel filter is a blend of kernels of three footprints,
-three edge stops and the temporal history alone.
+three edge stops and the temporal history alone. The same network then
+predicts a 3×3 kernel for each pixel (:data:`KERNEL_TAPS` weights, a
+softmax) that filters the blend once more: what noise the blend leaves, it
+averages where the network sees it and keeps edges where it does not.
 
 The network: two 3×3 convolutions of ``channels`` ReLU units (edges
-repeat the border pixel) and a 1×1 layer of one logit per image; with 8
-channels (the committed network's) and 20 inputs about 2.1k multiply-adds a pixel. Inference is
-Dr.Jit arithmetic of the active variant: each 3×3 layer is one kernel that
-reads the previous layer's channels at the 9 taps (shifted planes on the
-CPU, gathers elsewhere: :class:`Taps`), the weights constants in it.
+repeat the border pixel) and 1×1 layers of one logit per image and per
+kernel tap; with 8 channels (the committed network's) and 20 inputs about
+2.2k multiply-adds a pixel. Inference is Dr.Jit arithmetic of the active
+variant: each 3×3 layer, and the kernel, is one kernel that reads its
+inputs at the 9 taps (shifted planes on the CPU, gathers elsewhere:
+:class:`Taps`), the weights constants in it.
 
 The history asvgf carries to the next frame is asvgf's own (at σ × 1): the
 blend changes no later frame, so training it on each frame's images
@@ -62,6 +66,10 @@ ABLATIONS = {"no-temporal-inputs": WEIGHTS_DIR / "learned_mixture_no_temporal.js
 MAX_CHANNELS = 64
 #: the logit bias of asvgf's output at the start of a training: the blend starts near asvgf
 START_LOGIT = 4.0
+#: the predicted kernel's taps: 3×3, row by row (:meth:`Taps.reads`' order)
+KERNEL_TAPS = 9
+#: the logit bias of the kernel's centre at the start of a training: the kernel starts near the identity
+KERNEL_START_LOGIT = 5.0
 
 
 def feature_set(temporal_inputs: bool) -> tuple[str, ...]:
@@ -72,8 +80,9 @@ def feature_set(temporal_inputs: bool) -> tuple[str, ...]:
 @dataclass(frozen=True)
 class MixtureNetwork:
     """``h1 = relu(conv3x3(x; w1) + b1)``, ``h2 = relu(conv3x3(h1; w2) + b2)``,
-    ``logits = w3 h2 + b3``, one per :data:`CANDIDATES`; ``x`` the values of
-    ``features`` (some of :data:`FEATURES`, in its order)."""
+    ``logits = w3 h2 + b3``, one per :data:`CANDIDATES`, and ``kernel = w4 h2
+    + b4``, one per tap of the 3×3 kernel; ``x`` the values of ``features``
+    (some of :data:`FEATURES`, in its order)."""
     features: tuple[str, ...]
     w1: np.ndarray  # (channels, len(features), 3, 3)
     b1: np.ndarray  # (channels,)
@@ -81,6 +90,8 @@ class MixtureNetwork:
     b2: np.ndarray  # (channels,)
     w3: np.ndarray  # (len(CANDIDATES), channels)
     b3: np.ndarray  # (len(CANDIDATES),)
+    w4: np.ndarray  # (KERNEL_TAPS, channels)
+    b4: np.ndarray  # (KERNEL_TAPS,)
 
     @property
     def channels(self) -> int:
@@ -92,13 +103,14 @@ class MixtureNetwork:
 
 
 #: the weights' names, in the order a training's parameter vector holds them
-ARRAYS = ("w1", "b1", "w2", "b2", "w3", "b3")
+ARRAYS = ("w1", "b1", "w2", "b2", "w3", "b3", "w4", "b4")
 
 
 def shapes(inputs: int, channels: int) -> dict[str, tuple]:
     k = len(CANDIDATES)
     return {"w1": (channels, inputs, 3, 3), "b1": (channels,), "w2": (channels, channels, 3, 3),
-            "b2": (channels,), "w3": (k, channels), "b3": (k,)}
+            "b2": (channels,), "w3": (k, channels), "b3": (k,), "w4": (KERNEL_TAPS, channels),
+            "b4": (KERNEL_TAPS,)}
 
 
 def parameter_count(inputs: int, channels: int) -> int:
@@ -236,25 +248,42 @@ def convolution(channels: list, weights: list, biases: list, taps: Taps) -> list
     return outputs
 
 
-def mixture(network: MixtureNetwork, inputs: dict, images: list, width: int, height: int) -> mi.Vector3f:
-    """The network's softmax blend of ``images`` per pixel."""
-    taps = Taps(width, height)
-    h1 = convolution([inputs[name] for name in network.features], network.w1.tolist(), network.b1.tolist(), taps)
-    h2 = convolution(h1, network.w2.tolist(), network.b2.tolist(), taps)
+def softmax(weights: np.ndarray, biases: np.ndarray, hidden: list) -> list:
+    """The softmax of the logits ``weights @ hidden + biases`` per pixel, unnormalised
+    (each pixel's largest is 1): a list of Floats, one per row of ``weights``."""
     logits = []
-    for row, bias in zip(network.w3.tolist(), network.b3.tolist()):
+    for row, bias in zip(weights.tolist(), biases.tolist()):
         total = mi.Float(bias)
-        for w, h in zip(row, h2):
+        for w, h in zip(row, hidden):
             total = dr.fma(w, h, total)
         logits.append(total)
     top = logits[0]
     for logit in logits[1:]:
         top = dr.maximum(top, logit)
-    weights = [dr.exp(logit - top) for logit in logits]
-    total, blend = weights[0], images[0] * weights[0]
-    for w, image in zip(weights[1:], images[1:]):
-        total, blend = total + w, dr.fma(image, w, blend)
+    return [dr.exp(logit - top) for logit in logits]
+
+
+def weighted_mean(weights: list, values: list):
+    """``Σ weights[i] values[i] / Σ weights[i]``."""
+    total, blend = weights[0], values[0] * weights[0]
+    for w, value in zip(weights[1:], values[1:]):
+        total, blend = total + w, dr.fma(value, w, blend)
     return blend / total
+
+
+def mixture(network: MixtureNetwork, inputs: dict, images: list, width: int, height: int) -> mi.Vector3f:
+    """The network's softmax blend of ``images`` per pixel, filtered by its predicted 3×3 kernel."""
+    taps = Taps(width, height)
+    h1 = convolution([inputs[name] for name in network.features], network.w1.tolist(), network.b1.tolist(), taps)
+    h2 = convolution(h1, network.w2.tolist(), network.b2.tolist(), taps)
+    blend = weighted_mean(softmax(network.w3, network.b3, h2), images)
+    dr.eval(blend)
+    reads = taps.reads([blend.x, blend.y, blend.z])
+    kernel = softmax(network.w4, network.b4, h2)  # in the kernel that reads the taps: 9 arrays fewer written
+    result = mi.Vector3f(*(weighted_mean(kernel, channel) for channel in reads))
+    dr.eval(result)
+    taps.planes = None
+    return result
 
 
 def learned_mixture(frame: FrameArrays, p: ASVGFParams, network: MixtureNetwork, history: ASVGFHistory | None = None,
@@ -271,13 +300,15 @@ class LearnedMixture(TrainedMethod):
     blended per pixel by a small convolutional network (two 3×3 layers)
     trained on the project's own renders
     (``python -m denoise.train --method learned-mixture``) from asvgf's
-    temporal statistics and the images' luminance ratios. The presets are
+    temporal statistics and the images' luminance ratios; the blend is then
+    filtered by a 3×3 kernel the same network predicts per pixel. The presets are
     the benchmark's ablations: ``no-temporal-inputs`` (the network without
     asvgf's temporal statistics) and ``half-channels``.
     Temporal by nature; it always demodulates by the albedo when the frames have one.
     """
     name = "learned-mixture"
-    description = "asvgf's levels at three edge stops, blended per pixel by a trained convolutional network"
+    description = ("asvgf's levels at three edge stops, blended and filtered per pixel by a trained "
+                   "convolutional network")
     weights_file = WEIGHTS_FILE
     ablations = ABLATIONS
     load_network = staticmethod(load_network)
