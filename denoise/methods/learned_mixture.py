@@ -11,8 +11,8 @@ what each level and σ would change), and gives one weight per image (a
 softmax): the per-pixel filter is a blend of kernels of three footprints,
 three edge stops and the temporal history alone. The same network then
 predicts a 3×3 kernel for each pixel (:data:`KERNEL_TAPS` weights, a
-softmax) that filters the blend once more: what noise the blend leaves, it
-averages where the network sees it and keeps edges where it does not.
+softmax) that filters the blend once more: it can average what noise the
+blend leaves (where every image is noisy, as where the history is short).
 
 The network: two 3×3 convolutions of ``channels`` ReLU units (edges
 repeat the border pixel) and 1×1 layers of one logit per image and per
