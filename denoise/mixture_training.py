@@ -34,6 +34,7 @@ from imaging.metrics import RELMSE_EPSILON, relmse
 from .filters import remodulate
 from .methods.asvgf import PARAMETER_FILE, fitted
 from .methods.learned_mixture import (
+    ARRAYS,
     CANDIDATES,
     FEATURES,
     KERNEL_START_LOGIT,
@@ -226,7 +227,8 @@ def backward(net: MixtureNetwork, d_out: np.ndarray, kept: tuple) -> np.ndarray:
     d_h2 = (d_h2 + d_h2_kernel) * (p2 > 0)
     d_w2, d_b2, d_h1 = convolution_gradient(d_h2, c2, net.w2, h1.shape)
     d_w1, d_b1, _ = convolution_gradient(d_h1 * (p1 > 0), c1, net.w1, x.shape)
-    return np.concatenate([a.ravel() for a in (d_w1, d_b1, d_w2, d_b2, d_w3, d_b3, d_w4, d_b4)]).astype(np.float64)
+    gradients = {"w1": d_w1, "b1": d_b1, "w2": d_w2, "b2": d_b2, "w3": d_w3, "b3": d_b3, "w4": d_w4, "b4": d_b4}
+    return np.concatenate([gradients[name].ravel() for name in ARRAYS]).astype(np.float64)
 
 
 def initial(features: tuple[str, ...], channels: int, seed: int) -> np.ndarray:
