@@ -106,10 +106,13 @@ class FrameArrays:
     """One frame's buffers as flat Dr.Jit arrays (colour, normal, position), uploaded once per
     frame; :class:`export.frames.FrameData` is the same frame as NumPy arrays, as read from its
     folder. Non-finite colours become 0 and normals are normalised (zero-length ones stay 0), so
-    no NaN can spread through the weights."""
+    no NaN can spread through the weights. ``albedo``: the albedo the colour was divided by
+    (:func:`demodulate`; the result is multiplied by it again), None where it was not."""
 
-    def __init__(self, color: mi.TensorXf, normal: mi.TensorXf, position: mi.TensorXf):
+    def __init__(self, color: mi.TensorXf, normal: mi.TensorXf, position: mi.TensorXf,
+                 albedo: mi.TensorXf | None = None):
         self.height, self.width = color.shape[0], color.shape[1]
+        self.albedo = albedo
         c = dr.unravel(mi.Vector3f, color.array)
         self.color = dr.select(dr.isfinite(c), c, 0.0)
         self.normal = _safe_normalize(dr.unravel(mi.Vector3f, normal.array))
@@ -419,14 +422,18 @@ def remove_outliers(color: mi.TensorXf, p: OutlierParams = OutlierParams()) -> m
 ALBEDO_EPSILON = 1e-3
 
 
-def demodulate(color: mi.TensorXf, albedo: mi.TensorXf) -> mi.TensorXf:
-    """``colour / albedo`` per channel, 1 in place of an albedo below
-    :data:`ALBEDO_EPSILON` (background, black surfaces)."""
+def albedo_factor(albedo: mi.TensorXf) -> mi.Float:
+    """What :func:`demodulate` divides by and :func:`remodulate` multiplies by, value by
+    value: the albedo, 1 in place of one below :data:`ALBEDO_EPSILON` (background, black surfaces)."""
     a = albedo.array
-    return mi.TensorXf(color.array / dr.select(a > ALBEDO_EPSILON, a, 1.0), shape=color.shape)
+    return dr.select(a > ALBEDO_EPSILON, a, 1.0)
+
+
+def demodulate(color: mi.TensorXf, albedo: mi.TensorXf) -> mi.TensorXf:
+    """``colour / albedo`` per channel (:func:`albedo_factor`)."""
+    return mi.TensorXf(color.array / albedo_factor(albedo), shape=color.shape)
 
 
 def remodulate(color: mi.TensorXf, albedo: mi.TensorXf) -> mi.TensorXf:
     """The inverse of :func:`demodulate`."""
-    a = albedo.array
-    return mi.TensorXf(color.array * dr.select(a > ALBEDO_EPSILON, a, 1.0), shape=color.shape)
+    return mi.TensorXf(color.array * albedo_factor(albedo), shape=color.shape)

@@ -126,6 +126,27 @@ def test_its_images_are_asvgfs(exported, variant_llvm_ad_rgb):
         assert all(np.isfinite(np.array(v)).all() for v in inputs.values())
 
 
+@pytest.mark.parametrize("name", ["learned-mixture", "no-temporal-inputs"])
+def test_the_method_runs_the_network_the_training_trains(name, exported, variant_llvm_ad_rgb):
+    """Frame after frame of an exported sequence with albedo, the method (as the
+    denoiser and the benchmark run it) gives what the trainer's forward pass gives
+    on the inputs it stores for that folder, within 1e-4: what is trained is what
+    runs, demodulation included (the kernel filters the blend times the albedo)."""
+    from denoise.methods import from_name
+    from denoise.mixture_training import compute_inputs, forward, selected
+    from export.frames import frame_indices, read_frame
+
+    method = from_name("learned-mixture", network=str(WEIGHTS[name]))
+    data = selected(compute_inputs(exported), method.network.features)
+    frames = [read_frame(exported, i) for i in frame_indices(exported)]
+    albedo = np.stack([f.albedo for f in frames])
+    assert np.ptp(albedo) > 0.1  # edges between surfaces of different albedo: where the spaces differ
+    for f, frame in enumerate(frames):
+        got = method.step(frame)
+        expected = forward(method.network, data["x"][f].astype(np.float64), data["images"][f].astype(np.float64))[0]
+        assert np.max(np.abs(got - expected) / (1.0 + np.abs(expected))) < 1e-4, f
+
+
 def test_the_trainers_gradient_is_the_losss():
     """The NumPy chain rule of the training against central differences of its own forward pass."""
     from denoise.methods.learned_mixture import FEATURES, network_of

@@ -350,7 +350,7 @@ class DenoisingMethod:
             index, valid = reproject(position, ids, self.previous_ids, frame.object_to_world,
                                      self.previous.object_to_world, self.previous.world_to_screen)
         try:
-            result = self.filter(FrameArrays(color, tensor(frame.normal), position), frame, index, valid)
+            result = self.filter(FrameArrays(color, tensor(frame.normal), position, albedo), frame, index, valid)
         except ToolkitError:
             raise
         except BaseException as error:  # the method's own code failed: where, and what (Ctrl-C stays one)

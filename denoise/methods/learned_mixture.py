@@ -13,6 +13,9 @@ three edge stops and the temporal history alone. The same network then
 predicts a 3×3 kernel for each pixel (:data:`KERNEL_TAPS` weights, a
 softmax) that filters the blend once more: it can average what noise the
 blend leaves (where every image is noisy, as where the history is short).
+The kernel filters the blend as the image is shown, times the albedo where
+the frames are demodulated: the training filters it so, and filtering the
+demodulated blend instead trains to a worse network (docs/learned_mixture.md).
 
 The network: two 3×3 convolutions of ``channels`` ReLU units (edges
 repeat the border pixel) and 1×1 layers of one logit per image and per
@@ -36,7 +39,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ..filters import FrameArrays, luminance
+from ..filters import FrameArrays, albedo_factor, luminance
 from ..neighbours import ShiftedPlanes, margin_for, usable
 from ..svgf_common import atrous_level, levels_for
 from .asvgf import ASVGFHistory, ASVGFParams, FilterValues, temporal_accumulation, variance, wide_blend
@@ -271,16 +274,24 @@ def weighted_mean(weights: list, values: list):
     return blend / total
 
 
-def mixture(network: MixtureNetwork, inputs: dict, images: list, width: int, height: int) -> mi.Vector3f:
-    """The network's softmax blend of ``images`` per pixel, filtered by its predicted 3×3 kernel."""
+def mixture(network: MixtureNetwork, inputs: dict, images: list, width: int, height: int,
+            albedo: mi.Vector3f | None = None) -> mi.Vector3f:
+    """The network's softmax blend of ``images`` per pixel, filtered by its predicted 3×3
+    kernel. ``albedo``: where the images are demodulated, the factor the output is multiplied
+    by afterwards; the kernel then filters the blend times it (the image as it is shown,
+    and as the training filters it) and the result is divided by it again."""
     taps = Taps(width, height)
     h1 = convolution([inputs[name] for name in network.features], network.w1.tolist(), network.b1.tolist(), taps)
     h2 = convolution(h1, network.w2.tolist(), network.b2.tolist(), taps)
     blend = weighted_mean(softmax(network.w3, network.b3, h2), images)
+    if albedo is not None:
+        blend = blend * albedo
     dr.eval(blend)
     reads = taps.reads([blend.x, blend.y, blend.z])
     kernel = softmax(network.w4, network.b4, h2)  # in the kernel that reads the taps: 9 arrays fewer written
     result = mi.Vector3f(*(weighted_mean(kernel, channel) for channel in reads))
+    if albedo is not None:
+        result = result / albedo
     dr.eval(result)
     taps.planes = None
     return result
@@ -291,7 +302,8 @@ def learned_mixture(frame: FrameArrays, p: ASVGFParams, network: MixtureNetwork,
                     ) -> tuple[mi.TensorXf, ASVGFHistory]:
     """One frame (see the module). Returns (the filtered colour, the history for the next frame)."""
     images, inputs, history = candidate_images(frame, p, history, index, valid)
-    return frame.tensor(mixture(network, inputs, images, frame.width, frame.height)), history
+    albedo = None if frame.albedo is None else dr.unravel(mi.Vector3f, albedo_factor(frame.albedo))
+    return frame.tensor(mixture(network, inputs, images, frame.width, frame.height, albedo)), history
 
 
 class LearnedMixture(TrainedMethod):
