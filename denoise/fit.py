@@ -112,7 +112,7 @@ def prepare(folder: Path, scale_from: int | None = None, scale: float = SWITCH_S
         if previous is not None:
             index, valid = reproject(position, ids, previous_ids, frame.object_to_world, previous.object_to_world,
                                      previous.world_to_screen)
-        prepared.append(PreparedFrame(FrameArrays(color, tensor(frame.normal), position), index, valid, albedo,
+        prepared.append(PreparedFrame(FrameArrays(color, tensor(frame.normal), position, albedo), index, valid, albedo,
                                       tensor(truth * factor)))
         previous, previous_ids = frame, ids
     return prepared

@@ -160,9 +160,9 @@ def augmented(frames: list[Frame], crop: tuple[int, int] | None, x0: int, y0: in
             mapped = where[np.maximum(previous, 0)]
             ok = (previous >= 0) & (mapped >= 0)
             index, valid = upload(np.where(ok, mapped, 0).astype(np.uint32), mi.UInt32), upload(ok, mi.Bool)
-        out.append(Prepared(FrameArrays(tensor(f.color * exposure), tensor(f.normal), tensor(f.position)), index,
-                            valid, None if f.albedo is None else tensor(f.albedo), tensor(f.target * exposure),
-                            levels_for(width)))
+        albedo = None if f.albedo is None else tensor(f.albedo)
+        out.append(Prepared(FrameArrays(tensor(f.color * exposure), tensor(f.normal), tensor(f.position), albedo),
+                            index, valid, albedo, tensor(f.target * exposure), levels_for(width)))
     return out
 
 
