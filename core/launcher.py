@@ -27,7 +27,7 @@ import signal
 import sys
 from pathlib import Path
 
-from core.start_up import STOP_SIGNALS, exit_on_signals
+from core.start_up import INTERRUPTED, STOP_SIGNALS, exit_on_signals
 
 ROOT = Path(__file__).resolve().parent.parent
 VENV = ROOT / ".venv"
@@ -44,13 +44,14 @@ def in_project_venv() -> bool:
     return Path(sys.prefix).resolve() == VENV.resolve()
 
 
-def use_project_python(prog: str, module: str | None = None) -> None:
+def use_project_python(prog: str, module: str | None = None, stopped: str = INTERRUPTED) -> None:
     """Re-executes this command under ``./.venv/bin/python`` where needed.
 
     ``module`` is the ``-m`` name (``"converters"``); ``None`` re-runs the
     script ``sys.argv[0]``. Arguments, working folder and environment stay.
+    ``stopped``: what a stop signal during the start-up prints after ``PROG: ``.
     """
-    exit_on_signals(prog)
+    exit_on_signals(prog, stopped)
     missing = missing_packages()
     if not missing:
         return
@@ -68,11 +69,11 @@ def use_project_python(prog: str, module: str | None = None) -> None:
     raise SystemExit(2)
 
 
-def start(prog: str, module: str | None = None, quiet: bool = True) -> None:
+def start(prog: str, module: str | None = None, quiet: bool = True, stopped: str = INTERRUPTED) -> None:
     """The first call of every entry point: :func:`use_project_python`, then the
     libLLVM choice, then Dr.Jit's and Mitsuba's start-up (their own notices kept
     off stderr when ``quiet``, inside ``hold_signals``: see there)."""
-    use_project_python(prog, module)  # the stop signals' handlers first, then the rest imports
+    use_project_python(prog, module, stopped)  # the stop signals' handlers first, then the rest imports
     from core.entry import hold_signals, native_start_up  # noqa: PLC0415  after exit_on_signals (see above)
     from core.libllvm import prepare_libllvm  # noqa: PLC0415  after exit_on_signals (see above)
 

@@ -13,16 +13,18 @@ import signal
 
 #: What an interrupted command prints (after ``PROG: ``)
 INTERRUPTED = "interrupted; finished files are complete, unfinished ones were not written"
+#: What a command that writes no files (the live page) prints instead
+NOTHING_WRITTEN = "stopped (it writes no files)"
 #: SIGHUP too: a closed terminal or SSH session would otherwise kill the
 #: process at once, leaving an unfinished write's temporary file behind
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 
 
-def exit_on_signals(prog: str) -> None:
-    """The stop signals print the interrupted line and exit (128 + signal) at
-    once: for a script's start-up, before ``core.entry.run`` installs its
-    handlers (a KeyboardInterrupt there would be a traceback from inside some import)."""
-    line = f"{prog}: {INTERRUPTED}\n".encode()
+def exit_on_signals(prog: str, stopped: str = INTERRUPTED) -> None:
+    """The stop signals print ``PROG: stopped`` (the interrupted line) and exit
+    (128 + signal) at once: for a script's start-up, before ``core.entry.run``
+    installs its handlers (a KeyboardInterrupt there would be a traceback from inside some import)."""
+    line = f"{prog}: {stopped}\n".encode()
 
     def stop(signum, frame):
         os.write(2, line)

@@ -158,7 +158,7 @@ def test_the_live_server_logs_nothing_but_its_stop_line(tmp_path):
                 process.kill()
                 process.wait()
     assert log.read_text().splitlines() == [
-        "python -m denoise.live: stopped (the live page writes no files)"]
+        "python -m denoise.live: stopped (it writes no files)"]
 
 
 def test_mitsubas_warnings_go_to_stderr_not_stdout(tmp_path):

@@ -9,7 +9,8 @@ from __future__ import annotations
 
 if __name__ == "__main__":  # first: ./.venv's Python, the libLLVM, then Dr.Jit (see core.launcher)
     from core.launcher import start
-    start("python -m denoise.live", "denoise.live")
+    from core.start_up import NOTHING_WRITTEN
+    start("python -m denoise.live", "denoise.live", stopped=NOTHING_WRITTEN)
 
 
 from core.entry import finish

@@ -13,6 +13,7 @@ import mi_plugins
 from core.entry import ArgumentParser, run
 from core.errors import UsageError
 from core.numbers import ascii_int
+from core.start_up import NOTHING_WRITTEN
 from course import check_data_flag, data_dir, resolve_scene
 from denoise.methods.user import add_method_file_option, load_method_files
 from renderer.variants import set_variant
@@ -26,8 +27,6 @@ DESCRIPTION = ("watch a scene rendered at 1 spp and denoised, live, in a browser
                "Alt+drag to move the first point light")
 DEFAULT_SIZE = (320, 180)
 MAX_SIDE = 4096
-#: what a signal's stop prints after ``python -m denoise.live: `` (the page writes no files)
-STOPPED = "stopped (the live page writes no files)"
 #: seconds a thread runs before Python hands the GIL to another that waits (Python's default: 0.005)
 SWITCH_INTERVAL_S = 0.0002
 #: a viewer that stops the loop sees the error; the join is bounded so Ctrl-C stays quick
@@ -112,7 +111,7 @@ def _main(argv: list[str] | None) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    code = run("python -m denoise.live", lambda: _main(argv), interrupted=STOPPED)
+    code = run("python -m denoise.live", lambda: _main(argv), interrupted=NOTHING_WRITTEN)
     if code > 128:  # stopped by a signal: the server writes no files, so a frame in flight and
         sys.stdout.flush()  # Dr.Jit's teardown would only delay the exit
         sys.stderr.flush()
