@@ -18,7 +18,9 @@ the last step's checkpoint kept, and a rerun with the same settings resumes
 from it (``--restart`` starts over). After the last step the weights file
 (``--out``, default the method's ``denoise/learned_asvgf.json`` or
 ``denoise/learned_mixture.json``) gets the weights and a
-record of the run, and ``--plot`` the loss curves. A loss that is not
+record of the run, and ``--plot`` the loss curves. A run of other settings or
+sequences than the record of the committed file it would replace says so in
+one note before any work. A loss that is not
 finite stops the run with one line (exit 2), the weights file untouched.
 One training at a time in a ``--work`` and into an ``--out``: a second is refused in one line.
 The steps run in a worker process: one step is native code that no signal
@@ -182,6 +184,11 @@ def _main(argv: list[str] | None) -> int:
                         args.method, str(args.out.resolve()),
                         tuple((path.stem, hashlib.sha256(json.dumps(spec.as_json(), sort_keys=True).encode())
                                .hexdigest()[:16]) for path, spec in loaded))
+    difference = committed_difference(args, settings, [p for p, _ in loaded if p not in generated], procedural)
+    if difference and not args.quiet:
+        print(f"python -m denoise.train: note: --out {printable(args.out)} is a committed weights file and this "
+              f"run is not the one that made it ({difference}); it will replace it (git checkout restores it; "
+              f"--out NAME.json keeps it)", file=sys.stderr)
     checkpoint = args.work / f"{args.out.stem}.checkpoint.npz"
     if args.restart:  # the checkpoint is overwritten at the first step, not before: a refused run leaves it
         check_checkpoint_place(checkpoint)
@@ -216,6 +223,31 @@ def _main(argv: list[str] | None) -> int:
         print(f"final loss {curve[-1][1]:.6f} ({held}); weights written to {printable(args.out)}, "
               f"curves to {printable(plot)}")  # the result, on stdout as every command's; steps are progress
     return 0
+
+
+def committed_difference(args: argparse.Namespace, settings: Settings, specs: list[Path], procedural: int) -> str:
+    """Where ``args.out`` is one of the committed weights files, the first way this run
+    differs from the run its record describes ("" where it does not, or the file is another)."""
+    trained = TRAINED[settings.method]
+    if args.out.resolve() not in {p.resolve() for p in (trained.weights, *trained.ablations.values())}:
+        return ""
+    try:
+        data = json.loads(args.out.read_text())
+        record = data["record"]
+        made = {"steps": record["steps"], "seed": record["seed"], "rate": record["rate"],
+                "procedural sequences": record["procedural"]["count"], "hidden": len(data["b1"]),
+                "inputs": len(data["features"]), "sequences": sorted(record["training"] + record["held_out"])}
+    except Exception:  # noqa: BLE001  a damaged or foreign file: nothing it was made by to compare with
+        return ""
+    planned = {"steps": args.steps, "seed": args.seed, "rate": args.rate, "procedural sequences": procedural,
+               "hidden": settings.hidden, "inputs": len(settings.features),
+               "sequences": sorted(display_path(p) for p in specs)}
+    for key, value in planned.items():
+        if value != made[key]:
+            shown = (f"{len(value)} spec files, not its {len(made[key])}" if key == "sequences"
+                     else f"{value}, not its {made[key]}")
+            return f"{key} {shown}"
+    return ""
 
 
 def write_weights(args: argparse.Namespace, settings: Settings, specs: list[Path], procedural: int,

@@ -391,3 +391,31 @@ def test_a_second_training_into_a_busy_out_is_refused(setup, capfd, tmp_path):
         assert name_lock_file(out).is_file()
     assert out.read_text() == "before\n" and not other.exists()
     assert not name_lock_file(out).exists()  # the lock file goes with the lock: none is left in /tmp per --out
+
+
+@pytest.mark.parametrize("method, weights", [("learned-mixture", "learned_mixture.json"),
+                                             ("learned-asvgf", "learned_asvgf.json")])
+@pytest.mark.parametrize("change, expected", [({}, ""), ({"steps": 1}, "steps 1, not its"),
+                                               ({"seed": 3}, "seed 3, not its"),
+                                               ({"specs": 1}, "spec files, not its")])
+def test_a_run_that_would_replace_a_committed_network_by_another_is_noted(method, weights, change, expected):
+    """The default command (the README's) remakes the committed weights file without a
+    word; a run of other settings, steps or sequences that would replace it is named
+    before any work, where it is easy to give another --out."""
+    import argparse
+
+    from denoise.train import PROCEDURAL, committed_difference
+    from denoise.trainers import TRAINED
+    from denoise.training import TRAINING
+    from denoise.training_state import Settings, feature_set
+
+    trained = TRAINED[method]
+    out = Path(__file__).resolve().parents[1] / "denoise" / weights
+    args = argparse.Namespace(out=out, steps=change.get("steps", trained.steps), seed=change.get("seed", 0),
+                              rate=trained.rate)
+    settings = Settings(feature_set(True, method), trained.hidden, args.seed, args.rate, args.steps, method)
+    specs = list(TRAINING)[:change.get("specs", len(TRAINING))]
+    difference = committed_difference(args, settings, specs, PROCEDURAL)
+    assert (expected in difference) and bool(difference) == bool(expected), difference
+    assert committed_difference(argparse.Namespace(**{**vars(args), "out": Path("elsewhere.json")}), settings,
+                                specs, PROCEDURAL) == ""
