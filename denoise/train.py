@@ -184,7 +184,8 @@ def _main(argv: list[str] | None) -> int:
                         args.method, str(args.out.resolve()),
                         tuple((path.stem, hashlib.sha256(json.dumps(spec.as_json(), sort_keys=True).encode())
                                .hexdigest()[:16]) for path, spec in loaded))
-    difference = committed_difference(args, settings, [p for p, _ in loaded if p not in generated], procedural)
+    difference = trained.committed_difference(args.out, settings, [display_path(p) for p, _ in loaded
+                                                                     if p not in generated], procedural)
     if difference and not args.quiet:
         print(f"python -m denoise.train: note: --out {printable(args.out)} is a committed weights file and this "
               f"run is not the one that made it ({difference}); it will replace it (git checkout restores it; "
@@ -223,31 +224,6 @@ def _main(argv: list[str] | None) -> int:
         print(f"final loss {curve[-1][1]:.6f} ({held}); weights written to {printable(args.out)}, "
               f"curves to {printable(plot)}")  # the result, on stdout as every command's; steps are progress
     return 0
-
-
-def committed_difference(args: argparse.Namespace, settings: Settings, specs: list[Path], procedural: int) -> str:
-    """Where ``args.out`` is one of the committed weights files, the first way this run
-    differs from the run its record describes ("" where it does not, or the file is another)."""
-    trained = TRAINED[settings.method]
-    if args.out.resolve() not in {p.resolve() for p in (trained.weights, *trained.ablations.values())}:
-        return ""
-    try:
-        data = json.loads(args.out.read_text())
-        record = data["record"]
-        made = {"steps": record["steps"], "seed": record["seed"], "rate": record["rate"],
-                "procedural sequences": record["procedural"]["count"], "hidden": len(data["b1"]),
-                "inputs": len(data["features"]), "sequences": sorted(record["training"] + record["held_out"])}
-    except Exception:  # noqa: BLE001  a damaged or foreign file: nothing it was made by to compare with
-        return ""
-    planned = {"steps": args.steps, "seed": args.seed, "rate": args.rate, "procedural sequences": procedural,
-               "hidden": settings.hidden, "inputs": len(settings.features),
-               "sequences": sorted(display_path(p) for p in specs)}
-    for key, value in planned.items():
-        if value != made[key]:
-            shown = (f"{len(value)} spec files, not its {len(made[key])}" if key == "sequences"
-                     else f"{value}, not its {made[key]}")
-            return f"{key} {shown}"
-    return ""
 
 
 def write_weights(args: argparse.Namespace, settings: Settings, specs: list[Path], procedural: int,

@@ -402,20 +402,16 @@ def test_a_run_that_would_replace_a_committed_network_by_another_is_noted(method
     """The default command (the README's) remakes the committed weights file without a
     word; a run of other settings, steps or sequences that would replace it is named
     before any work, where it is easy to give another --out."""
-    import argparse
-
-    from denoise.train import PROCEDURAL, committed_difference
+    from denoise.train import PROCEDURAL, display_path
     from denoise.trainers import TRAINED
     from denoise.training import TRAINING
     from denoise.training_state import Settings, feature_set
 
     trained = TRAINED[method]
     out = Path(__file__).resolve().parents[1] / "denoise" / weights
-    args = argparse.Namespace(out=out, steps=change.get("steps", trained.steps), seed=change.get("seed", 0),
-                              rate=trained.rate)
-    settings = Settings(feature_set(True, method), trained.hidden, args.seed, args.rate, args.steps, method)
-    specs = list(TRAINING)[:change.get("specs", len(TRAINING))]
-    difference = committed_difference(args, settings, specs, PROCEDURAL)
+    settings = Settings(feature_set(True, method), trained.hidden, change.get("seed", 0), trained.rate,
+                        change.get("steps", trained.steps), method)
+    specs = [display_path(p) for p in list(TRAINING)[:change.get("specs", len(TRAINING))]]
+    difference = trained.committed_difference(out, settings, specs, PROCEDURAL)
     assert (expected in difference) and bool(difference) == bool(expected), difference
-    assert committed_difference(argparse.Namespace(**{**vars(args), "out": Path("elsewhere.json")}), settings,
-                                specs, PROCEDURAL) == ""
+    assert trained.committed_difference(Path("elsewhere.json"), settings, specs, PROCEDURAL) == ""
