@@ -149,7 +149,7 @@ def test_the_method_runs_the_network_the_training_trains(name, exported, variant
 
 def test_the_trainers_gradient_is_the_losss():
     """The NumPy chain rule of the training against central differences of its own forward pass."""
-    from denoise.methods.learned_mixture import FEATURES, network_of
+    from denoise.methods.learned_mixture import FEATURES, KERNEL_TAPS, network_of
     from denoise.mixture_training import backward, forward, initial
 
     x, images = random_inputs(len(FEATURES), 9, 11, seed=3)
@@ -163,7 +163,7 @@ def test_the_trainers_gradient_is_the_losss():
     value, out, kept = loss(theta)
     net = network_of(theta, FEATURES, 3)
     gradient = backward(net, 2.0 * (out - target), kept)
-    kernel = 9 * 3 + 9  # the kernel layer's weights, the last in the vector: every one checked
+    kernel = KERNEL_TAPS * 3 + KERNEL_TAPS  # the kernel layer (3 channels), the last in the vector: every one checked
     rng = np.random.default_rng(4)
     for k in [*rng.choice(theta.size - kernel, 25, replace=False), *range(theta.size - kernel, theta.size)]:
         step = np.zeros_like(theta)
