@@ -15,6 +15,7 @@ import mitsuba as mi
 import numpy as np
 
 from core.errors import UsageError
+from imaging.metrics import RELMSE_EPSILON
 
 from .edge_weights import EdgeWeights, edge_coefficients, edge_log_weight, inv_two_sigma_sq
 from .fastmath import neg_exp
@@ -437,3 +438,8 @@ def demodulate(color: mi.TensorXf, albedo: mi.TensorXf) -> mi.TensorXf:
 def remodulate(color: mi.TensorXf, albedo: mi.TensorXf) -> mi.TensorXf:
     """The inverse of :func:`demodulate`."""
     return mi.TensorXf(color.array * albedo_factor(albedo), shape=color.shape)
+
+
+def relmse_loss(image: mi.TensorXf, reference: mi.TensorXf, epsilon: float = RELMSE_EPSILON) -> mi.Float:
+    """:func:`imaging.metrics.relmse` as a differentiable Dr.Jit Float: the loss of asvgf's fit and of the training."""
+    return dr.mean(dr.square(image.array - reference.array) / (dr.square(reference.array) + epsilon))

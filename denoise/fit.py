@@ -60,7 +60,7 @@ from imaging.image_io import atomic_path, check_writable, read_exr_rgb
 from imaging.metrics import relmse
 from renderer.variants import set_variant
 
-from .filters import FrameArrays, demodulate, remodulate, reproject
+from .filters import FrameArrays, demodulate, relmse_loss, remodulate, reproject
 from .methods import data_files, from_name, make
 from .methods.asvgf import FITTED_OPTIONS, PARAMETER_FILE, FilterValues, asvgf, fitted, hand_set
 from .pipeline import check_sequences_fit
@@ -116,11 +116,6 @@ def prepare(folder: Path, scale_from: int | None = None, scale: float = SWITCH_S
                                       tensor(truth * factor)))
         previous, previous_ids = frame, ids
     return prepared
-
-
-def relmse_loss(image, reference, epsilon: float = 1e-2):
-    """imaging.metrics.relmse's ``mean((x - ref)² / (ref² + ε))`` as a differentiable Dr.Jit Float."""
-    return dr.mean(dr.square(image.array - reference.array) / (dr.square(reference.array) + epsilon))
 
 
 def run_sequence(frames: list[PreparedFrame], params, values=None) -> list:

@@ -39,7 +39,7 @@ from export import reference_folder
 from export.frames import frame_indices, read_frame, same_size
 from imaging.image_io import read_exr_rgb
 
-from .filters import FrameArrays, demodulate, remodulate, reproject
+from .filters import FrameArrays, demodulate, relmse_loss, remodulate, reproject
 from .methods import make
 from .methods.asvgf import fitted
 from .methods.learned_asvgf import OUTPUTS, Network, learned_asvgf
@@ -175,11 +175,6 @@ def upload(array: np.ndarray, kind=None):
         array = np.ascontiguousarray(array, np.float32)
         return mi.TensorXf(dr.copy(mi.Float(array.ravel())), array.shape)
     return dr.copy(kind(np.ascontiguousarray(array)))
-
-
-def relmse_loss(image, reference, epsilon: float = 1e-2):
-    """imaging.metrics.relmse's ``mean((x - ref)² / (ref² + ε))`` as a differentiable Dr.Jit Float."""
-    return dr.mean(dr.square(image.array - reference.array) / (dr.square(reference.array) + epsilon))
 
 
 class Recorder:

@@ -37,7 +37,7 @@ HOMES = {"relmse": "imaging/metrics.py", "flip_error": "imaging/metrics.py",
          "pixel_coordinates": "denoise/filters.py", "check_json": "benchmarks/records.py",
          "replace_section": "core/markdown.py", "temporal_relmse": "denoise/temporal_metrics.py",
          "back_projected": "denoise/temporal_metrics.py", "stability": "denoise/temporal_metrics.py",
-         "flip_heat_map": "imaging/metrics.py"}
+         "flip_heat_map": "imaging/metrics.py", "relmse_loss": "denoise/filters.py"}
 #: the floors, lowest first: a package imports only those below it (tests and notebooks sit on top)
 FLOORS = ("core", "imaging", "mi_plugins", "converters", "course", "renderer", "export", "denoise",
           "validation", "benchmarks", "notebooks", "tests")
