@@ -17,6 +17,9 @@ from validation.stress.scene import scene
 ROOT = Path(__file__).resolve().parent.parent
 LIBLLVM19 = "/usr/lib/x86_64-linux-gnu/libLLVM-19.so"
 
+#: folders whose scripts are not the project's commands (docs/experiments: scripts for a Python with PyTorch)
+NOT_COMMANDS = (".venv", "tests", "docs")
+
 
 def run(*args: str, cwd: Path, env: dict | None = None, timeout: float = 120) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, str(ROOT / "render.py"), *args], cwd=cwd, capture_output=True,
@@ -367,7 +370,7 @@ def test_every_entry_point_ends_through_finish():
     missing = []
     for path in sorted(ROOT.rglob("*.py")):
         relative = path.relative_to(ROOT)
-        if relative.parts[0] in (".venv", "tests") or guard not in (text := path.read_text()):
+        if relative.parts[0] in NOT_COMMANDS or guard not in (text := path.read_text()):
             continue
         last = text.rsplit(guard, 1)[1]
         if "finish(" not in last:

@@ -26,6 +26,9 @@ REAL_LIBLLVM = next((p for p in ("/usr/lib/x86_64-linux-gnu/libLLVM-19.so", "/us
                      if os.path.exists(p)), None)
 PAGES = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
 
+#: folders whose scripts are not the project's commands (docs/experiments: scripts for a Python with PyTorch)
+NOT_COMMANDS = (".venv", "tests", "docs")
+
 
 def documented_commands() -> list[str]:
     """``python -m X`` and ``python X.py`` as README.md and docs/*.md write them, for X in this checkout."""
@@ -44,7 +47,7 @@ def guarded_modules() -> list[str]:
     names = []
     for path in sorted(ROOT.rglob("*.py")):
         relative = path.relative_to(ROOT)
-        if relative.parts[0] in (".venv", "tests") or 'if __name__ == "__main__"' not in path.read_text():
+        if relative.parts[0] in NOT_COMMANDS or 'if __name__ == "__main__"' not in path.read_text():
             continue
         if relative.parent == Path("."):
             names.append(str(relative))
