@@ -58,9 +58,8 @@ class Interrupted(BaseException):
         self.signum = signum
 
 
-#: seconds a command has, after a stop signal reached its handler, to end before the watchdog ends it;
-#: with :data:`TEARDOWN_S` it leaves 0.6 s of the 2 s to a loaded machine (the watchdog's thread waking,
-#: the OS freeing a large process's memory; docs/reliability.md)
+#: seconds a command has, after a stop signal reached its handler, to end before the watchdog ends it; with
+#: :data:`TEARDOWN_S` it leaves 0.6 s of the 2 s to a loaded machine's delays (docs/reliability.md)
 GRACE_S = 1.0
 #: seconds the teardown has after a stopped command (its files complete): 2 s from the signal at most, in all
 TEARDOWN_S = 0.4
