@@ -19,7 +19,7 @@ from the 1-spp colour, measured").
     # with a Python that has torch and numpy (python3 -m venv /tmp/torchenv; pip install torch numpy)
     python coarse_scale_network.py train TAG --work WORK --gbuffers OUT/gbuffers [--encoder] [--pyramid] ...
     python coarse_scale_network.py train TAG --work WORK --gbuffers OUT/gbuffers --reconstruct 16 32 48 64 \
-        --coarse 1 --start denoise/learned_mixture.json --rate 0.001
+        --coarse 1 --leaky --bound 1 --robust --start denoise/learned_mixture.json --rate 0.001
     python coarse_scale_network.py train control --work WORK --start denoise/learned_mixture.json --rate 0.001
     python coarse_scale_network.py judge TAG... denoise/learned_mixture.json --bench OUT/bench-inputs \
         --bench-json BENCH.json [--gbuffers OUT/gbuffers --bench-gbuffers OUT/bench-gbuffers]
@@ -168,8 +168,9 @@ def torch_modes(argv: list[str]) -> None:
         finer level's low frequencies by a predicted amount (``pyramid``)."""
 
         def __init__(self, inputs, images, channels=8, encoder=False, pyramid=False, width=16, reconstruct=(),
-                     coarse=False, leaky=False):
+                     coarse=False, leaky=False, bound=3.0):
             super().__init__()
+            self.bound = bound  # the correction's factor stays within exp(±bound)
             self.act = (lambda t: F.leaky_relu(t, 0.1)) if leaky else F.relu  # the U-Net's activation
             self.coarse = int(coarse)  # the reconstruction this many scales down: its correction upsampled
             self.encoder, self.pyramid, self.images, self.reconstruct = encoder, pyramid, images, tuple(reconstruct)
@@ -206,7 +207,7 @@ def torch_modes(argv: list[str]) -> None:
                 correction = self.rout(u0)
                 if self.coarse:
                     correction = up(correction, size)
-                return g0 * torch.exp(3 * torch.tanh(correction / 3))
+                return g0 * torch.exp(self.bound * torch.tanh(correction / self.bound))
             return self.mixture(x, images)
 
         def macs(self):
@@ -294,6 +295,9 @@ def torch_modes(argv: list[str]) -> None:
                         help="a U-Net of these channels at full, ½, ¼, ⅛ size, on the 1-spp colour, the guides and the "
                              "mixture's output, correcting that output per pixel and channel (reads --gbuffers)")
     parser.add_argument("--leaky", action="store_true", help="the reconstruction's activation: leaky ReLU (0.1)")
+    parser.add_argument("--bound", type=float, default=3.0, help="the correction within exp(±BOUND)")
+    parser.add_argument("--robust", action="store_true",
+                        help="clip each step's gradient norm to 1 and keep the weights of the best held-out loss")
     parser.add_argument("--coarse", type=int, default=0, metavar="K",
                         help="the reconstruction K halvings down (1: at ½, ¼, ⅛, ¹⁄₁₆ size)")
     parser.add_argument("--steps", type=int, default=6000)
@@ -317,15 +321,18 @@ def torch_modes(argv: list[str]) -> None:
         held = [load(p, into_x, kept, guides) for p in paths if p.stem in HELD_OUT]
         torch.manual_seed(a.seed)
         net = Network(train[0]["x"].shape[1], len(kept), encoder=a.encoder, pyramid=a.pyramid, width=a.width,
-                      reconstruct=a.reconstruct, coarse=a.coarse, leaky=a.leaky)
+                      reconstruct=a.reconstruct, coarse=a.coarse, leaky=a.leaky, bound=a.bound)
         if a.start is not None:  # the mixture's layers from a learned-mixture weights file
             net.load_state_dict(committed(a.start)[0].state_dict(), strict=False)
         print(f"{a.tags[0]}: the reconstruction's {net.macs():.0f} multiply-adds a pixel", file=sys.stderr)
         adam, rng, start, losses = torch.optim.Adam(net.parameters(), lr=a.rate), np.random.default_rng(a.seed), \
             time.time(), []
+        best = (np.inf, None)
         for step in range(a.steps + 1):
             if step % 500 == 0 or step == a.steps:
                 loss = np.mean([o / b for o, b in (errors(net, d, LOSS_FROM) for d in held)])
+                if a.robust and loss < best[0]:
+                    best = (loss, {k: v.clone() for k, v in net.state_dict().items()})
                 print(f"{a.tags[0]} step {step}: held-out {loss:.4f}, training {np.mean(losses[-200:] or [np.nan]):.4f}"
                       f" ({time.time() - start:.0f} s)", file=sys.stderr, flush=True)
             if step == a.steps:
@@ -351,8 +358,13 @@ def torch_modes(argv: list[str]) -> None:
             loss = (per / ((base - target) ** 2 / (target ** 2 + EPSILON)).mean((1, 2, 3)).clamp(min=1e-12)).mean()
             adam.zero_grad()
             loss.backward()
+            if a.robust:
+                torch.nn.utils.clip_grad_norm_(net.parameters(), 1.0)
             adam.step()
             losses.append(loss.item())
+        if a.robust:
+            print(f"{a.tags[0]}: kept the best held-out loss, {best[0]:.4f}", file=sys.stderr)
+            net.load_state_dict(best[1])
         a.runs.mkdir(parents=True, exist_ok=True)
         torch.save({"state": net.state_dict(), "inputs": train[0]["x"].shape[1], "kept": kept,
                     "reconstruct": list(a.reconstruct),
@@ -375,7 +387,7 @@ def torch_modes(argv: list[str]) -> None:
             net = Network(saved["inputs"], len(saved["kept"]), encoder=s["encoder"] == "True",
                           pyramid=s["pyramid"] == "True", width=int(s["width"]), reconstruct=reconstruct,
                           coarse={"True": 1, "False": 0}.get(s.get("coarse", "0"), s.get("coarse", "0")),
-                          leaky=s.get("leaky") == "True")
+                          leaky=s.get("leaky") == "True", bound=float(s.get("bound", "3.0")))
             net.load_state_dict(saved["state"])
             run = {"gbuffers": a.bench_gbuffers if s["gbuffers"] != "None" and not reconstruct else None,
                    "kept": saved["kept"], "guides": a.bench_gbuffers if reconstruct else None,
