@@ -242,7 +242,7 @@ def torch_modes(argv: list[str]) -> None:
     def whole(net, x, images, guides=None):
         """The network on whole frames, padded to a multiple of 8 (the encoder's three halvings)."""
         h, w = x.shape[-2:]
-        multiple = 8 * 2 ** getattr(net, "coarse", 0)
+        multiple = 8 * 2 ** net.coarse
         ph, pw = (-h) % multiple, (-w) % multiple
         x = F.pad(x, (0, pw, 0, ph), mode="replicate")
         b, k = images.shape[:2]
@@ -386,7 +386,7 @@ def torch_modes(argv: list[str]) -> None:
             reconstruct = tuple(saved.get("reconstruct", ()))
             net = Network(saved["inputs"], len(saved["kept"]), encoder=s["encoder"] == "True",
                           pyramid=s["pyramid"] == "True", width=int(s["width"]), reconstruct=reconstruct,
-                          coarse={"True": 1, "False": 0}.get(s.get("coarse", "0"), s.get("coarse", "0")),
+                          coarse=int(s.get("coarse", "0")),
                           leaky=s.get("leaky") == "True", bound=float(s.get("bound", "3.0")))
             net.load_state_dict(saved["state"])
             run = {"gbuffers": a.bench_gbuffers if s["gbuffers"] != "None" and not reconstruct else None,
